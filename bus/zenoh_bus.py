@@ -1,0 +1,246 @@
+"""The Bus on a real Eclipse Zenoh session (eclipse-zenoh 1.10).
+
+Configuration follows what was measured on these machines (SPEC §2): clients and
+peers announce a 2 s lease so a silent drone's liveliness vanishes in ≈ 2 s;
+multicast scouting is off; peers do not gossip (so traffic goes through the router
+and its access rules); a router opens with no scouting delay. Telemetry goes out
+with congestion control DROP, everything else with BLOCK. Callbacks run on Zenoh
+threads: they only hand off into bounded inboxes or the loop and return.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from collections.abc import Sequence
+from typing import Any, Literal
+
+import zenoh
+
+from bus.delivery import Inbox
+from bus.port import (
+    BusError,
+    LivelinessHandler,
+    QueryHandler,
+    QueryRefused,
+    QueryTimeout,
+    Sample,
+    SampleHandler,
+    Unreachable,
+)
+
+log = logging.getLogger(__name__)
+Mode = Literal["client", "peer", "router"]
+DEFAULT_LEASE_MS = 2000
+
+
+def zenoh_config(
+    mode: Mode,
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    *,
+    lease_ms: int = DEFAULT_LEASE_MS,
+    extra: dict[str, Any] | None = None,
+) -> zenoh.Config:
+    conf = zenoh.Config()
+
+    def put(path: str, value: Any) -> None:
+        conf.insert_json5(path, json.dumps(value))
+
+    put("mode", mode)
+    put("scouting/multicast/enabled", False)
+    if connect:
+        put("connect/endpoints", list(connect))
+    if listen:
+        put("listen/endpoints", list(listen))
+    if mode == "router":
+        put("scouting/delay", 0)
+    else:
+        put("transport/link/tx/lease", lease_ms)
+    if mode == "peer":
+        put("scouting/gossip/enabled", False)
+    for path, value in (extra or {}).items():
+        put(path, value)
+    return conf
+
+
+class _Declared:
+    def __init__(self, undeclare: Any, inbox: Inbox[Any] | None = None) -> None:
+        self._undeclare = undeclare
+        self._inbox = inbox
+        self._closed = False
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self._inbox is not None:
+            self._inbox.close()
+        try:
+            self._undeclare()
+        except zenoh.ZError:  # session already closed
+            pass
+
+
+class ZenohBus:
+    """One Zenoh session; create with `await ZenohBus.open(...)`, always `close()`."""
+
+    def __init__(self, session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+        self._session = session
+        self._loop = loop
+        self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
+        self._decls: list[_Declared] = []
+        self._query_tasks: set[asyncio.Task[None]] = set()
+
+    @classmethod
+    async def open(
+        cls,
+        mode: Mode,
+        connect: Sequence[str] = (),
+        listen: Sequence[str] = (),
+        *,
+        wait: bool = False,
+        retry_s: float = 1.0,
+        lease_ms: int = DEFAULT_LEASE_MS,
+        extra: dict[str, Any] | None = None,
+    ) -> ZenohBus:
+        """Open a session. With `wait`, a client retries until a router answers
+        (logging each attempt) instead of failing; cancellation stops the wait."""
+        conf_args = (mode, connect, listen)
+        attempt = 0
+        while True:
+            attempt += 1
+            try:
+                session = await asyncio.to_thread(
+                    zenoh.open, zenoh_config(*conf_args, lease_ms=lease_ms, extra=extra)
+                )
+                return cls(session, asyncio.get_running_loop())
+            except zenoh.ZError as exc:
+                if not wait:
+                    raise BusError(f"cannot open Zenoh {mode} session ({', '.join(connect or listen)}): {exc}") from None
+                if attempt == 1 or attempt % 10 == 0:
+                    log.warning("waiting for the ground router at %s: %s", ", ".join(connect), exc)
+                await asyncio.sleep(retry_s)
+
+    def publish(self, key: str, payload: bytes, *, reliable: bool = True) -> None:
+        pub = self._publishers.get((key, reliable))
+        if pub is None:
+            pub = self._session.declare_publisher(
+                key,
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=(
+                    zenoh.CongestionControl.BLOCK if reliable else zenoh.CongestionControl.DROP
+                ),
+            )
+            self._publishers[(key, reliable)] = pub
+        pub.put(payload)
+
+    def subscribe(
+        self, keyexpr: str, handler: SampleHandler, *, latest_only: bool = False, maxsize: int = 1024
+    ) -> _Declared:
+        inbox: Inbox[Sample] = Inbox(
+            self._loop, handler, name=f"sub {keyexpr}", latest_only=latest_only, maxsize=maxsize
+        )
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
+            inbox.put(Sample(str(sample.key_expr), sample.payload.to_bytes(), kind))
+
+        sub = self._session.declare_subscriber(keyexpr, on_sample)
+        return self._keep(_Declared(sub.undeclare, inbox))
+
+    def serve(self, keyexpr: str, handler: QueryHandler) -> _Declared:
+        def on_query(query: zenoh.Query) -> None:
+            try:
+                self._loop.call_soon_threadsafe(self._start_answer, query, handler)
+            except RuntimeError:  # loop closed: let the querier time out
+                query.drop()
+
+        queryable = self._session.declare_queryable(keyexpr, on_query)
+        return self._keep(_Declared(queryable.undeclare))
+
+    def _start_answer(self, query: zenoh.Query, handler: QueryHandler) -> None:
+        task = self._loop.create_task(self._answer(query, handler), name=f"answer {query.key_expr}")
+        self._query_tasks.add(task)
+        task.add_done_callback(self._query_tasks.discard)
+
+    async def _answer(self, query: zenoh.Query, handler: QueryHandler) -> None:
+        try:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            reply = await handler(str(query.key_expr), payload)
+            query.reply(query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            log.exception("queryable %s failed", query.key_expr)
+            query.reply_err(str(exc).encode())
+        finally:
+            query.drop()  # finalises the query: the querier's get ends now
+
+    async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
+        done: asyncio.Future[list[zenoh.Reply]] = self._loop.create_future()
+        replies: list[zenoh.Reply] = []
+
+        def finish() -> None:
+            if not done.done():
+                done.set_result(replies)
+
+        def on_done() -> None:
+            try:
+                self._loop.call_soon_threadsafe(finish)
+            except RuntimeError:
+                pass
+
+        self._session.get(
+            selector,
+            zenoh.handlers.Callback(replies.append, on_done),
+            payload=payload,
+            timeout=timeout_s,
+        )
+        # Zenoh enforces the timeout itself; the margin only guards a lost `on_done`.
+        async with asyncio.timeout(timeout_s + 1.0):
+            result = await done
+        errors: list[str] = []
+        for reply in result:
+            if reply.ok is not None:
+                return reply.ok.payload.to_bytes()
+            errors.append(reply.err.payload.to_string())
+        if not errors:
+            raise Unreachable(f"no queryable answers {selector}")
+        if any(e == "Timeout" for e in errors):
+            raise QueryTimeout(f"no reply from {selector} within {timeout_s:g} s")
+        raise QueryRefused(f"{selector}: {'; '.join(errors)}")
+
+    def announce(self, key: str) -> _Declared:
+        token = self._session.liveliness().declare_token(key)
+        return self._keep(_Declared(token.undeclare))
+
+    def watch_liveliness(self, keyexpr: str, handler: LivelinessHandler) -> _Declared:
+        inbox: Inbox[tuple[str, bool]] = Inbox(
+            self._loop, lambda item: handler(*item), name=f"liveliness {keyexpr}", maxsize=4096
+        )
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            inbox.put((str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT))
+
+        sub = self._session.liveliness().declare_subscriber(keyexpr, on_sample, history=True)
+        return self._keep(_Declared(sub.undeclare, inbox))
+
+    def _keep(self, decl: _Declared) -> _Declared:
+        self._decls.append(decl)
+        return decl
+
+    async def close(self) -> None:
+        for task in list(self._query_tasks):
+            task.cancel()
+        for decl in reversed(self._decls):
+            decl.close()
+        self._decls.clear()
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except zenoh.ZError:
+                pass
+        self._publishers.clear()
+        self._session.close()

@@ -1,0 +1,65 @@
+"""Encoding and the typed decoder of each key family.
+
+Payloads are compact JSON so `z_sub` and `fleet sub` show them readably. Decoders
+are built once (msgspec validates while it parses); a bad payload becomes an
+InvalidMessage naming the field, never a bare msgspec exception.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgspec
+
+from schemas.commands import decode_command
+from schemas.errors import InvalidMessage
+from schemas.status import CommandStatus, Status, SystemStatus
+from schemas.telemetry import LinkQuality, SensorReading, Telemetry
+
+_encoder = msgspec.json.Encoder()
+encode = _encoder.encode
+
+
+class _StatusShape(msgspec.Struct):
+    command: str | None = None
+    component: str | None = None
+
+
+_decoders: dict[type, msgspec.json.Decoder] = {
+    t: msgspec.json.Decoder(t)
+    for t in (Telemetry, SensorReading, LinkQuality, CommandStatus, SystemStatus, _StatusShape)
+}
+
+
+def _decode(payload: bytes, kind: type) -> Any:
+    try:
+        return _decoders[kind].decode(payload)
+    except msgspec.ValidationError as exc:
+        raise InvalidMessage(f"{kind.__name__}: {exc}") from None
+    except msgspec.DecodeError as exc:
+        raise InvalidMessage(f"{kind.__name__}: malformed JSON: {exc}") from None
+
+
+def decode_telemetry(payload: bytes) -> Telemetry:
+    return _decode(payload, Telemetry)
+
+
+def decode_sensor(payload: bytes) -> SensorReading:
+    return _decode(payload, SensorReading)
+
+
+def decode_link(payload: bytes) -> LinkQuality:
+    return _decode(payload, LinkQuality)
+
+
+def decode_status(payload: bytes) -> Status:
+    """CommandStatus when the payload has `command`, SystemStatus when it has `component`."""
+    shape = _decode(payload, _StatusShape)
+    if shape.command is not None:
+        return _decode(payload, CommandStatus)
+    if shape.component is not None:
+        return _decode(payload, SystemStatus)
+    raise InvalidMessage("status has neither `command` nor `component`", field="$.command")
+
+
+__all__ = ["decode_command", "decode_link", "decode_sensor", "decode_status", "decode_telemetry", "encode"]

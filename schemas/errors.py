@@ -1,0 +1,28 @@
+"""The root of every error Fleet raises, and the branch for bad messages.
+
+Errors a user sees name what is at fault (a field, a drone, a file) so the message
+alone says what to fix. Third-party exceptions are translated into these at the
+boundary where they occur.
+"""
+
+from __future__ import annotations
+
+
+class FleetError(Exception):
+    """Root of all Fleet errors."""
+
+
+class InvalidMessage(FleetError):
+    """A payload that does not decode into the schema of its key family.
+
+    `field` is the JSON path of the offending field (``$.lat``) when known.
+    """
+
+    def __init__(self, reason: str, field: str | None = None) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.field = field
+
+
+class ConfigError(FleetError):
+    """A configuration file or flag that cannot be used; the message names the key."""

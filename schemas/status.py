@@ -1,0 +1,49 @@
+"""Status events an agent publishes on `drone/<id>/status` (thesis tables 4.5, 4.6).
+
+Two shapes share the key: CommandStatus (has `command`) follows one command through
+its life, SystemStatus (has `component`) reports events nobody asked for.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+
+from schemas.telemetry import Position
+
+CommandState = Literal["start", "stop", "cancel", "finish", "queued", "success", "failure"]
+SystemState = Literal[
+    "connect", "disconnect", "disarm", "return", "stop_offboard", "start_manual",
+    "stop_manual", "link_lost", "link_restored", "failsafe",
+]
+
+
+class Coords(msgspec.Struct, frozen=True, kw_only=True):
+    lat: float
+    lon: float
+    alt: float  # m AMSL
+
+
+class CommandStatus(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    drone_id: str
+    timestamp: int
+    command_id: str = ""
+    command: str
+    state: CommandState
+    reason: str | None = None  # failures (and cancels) say why
+    altitude: float | None = None  # takeoff / return starts: m above ground / home
+    coords: Coords | None = None  # goto / move starts: the target
+
+
+class SystemStatus(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    drone_id: str
+    timestamp: int
+    component: str = "system"
+    state: SystemState
+    reason: str | None = None
+
+
+Status = CommandStatus | SystemStatus
+
+__all__ = ["CommandState", "CommandStatus", "Coords", "Position", "Status", "SystemState", "SystemStatus"]

@@ -1,0 +1,98 @@
+"""Telemetry, sensor readings and link quality: what agents and sensors publish.
+
+Shapes follow SPEC §2 (thesis table 4.7 plus velocity and a sequence number). Every
+message carries `drone_id` and `timestamp` (ms since the Unix epoch). New fields must
+get defaults so older receivers keep decoding newer senders.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+
+FlightMode = Literal[
+    "unknown", "ready", "takeoff", "hold", "mission", "return_to_launch", "land",
+    "offboard", "follow_me", "manual", "altctl", "posctl", "acro", "stabilized", "rattitude",
+]
+FixType = Literal["no_gps", "no_fix", "fix_2d", "fix_3d", "fix_dgps", "rtk_float", "rtk_fixed"]
+HealthCheck = Literal[
+    "gyrometer", "accelerometer", "magnetometer", "level", "local_position",
+    "global_position", "home_position",
+]
+LandedState = Literal["unknown", "on_ground", "in_air", "taking_off", "landing"]
+
+# Modes in which a pilot with a radio is flying: the agent reports start/stop_manual
+# on entering/leaving them, and the ground refuses commands meanwhile.
+MANUAL_MODES: frozenset[str] = frozenset(
+    {"manual", "altctl", "posctl", "acro", "stabilized", "rattitude"}
+)
+
+
+class _Msg(msgspec.Struct, frozen=True, kw_only=True):
+    pass
+
+
+class Battery(_Msg):
+    remaining_percent: float  # 0..1, as MAVSDK reports it despite the name
+    voltage: float
+
+
+class GpsInfo(_Msg):
+    satellites: int
+    fix_type: FixType
+
+
+class Home(_Msg):
+    lat: float
+    lon: float
+    alt: float  # m AMSL
+
+
+class Position(_Msg):
+    lat: float
+    lon: float
+    alt: float  # m AMSL
+    rel_alt: float = 0.0  # m above home
+
+
+class VelocityNed(_Msg):
+    north: float = 0.0
+    east: float = 0.0
+    down: float = 0.0
+
+
+class Telemetry(_Msg):
+    drone_id: str
+    timestamp: int
+    seq: int = 0
+    armed: bool = False
+    battery: Battery | None = None
+    flight_mode: FlightMode = "unknown"
+    gps_info: GpsInfo | None = None
+    heading: float = 0.0
+    health_failures: list[HealthCheck] = msgspec.field(default_factory=list)
+    home: Home | None = None
+    landed_state: LandedState = "unknown"
+    position: Position | None = None
+    velocity: VelocityNed = msgspec.field(default_factory=VelocityNed)
+    speed: float = 0.0
+
+
+class SensorReading(_Msg):
+    drone_id: str = ""
+    timestamp: int
+    type: str
+    value: float | str | bool | list[float] | None
+    unit: str = ""
+    sensor_id: str | None = None  # field sensors (not on a drone)
+    position: Position | None = None
+
+
+class LinkQuality(_Msg):
+    drone_id: str
+    timestamp: int
+    rtt_ms: float | None
+    jitter_ms: float | None
+    loss: float  # 0..1 over the last window
+    quality: float  # 0..1

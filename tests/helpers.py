@@ -1,0 +1,58 @@
+"""Test helpers: free ports, waiting on conditions with a deadline, collectors."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import time
+from collections.abc import Callable
+from typing import Any
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def until(predicate: Callable[[], Any], timeout_s: float, what: str = "condition") -> Any:
+    """Wait until predicate() is truthy (re-checked on every loop turn, at most every
+    20 ms) and return its value; fail with `what` when the deadline passes."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        await asyncio.sleep(0.02)
+
+
+class Collector:
+    """Records what a handler receives and lets a test wait for a match."""
+
+    def __init__(self) -> None:
+        self.items: list[Any] = []
+        self._changed = asyncio.Event()
+
+    def __call__(self, *args: Any) -> None:
+        self.items.append(args[0] if len(args) == 1 else args)
+        self._changed.set()
+
+    async def wait_for(self, predicate: Callable[[Any], bool], timeout_s: float = 5.0, what: str = "item") -> Any:
+        deadline = time.monotonic() + timeout_s
+        seen = 0
+        while True:
+            for item in self.items[seen:]:
+                if predicate(item):
+                    return item
+            seen = len(self.items)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}; got {self.items[-5:]}")
+            self._changed.clear()
+            try:
+                async with asyncio.timeout(remaining):
+                    await self._changed.wait()
+            except TimeoutError:
+                pass

@@ -1,0 +1,192 @@
+"""One contract, two adapters: the in-memory bus must behave like real Zenoh.
+
+The Zenoh runs use a real router session and real client sessions on 127.0.0.1
+with a unique port and scouting off.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator, Awaitable, Callable
+
+import pytest
+
+from bus.memory import MemoryBus, MemoryNetwork
+from bus.port import Bus, QueryRefused, QueryTimeout, Unreachable
+from bus.zenoh_bus import ZenohBus
+from tests.helpers import Collector, free_port
+
+MeshFactory = Callable[[], Awaitable[Bus]]
+
+
+@pytest.fixture(params=["memory", "zenoh"])
+async def mesh(request: pytest.FixtureRequest) -> AsyncIterator[MeshFactory]:
+    opened: list[Bus] = []
+    if request.param == "memory":
+        net = MemoryNetwork()
+
+        async def factory() -> Bus:
+            opened.append(MemoryBus(net))
+            return opened[-1]
+    else:
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        opened.append(await ZenohBus.open("router", listen=[endpoint]))
+
+        async def factory() -> Bus:
+            opened.append(await ZenohBus.open("client", connect=[endpoint]))
+            return opened[-1]
+    yield factory
+    for bus in reversed(opened):
+        await bus.close()
+
+
+async def publish_until_seen(bus: Bus, key: str, seen: Collector, timeout_s: float = 5.0) -> None:
+    """A subscription declared elsewhere takes a moment to reach the router: probe until it does."""
+    deadline = time.monotonic() + timeout_s
+    while not any(s.payload == b"probe" for s in seen.items):
+        assert time.monotonic() < deadline, f"subscription for {key} never became reachable"
+        bus.publish(key, b"probe")
+        try:
+            await seen.wait_for(lambda s: s.payload == b"probe", timeout_s=0.1)
+        except AssertionError:
+            pass
+
+
+async def test_wildcard_subscriptions_route_by_key(mesh: MeshFactory) -> None:
+    pub, sub = await mesh(), await mesh()
+    one_kind, one_drone = Collector(), Collector()
+    sub.subscribe("drone/*/telem", one_kind)
+    sub.subscribe("drone/d1/**", one_drone)
+    await publish_until_seen(pub, "drone/d1/telem", one_kind)
+    await publish_until_seen(pub, "drone/d1/telem", one_drone)
+    pub.publish("drone/d1/status", b"s1")
+    pub.publish("drone/d2/telem", b"t2")
+    pub.publish("drone/d1/telem", b"t1")
+    await one_kind.wait_for(lambda s: s.payload == b"t1")
+    await one_drone.wait_for(lambda s: s.payload == b"t1")
+    assert [s.key for s in one_kind.items if s.payload != b"probe"] == ["drone/d2/telem", "drone/d1/telem"]
+    assert [s.payload for s in one_drone.items if s.payload != b"probe"] == [b"s1", b"t1"]
+
+
+async def test_reliable_samples_arrive_in_order_without_loss(mesh: MeshFactory) -> None:
+    pub, sub = await mesh(), await mesh()
+    got = Collector()
+    sub.subscribe("drone/d1/status", got, maxsize=5000)
+    await publish_until_seen(pub, "drone/d1/status", got)
+    for i in range(2000):
+        pub.publish("drone/d1/status", str(i).encode())
+    await got.wait_for(lambda s: s.payload == b"1999", timeout_s=10)
+    numbers = [int(s.payload) for s in got.items if s.payload != b"probe"]
+    assert numbers == list(range(2000))
+
+
+async def test_latest_only_subscription_keeps_the_newest(mesh: MeshFactory) -> None:
+    pub, sub = await mesh(), await mesh()
+    got = Collector()
+    sub.subscribe("drone/d1/telem", got, latest_only=True, maxsize=3)
+    await publish_until_seen(pub, "drone/d1/telem", got)
+    # A burst larger than the inbox: whatever is dropped, the newest must arrive last.
+    for i in range(50):
+        pub.publish("drone/d1/telem", str(i).encode(), reliable=False)
+    await got.wait_for(lambda s: s.payload == b"49", timeout_s=5)
+    assert int(got.items[-1].payload) == 49
+
+
+async def test_query_is_answered_by_the_matching_queryable(mesh: MeshFactory) -> None:
+    server, client = await mesh(), await mesh()
+
+    async def echo(key: str, payload: bytes) -> bytes:
+        return key.encode() + b"|" + payload
+
+    server.serve("drone/d1/cmd", echo)
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            reply = await client.query("drone/d1/cmd", b"arm", timeout_s=2)
+            break
+        except Unreachable:
+            assert time.monotonic() < deadline, "queryable never became reachable"
+            await asyncio.sleep(0.05)
+    assert reply == b"drone/d1/cmd|arm"
+
+
+async def test_query_without_queryable_is_unreachable_at_once(mesh: MeshFactory) -> None:
+    client = await mesh()
+    started = time.monotonic()
+    with pytest.raises(Unreachable) as info:
+        await client.query("drone/nobody/cmd", b"{}", timeout_s=5)
+    assert not isinstance(info.value, QueryTimeout)
+    assert time.monotonic() - started < 1.0
+
+
+async def test_slow_queryable_times_out(mesh: MeshFactory) -> None:
+    server, client = await mesh(), await mesh()
+    release = asyncio.Event()
+
+    async def slow(key: str, payload: bytes) -> bytes:
+        if payload == b"warm":
+            return b"ok"
+        await release.wait()
+        return b"late"
+
+    server.serve("drone/d1/cmd", slow)
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            await client.query("drone/d1/cmd", b"warm", timeout_s=1)
+            break
+        except Unreachable:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.05)
+    with pytest.raises(QueryTimeout):
+        await client.query("drone/d1/cmd", b"slow", timeout_s=0.3)
+    release.set()
+
+
+async def test_failing_queryable_gives_an_error_reply(mesh: MeshFactory) -> None:
+    server, client = await mesh(), await mesh()
+
+    async def broken(key: str, payload: bytes) -> bytes:
+        if payload == b"warm":
+            return b"ok"
+        raise ValueError("boom")
+
+    server.serve("drone/d1/cmd", broken)
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            await client.query("drone/d1/cmd", b"warm", timeout_s=1)
+            break
+        except Unreachable:
+            assert time.monotonic() < deadline
+            await asyncio.sleep(0.05)
+    with pytest.raises(QueryRefused, match="boom"):
+        await client.query("drone/d1/cmd", b"x", timeout_s=1)
+
+
+async def test_liveliness_token_appears_and_vanishes_with_its_session(mesh: MeshFactory) -> None:
+    watcher, agent = await mesh(), await mesh()
+    events = Collector()
+    watcher.watch_liveliness("drone/*/alive", events)
+    agent.announce("drone/d7/alive")
+    await events.wait_for(lambda e: e == ("drone/d7/alive", True))
+    await agent.close()
+    await events.wait_for(lambda e: e == ("drone/d7/alive", False))
+
+
+async def test_liveliness_history_lists_existing_tokens(mesh: MeshFactory) -> None:
+    agent, watcher = await mesh(), await mesh()
+    token = agent.announce("drone/d8/alive")
+    seen = Collector()
+    # The token may need a moment to reach the router; a late watcher still sees it.
+    deadline = time.monotonic() + 5
+    decl = watcher.watch_liveliness("drone/**", seen)
+    while not seen.items:
+        assert time.monotonic() < deadline, "existing token never listed"
+        await asyncio.sleep(0.05)
+        decl.close()
+        decl = watcher.watch_liveliness("drone/**", seen)
+    assert seen.items[0] == ("drone/d8/alive", True)
+    token.close()
+    await seen.wait_for(lambda e: e == ("drone/d8/alive", False))
