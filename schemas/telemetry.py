@@ -33,36 +33,36 @@ class _Msg(msgspec.Struct, frozen=True, kw_only=True):
     pass
 
 
-class Battery(_Msg):
+class Battery(_Msg, frozen=True, kw_only=True):
     remaining_percent: float  # 0..1, as MAVSDK reports it despite the name
     voltage: float
 
 
-class GpsInfo(_Msg):
+class GpsInfo(_Msg, frozen=True, kw_only=True):
     satellites: int
     fix_type: FixType
 
 
-class Home(_Msg):
+class Home(_Msg, frozen=True, kw_only=True):
     lat: float
     lon: float
     alt: float  # m AMSL
 
 
-class Position(_Msg):
+class Position(_Msg, frozen=True, kw_only=True):
     lat: float
     lon: float
     alt: float  # m AMSL
     rel_alt: float = 0.0  # m above home
 
 
-class VelocityNed(_Msg):
+class VelocityNed(_Msg, frozen=True, kw_only=True):
     north: float = 0.0
     east: float = 0.0
     down: float = 0.0
 
 
-class Telemetry(_Msg):
+class Telemetry(_Msg, frozen=True, kw_only=True):
     drone_id: str
     timestamp: int
     seq: int = 0
@@ -79,7 +79,7 @@ class Telemetry(_Msg):
     speed: float = 0.0
 
 
-class SensorReading(_Msg):
+class SensorReading(_Msg, frozen=True, kw_only=True):
     drone_id: str = ""
     timestamp: int
     type: str
@@ -89,7 +89,7 @@ class SensorReading(_Msg):
     position: Position | None = None
 
 
-class LinkQuality(_Msg):
+class LinkQuality(_Msg, frozen=True, kw_only=True):
     drone_id: str
     timestamp: int
     rtt_ms: float | None
