@@ -39,7 +39,7 @@ class CommandStatus(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=Tru
 class SystemStatus(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     drone_id: str
     timestamp: int
-    component: str = "system"
+    component: str  # "system" for autopilot events
     state: SystemState
     reason: str | None = None
 

@@ -344,7 +344,8 @@ class Vehicle:
             self.vn = self.ve = 0.0
             rate = p.land_speed_mps if self.rel_alt <= p.land_slow_below_m else p.descent_speed_mps
             self.vd = min(rate, (self.alt - self.ground_alt) / dt)
-            self.landed_state = "landing"
+            if self.landed_state != "on_ground":
+                self.landed_state = "landing"
 
     def _step_offboard(self, dt: float) -> None:
         p = self.params

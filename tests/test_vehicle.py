@@ -86,6 +86,8 @@ def test_return_climbs_to_at_least_ten_metres_flies_home_and_lands() -> None:
     fly(v, 120, landed)
     assert peak == pytest.approx(10.0, abs=0.01)  # max(3, 10 m minimum)
     assert distance_m(v.position().lat, v.position().lon, LAT, LON) < 0.01
+    disarm_after = fly(v, 5, lambda v: not v.armed)
+    assert disarm_after == pytest.approx(2.0, abs=0.1)
 
 
 def test_preflight_auto_disarm_when_no_takeoff() -> None:

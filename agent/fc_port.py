@@ -1,0 +1,79 @@
+"""The flight-controller port: what the agent needs from any autopilot.
+
+Adapters (the built-in simulated vehicle, MAVSDK for PX4) implement
+`FlightController`; everything above it — priority, status tracking, telemetry —
+is shared. Calls return when the autopilot accepted the command (not when it is
+done) and raise FcRejected with the autopilot's reason otherwise. `state()` is the
+latest snapshot, which may lag a command by up to one heartbeat on real hardware.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import msgspec
+
+from schemas.errors import FleetError
+from schemas.telemetry import Battery, GpsInfo, Home, Position, VelocityNed
+
+
+class FcError(FleetError):
+    """A flight-controller problem."""
+
+
+class FcUnavailable(FcError):
+    """The flight controller cannot be reached."""
+
+
+class FcRejected(FcError):
+    """The flight controller refused a command; the message is its reason."""
+
+
+class FcState(msgspec.Struct, frozen=True, kw_only=True):
+    connected: bool = False
+    armed: bool = False
+    flight_mode: str = "unknown"
+    landed_state: str = "unknown"
+    position: Position | None = None
+    home: Home | None = None
+    heading: float = 0.0
+    velocity: VelocityNed = msgspec.field(default_factory=VelocityNed)
+    battery: Battery | None = None
+    gps_info: GpsInfo | None = None
+    health_failures: tuple[str, ...] = ()
+    local_ned: tuple[float, float, float] | None = None  # m from the autopilot's local origin
+
+
+class FlightController(Protocol):
+    async def start(self) -> None:
+        """Connect; raise FcUnavailable when the autopilot does not answer in time."""
+
+    def state(self) -> FcState: ...
+
+    async def arm(self) -> None: ...
+
+    async def disarm(self) -> None: ...
+
+    async def takeoff(self, alt_m: float) -> None:
+        """Climb to alt_m above ground."""
+
+    async def land(self) -> None: ...
+
+    async def goto(
+        self, lat: float, lon: float, alt_amsl: float, yaw_deg: float | None, speed_mps: float | None
+    ) -> None: ...
+
+    async def return_to_launch(self, alt_m: float) -> None:
+        """Climb to at least alt_m above home, fly home and land."""
+
+    async def hold(self) -> None: ...
+
+    async def start_offboard(self) -> None: ...
+
+    async def stop_offboard(self) -> None: ...
+
+    async def set_setpoint(self, kind: str, values: dict[str, float | None]) -> None:
+        """Stream an offboard setpoint (position_ned, velocity_ned, velocity_body,
+        attitude, attitude_rate); angles in degrees."""
+
+    async def close(self) -> None: ...

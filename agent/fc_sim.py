@@ -1,0 +1,165 @@
+"""The built-in simulated flight controller (`--fc sim`): the sim/ vehicle model
+behind the flight-controller port, stepped in the agent's clock.
+
+It behaves towards the agent as the MAVSDK adapter does: commands are accepted or
+refused with the vehicle's reason, offboard setpoints are re-sent at 20 Hz (as
+MAVSDK streams them) until offboard stops, and a pulled link shows as
+`connected=False` with the last values kept.
+
+URL: `sim` or `sim://?lat=40.63&lon=-8.66&alt=8.2` for the spawn point.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from urllib.parse import parse_qs, urlsplit
+
+from agent.fc_port import FcRejected, FcState
+from bus.clock import Clock
+from schemas.errors import ConfigError
+from sim.vehicle import Vehicle
+
+DEFAULT_SPAWN = (40.633490, -8.660815, 8.2)  # thesis test field, Aveiro
+STEP_S = 0.02
+SETPOINT_PERIOD_S = 0.05
+
+
+def vehicle_from_url(url: str) -> Vehicle:
+    parts = urlsplit(url)
+    if url != "sim" and parts.scheme != "sim":
+        raise ConfigError(f"not a sim URL: {url!r}")
+    query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+    unknown = set(query) - {"lat", "lon", "alt"}
+    if unknown:
+        raise ConfigError(f"fc {url!r}: unknown parameter(s) {', '.join(sorted(unknown))} (known: lat, lon, alt)")
+    try:
+        lat, lon, alt = (float(query.get(k, d)) for k, d in zip(("lat", "lon", "alt"), DEFAULT_SPAWN, strict=True))
+    except ValueError as exc:
+        raise ConfigError(f"fc {url!r}: {exc}") from None
+    return Vehicle(lat, lon, alt)
+
+
+class SimFlightController:
+    def __init__(self, vehicle: Vehicle, clock: Clock) -> None:
+        self.vehicle = vehicle
+        self._clock = clock
+        self._task: asyncio.Task[None] | None = None
+        self._setpoint: tuple[str, dict[str, float | None]] | None = None
+        self._last_sent = 0.0
+        self._snapshot = FcState()
+
+    async def start(self) -> None:
+        self._snapshot = self._read()
+        self._task = asyncio.get_running_loop().create_task(self._run(), name="sim vehicle")
+
+    async def _run(self) -> None:
+        last = self._clock.monotonic()
+        while True:
+            await self._clock.sleep(STEP_S)
+            now = self._clock.monotonic()
+            if self._setpoint and now - self._last_sent >= SETPOINT_PERIOD_S:
+                self._send_setpoint(now)
+            self.vehicle.step(now - last)
+            last = now
+            if self._setpoint and self.vehicle.mode != "offboard" and now - self._last_sent > 3.0:
+                self._setpoint = None  # MAVSDK gives up streaming when offboard never shows
+            self._snapshot = self._read()
+            self.vehicle.events.clear()
+
+    def _send_setpoint(self, now: float) -> None:
+        assert self._setpoint is not None
+        kind, values = self._setpoint
+        if self.vehicle.connected:
+            self.vehicle.set_setpoint(kind, **values)
+        self._last_sent = now
+
+    def _read(self) -> FcState:
+        v = self.vehicle
+        if not v.connected:
+            return FcState(**{**_fields(self._snapshot), "connected": False})
+        return FcState(
+            connected=True,
+            armed=v.armed,
+            flight_mode=v.mode,
+            landed_state=v.landed_state,
+            position=v.position(),
+            home=v.home,
+            heading=v.heading,
+            velocity=v.velocity(),
+            battery=v.battery_state(),
+            gps_info=v.gps(),
+            health_failures=tuple(sorted(v.health_failures)),
+            local_ned=v.local_ned(),
+        )
+
+    def state(self) -> FcState:
+        return self._snapshot
+
+    def _do(self, result: str | None) -> None:
+        if result is not None:
+            raise FcRejected(result)
+        self._snapshot = self._read()
+
+    def _check_link(self) -> None:
+        if not self.vehicle.connected:
+            raise FcRejected("flight controller not responding")
+
+    async def arm(self) -> None:
+        self._check_link()
+        self._do(self.vehicle.arm())
+
+    async def disarm(self) -> None:
+        self._check_link()
+        self._do(self.vehicle.disarm())
+
+    async def takeoff(self, alt_m: float) -> None:
+        self._check_link()
+        self._do(self.vehicle.takeoff(alt_m))
+
+    async def land(self) -> None:
+        self._check_link()
+        self._stop_stream()
+        self._do(self.vehicle.land())
+
+    async def goto(
+        self, lat: float, lon: float, alt_amsl: float, yaw_deg: float | None, speed_mps: float | None
+    ) -> None:
+        self._check_link()
+        self._stop_stream()
+        self._do(self.vehicle.goto(lat, lon, alt_amsl, yaw_deg, speed_mps))
+
+    async def return_to_launch(self, alt_m: float) -> None:
+        self._check_link()
+        self._stop_stream()
+        self._do(self.vehicle.return_to_launch(alt_m))
+
+    async def hold(self) -> None:
+        self._check_link()
+        self._stop_stream()
+        self._do(self.vehicle.hold())
+
+    async def set_setpoint(self, kind: str, values: dict[str, float | None]) -> None:
+        self._check_link()
+        self._setpoint = (kind, dict(values))
+        self._send_setpoint(self._clock.monotonic())
+
+    async def start_offboard(self) -> None:
+        self._check_link()
+        self._do(self.vehicle.start_offboard())
+
+    async def stop_offboard(self) -> None:
+        self._check_link()
+        self._stop_stream()
+        self._do(self.vehicle.stop_offboard())
+
+    def _stop_stream(self) -> None:
+        self._setpoint = None
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.wait([self._task])
+
+
+def _fields(state: FcState) -> dict[str, object]:
+    return {f: getattr(state, f) for f in state.__struct_fields__}

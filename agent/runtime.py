@@ -1,0 +1,135 @@
+"""The running agent: a flight controller, the command handler and the bus, wired.
+
+Start order: flight controller (exit fast if it is unreachable), then the Zenoh
+session (waits for the ground router), then the liveliness token, the command
+queryable and the publishing loops. Shutdown runs in reverse, in `finally`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import uuid
+
+import msgspec
+
+from agent.config import AgentConfig
+from agent.fc_port import FcUnavailable, FlightController
+from agent.fc_sim import SimFlightController, vehicle_from_url
+from agent.handler import CommandHandler, FlightSettings
+from agent.telemetry import to_telemetry
+from bus.clock import Clock, SystemClock
+from bus.port import Bus
+from schemas.codec import encode
+from schemas.commands import CommandReply, decode_command
+from schemas.errors import ConfigError, InvalidMessage
+from schemas.keys import Keys, check_id
+from schemas.status import CommandStatus, SystemStatus
+
+log = logging.getLogger(__name__)
+FC_CONNECT_TIMEOUT_S = 8.0
+
+
+def make_flight_controller(url: str, clock: Clock) -> FlightController:
+    if url == "sim" or url.startswith("sim://"):
+        return SimFlightController(vehicle_from_url(url), clock)
+    raise ConfigError(
+        f"fc {url!r}: no flight-controller adapter for this URL yet (use 'sim'); "
+        "MAVLink URLs (udp://, udpin://, serial://, tcp://) need the MAVSDK adapter"
+    )
+
+
+class Agent:
+    def __init__(
+        self, drone_id: str, config: AgentConfig, fc: FlightController, bus: Bus, clock: Clock
+    ) -> None:
+        self.drone_id = check_id(drone_id)
+        self.config = config
+        self.keys = Keys(config.namespace)
+        self.fc = fc
+        self.bus = bus
+        self.clock = clock
+        settings = FlightSettings(
+            acceptance_radius=config.acceptance_radius,
+            takeoff_altitude=config.takeoff_altitude,
+            return_altitude=config.return_altitude,
+            max_speed=config.max_speed,
+        )
+        self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
+        self._seq = 0
+
+    def _publish_status(self, status: CommandStatus | SystemStatus) -> None:
+        self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
+
+    async def _on_command(self, key: str, payload: bytes) -> bytes:
+        try:
+            cmd = decode_command(payload)
+        except InvalidMessage as exc:
+            log.warning("%s: refused a malformed command: %s", self.drone_id, exc)
+            return encode(CommandReply(command_id=_peek_command_id(payload), accepted=False, reason=str(exc)))
+        if cmd.drone_id and cmd.drone_id != self.drone_id:
+            reason = f"drone_id: this is {self.drone_id}, not {cmd.drone_id}"
+            return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=reason))
+        if not cmd.command_id:
+            cmd = msgspec.structs.replace(cmd, command_id=str(uuid.uuid4()))
+        return encode(self.handler.submit(cmd))
+
+    async def _telemetry_loop(self) -> None:
+        period = self.config.telemetry_rate_ms / 1000
+        key = self.keys.telem(self.drone_id)
+        next_at = self.clock.monotonic()
+        while True:
+            state = self.fc.state()
+            if state.position is not None:
+                self._seq += 1
+                telem = to_telemetry(self.drone_id, self._seq, self.clock.time_ms(), state)
+                self.bus.publish(key, encode(telem), reliable=False)
+            next_at += period
+            await self.clock.sleep(max(0.0, next_at - self.clock.monotonic()))
+
+    async def run(self) -> None:
+        """Serve until cancelled. The caller owns (and closes) fc and bus."""
+        # Queryable first: once the liveliness token is visible, commands are served.
+        queryable = self.bus.serve(self.keys.cmd(self.drone_id), self._on_command)
+        token = self.bus.announce(self.keys.alive(self.drone_id))
+        log.info("%s: serving commands on %s", self.drone_id, self.keys.cmd(self.drone_id))
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(self.handler.run(), name=f"{self.drone_id} handler")
+                tg.create_task(self._telemetry_loop(), name=f"{self.drone_id} telemetry")
+        finally:
+            queryable.close()
+            token.close()
+
+
+def _peek_command_id(payload: bytes) -> str:
+    try:
+        value = json.loads(payload).get("command_id", "")
+        return value if isinstance(value, str) else ""
+    except (ValueError, AttributeError, TypeError):
+        return ""
+
+
+async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = None) -> None:
+    """The `fleet agent` process: real flight controller, real Zenoh, until cancelled."""
+    from bus.zenoh_bus import ZenohBus
+
+    clock = clock or SystemClock()
+    check_id(drone_id)
+    fc = make_flight_controller(config.fc, clock)
+    try:
+        async with asyncio.timeout(FC_CONNECT_TIMEOUT_S):
+            await fc.start()
+    except TimeoutError:
+        await fc.close()
+        raise FcUnavailable(f"no flight controller answered on {config.fc} within {FC_CONNECT_TIMEOUT_S:g} s") from None
+    try:
+        log.info("%s: flight controller %s connected; joining the mesh via %s", drone_id, config.fc, ", ".join(config.connect))
+        bus = await ZenohBus.open("client", config.connect, wait=True)
+        try:
+            await Agent(drone_id, config, fc, bus, clock).run()
+        finally:
+            await bus.close()
+    finally:
+        await fc.close()

@@ -1,0 +1,109 @@
+"""`fleet`: the command line. Thin: parse, load a strict config, call into the package.
+
+Only this module configures logging output. Exit codes: 0 done, 1 runtime failure
+(e.g. flight controller unreachable), 2 bad usage or configuration.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import signal
+import sys
+from collections.abc import Coroutine
+from pathlib import Path
+from typing import Any
+
+import click
+
+from schemas.errors import ConfigError, FleetError
+
+
+def run_async(main: Coroutine[Any, Any, Any]) -> Any:
+    """Run `main` until done, Ctrl-C or SIGTERM; both cancel it so `finally` blocks run."""
+
+    async def wrapper() -> Any:
+        task = asyncio.current_task()
+        assert task is not None
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
+        try:
+            return await main
+        except asyncio.CancelledError:
+            return None
+
+    try:
+        return asyncio.run(wrapper())
+    except KeyboardInterrupt:
+        return None
+
+
+def fail(message: str, code: int = 1) -> None:
+    click.echo(f"fleet: {message}", err=True)
+    sys.exit(code)
+
+
+@click.group(help=__doc__.split("\n")[0].removeprefix("`fleet`: "))
+@click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
+def main(verbose: int) -> None:
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose + 1, 2)]
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr)
+    logging.getLogger("zenoh").setLevel(logging.WARNING)
+
+
+@main.command()
+@click.option("--id", "drone_id", required=True, help="Drone identifier, e.g. drone01.")
+@click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Agent YAML config.")
+@click.option("--fc", help="Flight controller URL: sim, udp://:14540, serial:///dev/ttyACM0[:baud], tcp://host:port.")
+@click.option("--connect", multiple=True, help="Zenoh endpoint of the ground router (repeatable), e.g. tcp/192.168.1.10:7447.")
+@click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
+def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], telemetry_rate_ms: int | None) -> None:
+    """Run the on-drone agent: flight controller <-> Zenoh mesh."""
+    from agent.config import AgentConfig, load_config
+    from agent.runtime import run_agent
+    from schemas.keys import check_id
+
+    try:
+        check_id(drone_id)
+        config = load_config(
+            AgentConfig, config_path,
+            {"fc": fc, "connect": list(connect) or None, "telemetry_rate_ms": telemetry_rate_ms},
+        )
+    except FleetError as exc:
+        fail(str(exc), 2)
+    try:
+        run_async(run_agent(drone_id, config))
+    except ConfigError as exc:
+        fail(str(exc), 2)
+    except FleetError as exc:
+        fail(str(exc), 1)
+
+
+@main.command()
+@click.argument("keyexpr", default="**")
+@click.option("--connect", multiple=True, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
+@click.option("--count", type=int, help="Exit after this many samples.")
+def sub(keyexpr: str, connect: tuple[str, ...], count: int | None) -> None:
+    """Print live traffic: one line per sample, key and compact JSON."""
+    from bus.tap import tap
+
+    try:
+        run_async(tap(keyexpr, list(connect), lambda line: click.echo(line), count))
+    except FleetError as exc:
+        fail(str(exc))
+
+
+@main.command()
+@click.option("--port", type=int, default=7447, show_default=True, help="Port of the demo's Zenoh router.")
+def demo(port: int) -> None:
+    """Start a simulated drone and fly a short pattern, printing live telemetry."""
+    from sim.demo import run_demo
+
+    try:
+        ok = run_async(run_demo(port, lambda line: click.echo(line)))
+    except FleetError as exc:
+        fail(str(exc))
+    sys.exit(0 if ok else 1)
+
+
+if __name__ == "__main__":
+    main()
