@@ -39,9 +39,12 @@ class Collector:
         self.items.append(args[0] if len(args) == 1 else args)
         self._changed.set()
 
-    async def wait_for(self, predicate: Callable[[Any], bool], timeout_s: float = 5.0, what: str = "item") -> Any:
+    async def wait_for(
+        self, predicate: Callable[[Any], bool], timeout_s: float = 5.0, what: str = "item", start: int = 0
+    ) -> Any:
+        """The first item from index `start` on that matches, waiting up to timeout_s."""
         deadline = time.monotonic() + timeout_s
-        seen = 0
+        seen = start
         while True:
             for item in self.items[seen:]:
                 if predicate(item):

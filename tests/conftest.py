@@ -1,0 +1,51 @@
+"""Shared fixtures: a real Zenoh router on a unique 127.0.0.1 port, client sessions,
+and agent subprocesses that are always stopped."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bus.zenoh_bus import ZenohBus
+from tests.harness import AgentProcess, Operator
+from tests.helpers import free_port
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+async def router(endpoint: str) -> AsyncIterator[ZenohBus]:
+    bus = await ZenohBus.open("router", listen=[endpoint])
+    yield bus
+    await bus.close()
+
+
+@pytest.fixture
+async def client(router: ZenohBus, endpoint: str) -> AsyncIterator[ZenohBus]:
+    bus = await ZenohBus.open("client", connect=[endpoint])
+    yield bus
+    await bus.close()
+
+
+@pytest.fixture
+def agents(endpoint: str, tmp_path: Path) -> Iterator[Callable[..., AgentProcess]]:
+    started: list[AgentProcess] = []
+
+    def start(drone_id: str, **kwargs: Any) -> AgentProcess:
+        started.append(AgentProcess(drone_id, endpoint, tmp_path, **kwargs))
+        return started[-1]
+
+    yield start
+    for agent in started:
+        agent.stop()
+
+
+@pytest.fixture
+def operator(client: ZenohBus) -> Callable[[str], Operator]:
+    return lambda drone_id: Operator(client, drone_id)

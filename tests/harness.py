@@ -1,0 +1,121 @@
+"""Integration-test harness: a real Zenoh router in-process, agents as subprocesses,
+and an Operator that commands them over real Zenoh and watches what they publish."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agent.remote import send_command
+from bus.port import Sample
+from bus.zenoh_bus import ZenohBus
+from schemas.codec import decode_status, decode_telemetry
+from schemas.commands import CommandReply
+from schemas.keys import Keys
+from schemas.status import CommandStatus, SystemStatus
+from schemas.telemetry import Telemetry
+from tests.helpers import Collector
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def fleet_command(*args: str) -> list[str]:
+    """`fleet …` through the installed console script next to this interpreter."""
+    script = Path(sys.executable).with_name("fleet")
+    return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet_cli", *args]
+
+
+class AgentProcess:
+    """`fleet agent` as a child process; always stopped by the fixture that made it."""
+
+    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
+        self.drone_id = drone_id
+        cfg = tmp / f"{drone_id}.yml"
+        cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, **config}))
+        self.log = tmp / f"{drone_id}.log"
+        self.args = fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args)
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.start()
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
+
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10) -> int | None:
+        if self.proc is None or self.proc.poll() is not None:
+            return self.proc.returncode if self.proc else None
+        self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise AssertionError(f"agent {self.drone_id} did not stop within {timeout_s} s on signal {sig}") from None
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+
+class Operator:
+    """Sends commands to one drone and records its telemetry and statuses."""
+
+    def __init__(self, bus: ZenohBus, drone_id: str) -> None:
+        self.bus = bus
+        self.drone_id = drone_id
+        self.telem = Collector()
+        self.status = Collector()
+        self.raw_telem: list[bytes] = []
+        keys = Keys()
+
+        def on_telem(sample: Sample) -> None:
+            self.raw_telem.append(sample.payload)
+            self.telem(decode_telemetry(sample.payload))
+
+        bus.subscribe(keys.telem(drone_id), on_telem, maxsize=100_000)
+        bus.subscribe(keys.status(drone_id), lambda s: self.status(decode_status(s.payload)), maxsize=100_000)
+
+    @property
+    def last(self) -> Telemetry:
+        assert self.telem.items, "no telemetry yet"
+        return self.telem.items[-1]
+
+    async def send(self, cmd: str, **fields: Any) -> CommandReply:
+        return await send_command(self.bus, self.drone_id, cmd, **fields)
+
+    async def accepted(self, cmd: str, **fields: Any) -> str:
+        reply = await self.send(cmd, **fields)
+        assert reply.accepted, f"{cmd} {fields} refused: {reply.reason}"
+        return reply.command_id
+
+    async def command_state(self, command_id: str, state: str, timeout_s: float = 30) -> CommandStatus:
+        return await self.status.wait_for(
+            lambda s: isinstance(s, CommandStatus) and s.command_id == command_id and s.state in (state, "failure"),
+            timeout_s, f"{state} of {command_id}",
+        )
+
+    async def expect(self, command_id: str, state: str, timeout_s: float = 30) -> CommandStatus:
+        status = await self.command_state(command_id, state, timeout_s)
+        assert status.state == state, f"expected {state}, got {status}"
+        return status
+
+    async def system(self, state: str, timeout_s: float = 10) -> SystemStatus:
+        return await self.status.wait_for(
+            lambda s: isinstance(s, SystemStatus) and s.state == state, timeout_s, f"system {state}"
+        )
+
+    async def next_telemetry(self, predicate: Any = lambda t: True, timeout_s: float = 30, what: str = "telemetry") -> Telemetry:
+        return await self.telem.wait_for(predicate, timeout_s, what, start=len(self.telem.items))
+
+    def statuses_of(self, command_id: str) -> list[str]:
+        return [s.state for s in self.status.items if isinstance(s, CommandStatus) and s.command_id == command_id]
+
+
+
+
+os.environ.setdefault("PYTHONUNBUFFERED", "1")

@@ -1,0 +1,144 @@
+"""The agent contract (SPEC §2–§3) over real Zenoh: a router in this process,
+`fleet agent` as a subprocess, commands as real queries.
+
+`flight_controller` is parametrized per adapter; every test here runs unchanged
+against each of them.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+from collections.abc import Callable
+
+import pytest
+
+from schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
+from tests.harness import AgentProcess, Operator
+
+pytestmark = pytest.mark.integration
+
+SPEC_TELEMETRY_FIELDS = {
+    "drone_id", "timestamp", "seq", "armed", "battery", "flight_mode", "gps_info", "heading",
+    "health_failures", "home", "landed_state", "position", "velocity", "speed",
+}
+NESTED = {
+    "battery": {"remaining_percent", "voltage"},
+    "gps_info": {"satellites", "fix_type"},
+    "home": {"lat", "lon", "alt"},
+    "position": {"lat", "lon", "alt", "rel_alt"},
+    "velocity": {"north", "east", "down"},
+}
+
+
+@pytest.fixture(params=["sim"])
+def flight_controller(request: pytest.FixtureRequest) -> str:
+    """The `--fc` URL of each adapter under test."""
+    return request.param
+
+
+async def test_flight_contract(
+    agents: Callable[..., AgentProcess], operator: Callable[[str], Operator], flight_controller: str
+) -> None:
+    agents("drone01", fc=flight_controller, return_altitude=10, acceptance_radius=0.5)
+    op = operator("drone01")
+
+    # Telemetry carries every SPEC field, at the configured 100 ms.
+    await op.next_telemetry(timeout_s=30, what="first telemetry")
+    for _ in range(11):
+        await op.next_telemetry(timeout_s=5)
+    raw = json.loads(op.raw_telem[-1])
+    assert set(raw) == SPEC_TELEMETRY_FIELDS
+    for key, fields in NESTED.items():
+        assert set(raw[key]) == fields, key
+    stamps = [t.timestamp for t in op.telem.items[-11:]]
+    intervals = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
+    assert 80 <= statistics.mean(intervals) <= 130, intervals
+    assert [t.seq for t in op.telem.items[-11:]] == list(range(op.telem.items[-11].seq, op.telem.items[-11].seq + 11))
+    home = op.last.position
+
+    # Takeoff is refused while disarmed, with the reason.
+    reply = await op.send("takeoff", alt=5)
+    assert not reply.accepted and reply.reason == "disarmed"
+    await op.expect(reply.command_id, "failure", 5)
+
+    await op.expect(await op.accepted("arm"), "success", 10)
+    takeoff = await op.accepted("takeoff", alt=5)
+    assert (await op.expect(takeoff, "start", 10)).altitude == 5
+    await op.expect(takeoff, "finish", 30)
+    t = await op.next_telemetry()
+    assert t.position.rel_alt == pytest.approx(5, abs=0.5)
+
+    # Goto 30 m north, yaw null (face the target), no alt (keep altitude).
+    alt_before = t.position.alt
+    lat, lon = destination(t.position.lat, t.position.lon, 30, 0)
+    goto = await op.accepted("goto", lat=lat, lon=lon, yaw=None)
+    start = await op.expect(goto, "start", 10)
+    assert (start.coords.lat, start.coords.lon) == pytest.approx((lat, lon))
+    assert start.coords.alt == pytest.approx(alt_before, abs=0.3)
+    await op.expect(goto, "finish", 40)
+    t = await op.next_telemetry()
+    assert distance_m(t.position.lat, t.position.lon, lat, lon) <= 0.5 + 0.5
+    assert abs(angle_diff_deg(t.heading, 0)) < 3
+    assert t.position.alt == pytest.approx(alt_before, abs=0.5)
+
+    # Turn 90° clockwise.
+    turn = await op.accepted("turn", deg=90)
+    await op.expect(turn, "finish", 15)
+    t = await op.next_telemetry()
+    assert abs(angle_diff_deg(t.heading, 90)) < 3
+
+    # Move 10 m to the right of the heading (east-facing: right is south).
+    before = t.position
+    move = await op.accepted("move", x=10)
+    await op.expect(move, "finish", 30)
+    t = await op.next_telemetry()
+    assert distance_m(before.lat, before.lon, t.position.lat, t.position.lon) == pytest.approx(10, abs=1.0)
+    assert abs(angle_diff_deg(bearing_deg(before.lat, before.lon, t.position.lat, t.position.lon), 180)) < 5
+
+    # A goto far west faces west (yaw null), and a cancel stops it.
+    lat, lon = destination(t.position.lat, t.position.lon, 300, 270)
+    far = await op.accepted("goto", lat=lat, lon=lon, yaw=None)
+    await op.expect(far, "start", 10)
+    await op.next_telemetry(lambda t: abs(angle_diff_deg(t.heading, 270)) < 3 and t.speed > 1, 20, "flying west")
+    cancel = await op.accepted("cancel")
+    await op.expect(far, "cancel", 10)
+    await op.expect(cancel, "success", 10)
+    await op.next_telemetry(lambda t: t.speed < 0.1, 10, "holding after cancel")
+
+    # Return to launch: climb to at least 10 m, fly home, land, disarm by itself.
+    ret = await op.accepted("return")
+    assert (await op.expect(ret, "start", 10)).altitude == 10
+    await op.expect(ret, "finish", 90)
+    t = await op.next_telemetry()
+    assert t.landed_state == "on_ground"
+    assert distance_m(t.position.lat, t.position.lon, home.lat, home.lon) < 1.0
+    await op.system("disarm", 10)
+
+    # Two gotos during a takeoff are queued; only the last one flies.
+    await op.expect(await op.accepted("arm"), "success", 10)
+    takeoff = await op.accepted("takeoff", alt=4)
+    here = op.last.position
+    first = await op.accepted("goto", **dict(zip(("lat", "lon"), destination(here.lat, here.lon, 15, 90), strict=True)))
+    lat, lon = destination(here.lat, here.lon, 15, 0)
+    last = await op.accepted("goto", lat=lat, lon=lon)
+    await op.expect(first, "queued", 5)
+    await op.expect(last, "queued", 5)
+    await op.expect(first, "cancel", 5)
+    await op.expect(takeoff, "finish", 30)
+    await op.expect(last, "start", 10)
+    await op.expect(last, "finish", 30)
+    assert op.statuses_of(first) == ["queued", "cancel"]
+    t = await op.next_telemetry()
+    assert distance_m(t.position.lat, t.position.lon, lat, lon) < 1.0
+
+    # A goto is refused while landing; the landing finishes on the ground and the
+    # drone disarms itself.
+    land = await op.accepted("land")
+    await op.expect(land, "start", 10)
+    reply = await op.send("goto", lat=here.lat, lon=here.lon)
+    assert not reply.accepted and reply.reason == "landing"
+    await op.expect(land, "finish", 40)
+    assert (await op.next_telemetry()).landed_state == "on_ground"
+    await op.system("disarm", 10)
+    assert not (await op.next_telemetry(lambda t: not t.armed, 5)).armed
