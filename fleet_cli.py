@@ -93,6 +93,55 @@ def sub(keyexpr: str, connect: tuple[str, ...], count: int | None) -> None:
 
 
 @main.command()
+@click.argument("world", required=False, type=click.Path(path_type=Path, dir_okay=False, exists=True))
+@click.option("-n", "count", type=click.IntRange(1, 100), help="Number of vehicles (default: the world's, else 1).")
+@click.option("--agents", is_flag=True, help="Also start one `fleet agent` per vehicle.")
+@click.option("--connect", multiple=True, help="Zenoh endpoint for the agents (repeatable).")
+@click.option("--agent-config", type=click.Path(path_type=Path, dir_okay=False, exists=True), help="Config file passed to each agent.")
+@click.option("--base-port", type=click.IntRange(1025, 65000), default=14540, show_default=True, help="Vehicle i sends MAVLink to 127.0.0.1:BASE+i; fault control listens on BASE-1.")
+@click.option("--output", "outputs", multiple=True, help="Extra MAVLink output HOST:PORT for every vehicle (e.g. a GCS on 14550).")
+def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int, outputs: tuple[str, ...]) -> None:
+    """Run PX4-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
+    from sim.fleet_sim import run_sim
+    from sim.world import load_world
+
+    try:
+        loaded = load_world(world)
+        extra = [(host, int(port)) for host, _, port in (o.rpartition(":") for o in outputs)]
+    except ValueError:
+        fail("--output takes HOST:PORT", 2)
+    except FleetError as exc:
+        fail(str(exc), 2)
+    try:
+        run_async(run_sim(
+            loaded, count, base_port=base_port, agents=agents, connect=list(connect),
+            agent_config=agent_config, extra_outputs=extra, out=lambda line: click.echo(line),
+        ))
+    except OSError as exc:
+        fail(f"cannot bind the simulator's ports: {exc}")
+
+
+@main.command()
+@click.argument("drone")
+@click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "status"]))
+@click.argument("value", required=False)
+@click.option("--control", default="127.0.0.1:14539", show_default=True, help="Control channel of `fleet sim` (base port - 1).")
+def fault(drone: str, kind: str, value: str | None, control: str) -> None:
+    """Inject a fault into a vehicle of a running `fleet sim`."""
+    from sim.fleet_sim import send_fault
+
+    host, _, port = control.rpartition(":")
+    try:
+        reply = run_async(send_fault(drone, kind, value, (host, int(port))))
+    except TimeoutError:
+        fail(f"no `fleet sim` answers on {control}")
+    if not reply or not reply.get("ok"):
+        fail(str(reply.get("error") if reply else "no reply"))
+    for line in (reply.get("status") or {}).values():
+        click.echo(line)
+
+
+@main.command()
 @click.option("--port", type=int, default=7447, show_default=True, help="Port of the demo's Zenoh router.")
 def demo(port: int) -> None:
     """Start a simulated drone and fly a short pattern, printing live telemetry."""

@@ -11,6 +11,7 @@ import asyncio
 import json
 import logging
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 
 import msgspec
 
@@ -23,7 +24,7 @@ from bus.clock import Clock, SystemClock
 from bus.port import Bus
 from schemas.codec import encode
 from schemas.commands import CommandReply, decode_command
-from schemas.errors import ConfigError, InvalidMessage
+from schemas.errors import InvalidMessage
 from schemas.keys import Keys, check_id
 from schemas.status import CommandStatus, SystemStatus
 
@@ -34,10 +35,9 @@ FC_CONNECT_TIMEOUT_S = 8.0
 def make_flight_controller(url: str, clock: Clock) -> FlightController:
     if url == "sim" or url.startswith("sim://"):
         return SimFlightController(vehicle_from_url(url), clock)
-    raise ConfigError(
-        f"fc {url!r}: no flight-controller adapter for this URL yet (use 'sim'); "
-        "MAVLink URLs (udp://, udpin://, serial://, tcp://) need the MAVSDK adapter"
-    )
+    from agent.fc_mavsdk import MavsdkFlightController
+
+    return MavsdkFlightController(url, connect_timeout_s=FC_CONNECT_TIMEOUT_S)
 
 
 class Agent:
@@ -117,9 +117,12 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
 
     clock = clock or SystemClock()
     check_id(drone_id)
+    # MAVSDK runs its blocking calls in the default executor; 6 threads on 2 cores
+    # serialise a burst of commands (mavsdk-facts.md §2.1).
+    asyncio.get_running_loop().set_default_executor(ThreadPoolExecutor(32, thread_name_prefix="fc"))
     fc = make_flight_controller(config.fc, clock)
     try:
-        async with asyncio.timeout(FC_CONNECT_TIMEOUT_S):
+        async with asyncio.timeout(FC_CONNECT_TIMEOUT_S + 2):
             await fc.start()
     except TimeoutError:
         await fc.close()

@@ -119,3 +119,36 @@ class Operator:
 
 
 os.environ.setdefault("PYTHONUNBUFFERED", "1")
+
+
+class SimProcess:
+    """`fleet sim` as a child process on a unique port range."""
+
+    def __init__(self, tmp: Path, n: int = 1, base_port: int | None = None, extra_args: Sequence[str] = ()) -> None:
+        from tests.helpers import free_udp_base
+
+        self.base_port = base_port or free_udp_base(n)
+        self.n = n
+        self.log = tmp / f"sim-{self.base_port}.log"
+        self.args = fleet_command("sim", "-n", str(n), "--base-port", str(self.base_port), *extra_args)
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.start()
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
+
+    def fc_url(self, i: int = 0) -> str:
+        return f"udpin://127.0.0.1:{self.base_port + i}"
+
+    @property
+    def control(self) -> tuple[str, int]:
+        return ("127.0.0.1", self.base_port - 1)
+
+    def stop(self, sig: int = signal.SIGTERM) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()

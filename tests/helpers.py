@@ -59,3 +59,26 @@ class Collector:
                     await self._changed.wait()
             except TimeoutError:
                 pass
+
+
+def free_udp_base(n: int) -> int:
+    """A base port B with B-1 .. B+n-1 free for UDP (the sim's control port and vehicles)."""
+    for _ in range(50):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", 0))
+            base = s.getsockname()[1]
+        if base + n >= 65000:
+            continue
+        try:
+            held = []
+            for port in range(base - 1, base + n):
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                held.append(sock)
+                sock.bind(("127.0.0.1", port))
+            return base
+        except OSError:
+            continue
+        finally:
+            for sock in held:
+                sock.close()
+    raise RuntimeError("no free UDP port range")

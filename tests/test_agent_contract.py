@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import json
 import statistics
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 
 from schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
-from tests.harness import AgentProcess, Operator
+from tests.harness import AgentProcess, Operator, SimProcess
 
 pytestmark = pytest.mark.integration
 
@@ -31,10 +32,18 @@ NESTED = {
 }
 
 
-@pytest.fixture(params=["sim"])
-def flight_controller(request: pytest.FixtureRequest) -> str:
-    """The `--fc` URL of each adapter under test."""
-    return request.param
+@pytest.fixture(params=["sim", "mavsdk"])
+def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """The `--fc` URL of each adapter under test: the built-in simulated vehicle, and
+    real libmavsdk talking UDP to `fleet sim` (a PX4-like MAVLink vehicle)."""
+    if request.param == "sim":
+        yield "sim"
+        return
+    sim = SimProcess(tmp_path)
+    try:
+        yield sim.fc_url()
+    finally:
+        sim.stop()
 
 
 async def test_flight_contract(

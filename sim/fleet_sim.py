@@ -1,0 +1,181 @@
+"""`fleet sim`: N PX4-like MAVLink vehicles on UDP 14540+i, optionally with agents.
+
+Like PX4 SITL, vehicle i sends to 127.0.0.1:(base+i) and answers whoever talks to
+it. A one-line status is printed per vehicle whenever its mode, arming, landed
+state or link changes. Faults come from the world file (`faults: [{at_s, fault}]`)
+or the control channel: JSON datagrams on 127.0.0.1:(base-1), e.g.
+`{"drone": "drone01", "fault": "rc_takeover"}` (see `fleet fault`). Everything
+started here stops on Ctrl-C/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import subprocess
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from sim.mavlink_endpoint import MavlinkVehicle
+from sim.vehicle import Vehicle
+from sim.world import DroneSpec, FaultKind, World
+
+log = logging.getLogger(__name__)
+PX4_SITL_BASE = 14540
+PX4_SITL_LOCAL = 14580  # PX4 SITL sends from 14580+i
+
+
+@dataclass
+class SimVehicle:
+    spec: DroneSpec
+    endpoint: MavlinkVehicle
+    port: int  # where its MAVLink goes (the agent listens here)
+
+
+def apply_fault(vehicle: Vehicle, fault: FaultKind | str, value: float | str | None = None) -> None:
+    if fault == "rc_takeover":
+        vehicle.inject_manual(True)
+    elif fault == "rc_release":
+        vehicle.inject_manual(False)
+    elif fault == "low_battery":
+        vehicle.inject_battery(float(value) if value is not None else 0.08)
+    elif fault == "link_pull":
+        vehicle.inject_link_loss(True)
+    elif fault == "link_restore":
+        vehicle.inject_link_loss(False)
+    elif fault == "health_failure":
+        vehicle.inject_health_failure(str(value or "accelerometer"))
+    elif fault == "health_ok":
+        vehicle.inject_health_failure()
+    elif fault == "gps_loss":
+        vehicle.inject_gps("no_fix")
+    elif fault == "gps_ok":
+        vehicle.inject_gps("fix_3d")
+    else:
+        raise ValueError(f"unknown fault {fault!r}")
+
+
+def status_line(v: SimVehicle) -> str:
+    veh = v.endpoint.vehicle
+    return (
+        f"{v.spec.id:<10} sysid {v.endpoint.sysid:<3} udp {v.port:<6} {veh.mode:<16} {veh.landed_state:<10} "
+        f"{'armed' if veh.armed else 'disarmed':<8} alt {veh.rel_alt:6.1f} m  battery {veh.battery:4.0%}"
+        + ("" if veh.connected else "  LINK PULLED")
+    )
+
+
+class _Control(asyncio.DatagramProtocol):
+    def __init__(self, vehicles: dict[str, SimVehicle]) -> None:
+        self.vehicles = vehicles
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        try:
+            request = json.loads(data)
+            if request.get("fault") == "status":
+                reply = {"ok": True, "status": {k: status_line(v) for k, v in self.vehicles.items()}}
+            else:
+                target = self.vehicles.get(request.get("drone", ""))
+                if target is None:
+                    raise ValueError(f"unknown drone {request.get('drone')!r} (have {', '.join(self.vehicles)})")
+                apply_fault(target.endpoint.vehicle, request["fault"], request.get("value"))
+                log.warning("fault %s injected into %s", request["fault"], target.spec.id)
+                reply = {"ok": True}
+        except (ValueError, KeyError, TypeError) as exc:
+            reply = {"ok": False, "error": str(exc)}
+        assert self.transport is not None
+        self.transport.sendto(json.dumps(reply).encode(), addr)
+
+
+async def run_sim(
+    world: World,
+    n: int | None,
+    *,
+    base_port: int = PX4_SITL_BASE,
+    agents: bool = False,
+    connect: list[str] | None = None,
+    agent_config: Path | None = None,
+    extra_outputs: list[tuple[str, int]] | None = None,
+    out: Callable[[str], None] = print,
+) -> None:
+    specs = world.spawn(n)
+    vehicles: dict[str, SimVehicle] = {}
+    tasks: list[asyncio.Task[None]] = []
+    children: list[subprocess.Popen[bytes]] = []
+    control_transport: asyncio.BaseTransport | None = None
+    loop = asyncio.get_running_loop()
+    try:
+        for i, spec in enumerate(specs):
+            assert spec.lat is not None and spec.lon is not None and spec.alt is not None
+            vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params())
+            port = base_port + i
+            endpoint = MavlinkVehicle(
+                vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])],
+                on_change=lambda ep, sv_id=spec.id: out(status_line(vehicles[sv_id])) if sv_id in vehicles else None,
+            )
+            local = PX4_SITL_LOCAL + i if base_port == PX4_SITL_BASE else 0
+            await endpoint.start(("127.0.0.1", local))
+            vehicles[spec.id] = SimVehicle(spec, endpoint, port)
+            tasks.append(loop.create_task(endpoint.run(), name=f"sim {spec.id}"))
+            for fault in spec.faults:
+                loop.call_later(fault.at_s, apply_fault, vehicle, fault.fault, fault.value)
+        control_transport, _ = await loop.create_datagram_endpoint(
+            lambda: _Control(vehicles), local_addr=("127.0.0.1", base_port - 1)
+        )
+        out(f"{len(vehicles)} simulated vehicle(s); fault control on udp 127.0.0.1:{base_port - 1}")
+        for v in vehicles.values():
+            out(status_line(v))
+        if agents:
+            for v in vehicles.values():
+                args = [sys.executable, "-m", "fleet_cli", "agent", "--id", v.spec.id, "--fc", f"udpin://127.0.0.1:{v.port}"]
+                for ep in connect or []:
+                    args += ["--connect", ep]
+                if agent_config is not None:
+                    args += ["--config", str(agent_config)]
+                children.append(subprocess.Popen(args))
+                out(f"agent {v.spec.id} started (pid {children[-1].pid})")
+        await asyncio.gather(*tasks)
+    finally:
+        for child in children:
+            child.terminate()
+        for child in children:
+            try:
+                child.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                child.kill()
+        for task in tasks:
+            task.cancel()
+        if tasks:
+            await asyncio.wait(tasks)
+        for v in vehicles.values():
+            v.endpoint.close()
+        if control_transport is not None:
+            control_transport.close()
+
+
+async def send_fault(drone: str, fault: str, value: str | None, control: tuple[str, int], timeout_s: float = 3.0) -> dict[str, object]:
+    """Client side of the control channel (`fleet fault`, tests)."""
+    loop = asyncio.get_running_loop()
+    reply: asyncio.Future[bytes] = loop.create_future()
+
+    class _Client(asyncio.DatagramProtocol):
+        def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+            if not reply.done():
+                reply.set_result(data)
+
+    transport, _ = await loop.create_datagram_endpoint(_Client, remote_addr=control)
+    try:
+        body: dict[str, object] = {"drone": drone, "fault": fault}
+        if value is not None:
+            body["value"] = float(value) if value.replace(".", "", 1).isdigit() else value
+        transport.sendto(json.dumps(body).encode())
+        async with asyncio.timeout(timeout_s):
+            return json.loads(await reply)
+    finally:
+        transport.close()

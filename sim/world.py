@@ -1,0 +1,106 @@
+"""The world file (SPEC §7): one YAML description of a simulated field, read by
+`fleet sim`, `fleet demo` and fast-time simulation alike. Strict: a typo in a key
+is an error naming it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import msgspec
+from msgspec import Meta
+
+from schemas.geo import destination
+from sim.vehicle import VehicleParams
+
+Lat = Annotated[float, Meta(ge=-90, le=90)]
+Lon = Annotated[float, Meta(ge=-180, le=180)]
+FaultKind = Literal[
+    "rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore",
+    "health_failure", "health_ok", "gps_loss", "gps_ok",
+]
+ROW_SPACING_M = 5.0
+
+
+class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    pass
+
+
+class Spot(_Strict):
+    lat: Lat
+    lon: Lon
+    alt: float = 0.0
+
+
+class Fault(_Strict):
+    at_s: Annotated[float, Meta(ge=0)]
+    fault: FaultKind
+    value: float | str | None = None
+
+
+class DroneSpec(_Strict):
+    id: str
+    lat: Lat | None = None
+    lon: Lon | None = None
+    alt: float | None = None
+    sensors: list[str] = []
+    faults: list[Fault] = []
+
+
+class HeatSource(_Strict):
+    lat: Lat
+    lon: Lon
+    radius: Annotated[float, Meta(gt=0)]
+    temp: float
+
+
+class BatteryModel(_Strict):
+    drain_per_s: Annotated[float, Meta(ge=0)] = 0.0033
+    floor: Annotated[float, Meta(ge=0, le=1)] = 0.38
+
+
+class World(_Strict):
+    origin: Spot = Spot(lat=40.633490, lon=-8.660815, alt=8.2)
+    ground_station: Spot | None = None
+    drones: list[DroneSpec] = []
+    count: Annotated[int, Meta(ge=1, le=100)] | None = None
+    environment_temp: float = 20.0
+    heat_sources: list[HeatSource] = []
+    battery: BatteryModel = BatteryModel()
+
+    def params(self) -> VehicleParams:
+        return VehicleParams(battery_drain_per_s=self.battery.drain_per_s, battery_floor=self.battery.floor)
+
+    def spawn(self, n: int | None = None) -> list[DroneSpec]:
+        """Drones with positions: the listed ones (first n), or a row east of the origin."""
+        if self.drones:
+            listed = self.drones[: n or len(self.drones)]
+            return [
+                msgspec.structs.replace(
+                    d, lat=d.lat if d.lat is not None else self.origin.lat,
+                    lon=d.lon if d.lon is not None else self.origin.lon,
+                    alt=d.alt if d.alt is not None else self.origin.alt,
+                )
+                for d in listed
+            ]
+        total = n or self.count or 1
+        row = []
+        for i in range(total):
+            lat, lon = destination(self.origin.lat, self.origin.lon, i * ROW_SPACING_M, 90)
+            row.append(DroneSpec(id=f"drone{i + 1:02d}", lat=lat, lon=lon, alt=self.origin.alt))
+        return row
+
+
+def load_world(path: Path | None) -> World:
+    from schemas.errors import ConfigError
+
+    if path is None:
+        return World()
+    try:
+        return msgspec.yaml.decode(path.read_bytes(), type=World)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except msgspec.ValidationError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    except msgspec.DecodeError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
