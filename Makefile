@@ -21,6 +21,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/agent_cpu.py
+	$(BIN)/python bench/agent_mavsdk.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

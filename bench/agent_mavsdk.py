@@ -1,0 +1,107 @@
+"""Agent with MAVSDK inside, against `fleet sim`: CPU and RSS at 10 Hz telemetry, and
+the time from a command to its MAVSDK acknowledgement.
+
+    .venv/bin/python bench/agent_mavsdk.py [--seconds 30] [--commands 200]
+
+(1) `fleet sim -n 1` and `fleet agent --fc udpin://…` run as child processes; the
+agent's CPU share and RSS are read from /proc over the window. (2) In this process,
+the MAVSDK adapter sends DO_CHANGE_SPEED (`set_current_speed`) N times to a second
+simulated vehicle and times each call, which returns on the COMMAND_ACK.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from agent.fc_mavsdk import MavsdkFlightController  # noqa: E402
+from bench.procstat import Window  # noqa: E402
+from bus.port import Sample  # noqa: E402
+from bus.zenoh_bus import ZenohBus  # noqa: E402
+from schemas.keys import Keys  # noqa: E402
+from sim.mavlink_endpoint import MavlinkVehicle  # noqa: E402
+from sim.vehicle import Vehicle  # noqa: E402
+from tests.helpers import free_port, free_udp_base  # noqa: E402
+
+
+async def agent_usage(seconds: float) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    base = free_udp_base(1)
+    fleet = str(Path(sys.executable).with_name("fleet"))
+    router = await ZenohBus.open("router", listen=[endpoint])
+    sim = subprocess.Popen([fleet, "sim", "-n", "1", "--base-port", str(base)], stdout=subprocess.DEVNULL)
+    agent = subprocess.Popen(
+        [fleet, "agent", "--id", "bench01", "--fc", f"udpin://127.0.0.1:{base}", "--connect", endpoint, "--telemetry-rate-ms", "100"],
+        stderr=subprocess.DEVNULL,
+    )
+    client = await ZenohBus.open("client", connect=[endpoint])
+    received: list[float] = []
+    first = asyncio.Event()
+
+    def on_telem(_: Sample) -> None:
+        received.append(time.monotonic())
+        first.set()
+
+    try:
+        client.subscribe(Keys().telem("bench01"), on_telem)
+        async with asyncio.timeout(30):
+            await first.wait()
+        await asyncio.sleep(3)  # past start-up
+        count0 = len(received)
+        window = Window(agent.pid)
+        await asyncio.sleep(seconds)
+        usage = window.stop()
+        print(f"agent --fc udpin (MAVSDK 4.1.0 in-process) against fleet sim, telemetry 100 ms, {usage.window_s:.1f} s")
+        print(f"  telemetry received : {(len(received) - count0) / usage.window_s:.2f} msg/s")
+        print(f"  agent CPU          : {usage.cpu_percent:.2f} % of one core")
+        print(f"  agent RSS          : {usage.rss_mib:.1f} MiB")
+    finally:
+        for proc in (agent, sim):
+            proc.terminate()
+            proc.wait(timeout=10)
+        await client.close()
+        await router.close()
+
+
+async def ack_latency(commands: int) -> None:
+    base = free_udp_base(1)
+    endpoint = MavlinkVehicle(Vehicle(47.397742, 8.545594, 488.0), 1, [("127.0.0.1", base)])
+    await endpoint.start(("127.0.0.1", 0))
+    stepping = asyncio.get_running_loop().create_task(endpoint.run())
+    fc = MavsdkFlightController(f"udpin://127.0.0.1:{base}")
+    try:
+        await fc.start()
+        samples = []
+        for i in range(commands):
+            started = time.perf_counter()
+            await fc.action.set_current_speed(3.0 + (i % 5))
+            samples.append((time.perf_counter() - started) * 1000)
+        samples.sort()
+        p50 = statistics.median(samples)
+        p99 = samples[min(len(samples) - 1, int(0.99 * len(samples)))]
+        print(f"command -> MAVSDK acknowledgement (DO_CHANGE_SPEED, {commands} commands, same host)")
+        print(f"  p50 {p50:.2f} ms   p99 {p99:.2f} ms   max {samples[-1]:.2f} ms")
+    finally:
+        await fc.close()
+        stepping.cancel()
+        endpoint.close()
+
+
+async def main(seconds: float, commands: int) -> None:
+    await agent_usage(seconds)
+    await ack_latency(commands)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument("--commands", type=int, default=200)
+    args = parser.parse_args()
+    asyncio.run(main(args.seconds, args.commands))
