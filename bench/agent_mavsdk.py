@@ -22,52 +22,22 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.fc_mavsdk import MavsdkFlightController  # noqa: E402
-from bench.procstat import Window  # noqa: E402
-from bus.port import Sample  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.keys import Keys  # noqa: E402
+from bench.agent_window import measure_agent, report  # noqa: E402
 from sim.mavlink_endpoint import MavlinkVehicle  # noqa: E402
 from sim.vehicle import Vehicle  # noqa: E402
-from tests.helpers import free_port, free_udp_base  # noqa: E402
+from tests.helpers import free_udp_base  # noqa: E402
 
 
 async def agent_usage(seconds: float) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
     base = free_udp_base(1)
     fleet = str(Path(sys.executable).with_name("fleet"))
-    router = await ZenohBus.open("router", listen=[endpoint])
     sim = subprocess.Popen([fleet, "sim", "-n", "1", "--base-port", str(base)], stdout=subprocess.DEVNULL)
-    agent = subprocess.Popen(
-        [fleet, "agent", "--id", "bench01", "--fc", f"udpin://127.0.0.1:{base}", "--connect", endpoint, "--telemetry-rate-ms", "100"],
-        stderr=subprocess.DEVNULL,
-    )
-    client = await ZenohBus.open("client", connect=[endpoint])
-    received: list[float] = []
-    first = asyncio.Event()
-
-    def on_telem(_: Sample) -> None:
-        received.append(time.monotonic())
-        first.set()
-
     try:
-        client.subscribe(Keys().telem("bench01"), on_telem)
-        async with asyncio.timeout(30):
-            await first.wait()
-        await asyncio.sleep(3)  # past start-up
-        count0 = len(received)
-        window = Window(agent.pid)
-        await asyncio.sleep(seconds)
-        usage = window.stop()
-        print(f"agent --fc udpin (MAVSDK 4.1.0 in-process) against fleet sim, telemetry 100 ms, {usage.window_s:.1f} s")
-        print(f"  telemetry received : {(len(received) - count0) / usage.window_s:.2f} msg/s")
-        print(f"  agent CPU          : {usage.cpu_percent:.2f} % of one core")
-        print(f"  agent RSS          : {usage.rss_mib:.1f} MiB")
+        rate, usage = await measure_agent(f"udpin://127.0.0.1:{base}", seconds)
     finally:
-        for proc in (agent, sim):
-            proc.terminate()
-            proc.wait(timeout=10)
-        await client.close()
-        await router.close()
+        sim.terminate()
+        sim.wait(timeout=10)
+    report("agent --fc udpin (MAVSDK 4.1.0 in-process) against fleet sim", rate, usage)
 
 
 async def ack_latency(commands: int) -> None:

@@ -53,6 +53,20 @@ async def publish_until_seen(bus: Bus, key: str, seen: Collector, timeout_s: flo
             pass
 
 
+async def serve_reachably(server: Bus, client: Bus, key: str, handler) -> None:
+    """Declare a queryable and wait (deadline 5 s) until the client's queries reach it;
+    the handler must answer the payload b"warm"."""
+    server.serve(key, handler)
+    deadline = time.monotonic() + 5
+    while True:
+        try:
+            await client.query(key, b"warm", timeout_s=1)
+            return
+        except Unreachable:
+            assert time.monotonic() < deadline, f"queryable {key} never became reachable"
+            await asyncio.sleep(0.05)
+
+
 async def test_wildcard_subscriptions_route_by_key(mesh: MeshFactory) -> None:
     pub, sub = await mesh(), await mesh()
     one_kind, one_drone = Collector(), Collector()
@@ -99,15 +113,8 @@ async def test_query_is_answered_by_the_matching_queryable(mesh: MeshFactory) ->
     async def echo(key: str, payload: bytes) -> bytes:
         return key.encode() + b"|" + payload
 
-    server.serve("drone/d1/cmd", echo)
-    deadline = time.monotonic() + 5
-    while True:
-        try:
-            reply = await client.query("drone/d1/cmd", b"arm", timeout_s=2)
-            break
-        except Unreachable:
-            assert time.monotonic() < deadline, "queryable never became reachable"
-            await asyncio.sleep(0.05)
+    await serve_reachably(server, client, "drone/d1/cmd", echo)
+    reply = await client.query("drone/d1/cmd", b"arm", timeout_s=2)
     assert reply == b"drone/d1/cmd|arm"
 
 
@@ -130,15 +137,7 @@ async def test_slow_queryable_times_out(mesh: MeshFactory) -> None:
         await release.wait()
         return b"late"
 
-    server.serve("drone/d1/cmd", slow)
-    deadline = time.monotonic() + 5
-    while True:
-        try:
-            await client.query("drone/d1/cmd", b"warm", timeout_s=1)
-            break
-        except Unreachable:
-            assert time.monotonic() < deadline
-            await asyncio.sleep(0.05)
+    await serve_reachably(server, client, "drone/d1/cmd", slow)
     with pytest.raises(QueryTimeout):
         await client.query("drone/d1/cmd", b"slow", timeout_s=0.3)
     release.set()
@@ -152,15 +151,7 @@ async def test_failing_queryable_gives_an_error_reply(mesh: MeshFactory) -> None
             return b"ok"
         raise ValueError("boom")
 
-    server.serve("drone/d1/cmd", broken)
-    deadline = time.monotonic() + 5
-    while True:
-        try:
-            await client.query("drone/d1/cmd", b"warm", timeout_s=1)
-            break
-        except Unreachable:
-            assert time.monotonic() < deadline
-            await asyncio.sleep(0.05)
+    await serve_reachably(server, client, "drone/d1/cmd", broken)
     with pytest.raises(QueryRefused, match="boom"):
         await client.query("drone/d1/cmd", b"x", timeout_s=1)
 
