@@ -12,7 +12,10 @@ URL: `sim` or `sim://?lat=40.63&lon=-8.66&alt=8.2` for the spawn point.
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from urllib.parse import parse_qs, urlsplit
+
+import msgspec
 
 from agent.fc_port import FcRejected, FcState
 from bus.clock import Clock
@@ -76,7 +79,7 @@ class SimFlightController:
     def _read(self) -> FcState:
         v = self.vehicle
         if not v.connected:
-            return FcState(**{**_fields(self._snapshot), "connected": False})
+            return msgspec.structs.replace(self._snapshot, connected=False)
         return FcState(
             connected=True,
             armed=v.armed,
@@ -95,71 +98,54 @@ class SimFlightController:
     def state(self) -> FcState:
         return self._snapshot
 
-    def _do(self, result: str | None) -> None:
+    def _command(self, call: Callable[..., str | None], *args: object, ends_stream: bool = False) -> None:
+        """Run one vehicle command: refused when the link is pulled or the vehicle says no."""
+        if not self.vehicle.connected:
+            raise FcRejected("flight controller not responding")
+        if ends_stream:
+            self._setpoint = None
+        result = call(*args)
         if result is not None:
             raise FcRejected(result)
         self._snapshot = self._read()
 
-    def _check_link(self) -> None:
-        if not self.vehicle.connected:
-            raise FcRejected("flight controller not responding")
-
     async def arm(self) -> None:
-        self._check_link()
-        self._do(self.vehicle.arm())
+        self._command(self.vehicle.arm)
 
     async def disarm(self) -> None:
-        self._check_link()
-        self._do(self.vehicle.disarm())
+        self._command(self.vehicle.disarm)
 
     async def takeoff(self, alt_m: float) -> None:
-        self._check_link()
-        self._do(self.vehicle.takeoff(alt_m))
+        self._command(self.vehicle.takeoff, alt_m)
 
     async def land(self) -> None:
-        self._check_link()
-        self._stop_stream()
-        self._do(self.vehicle.land())
+        self._command(self.vehicle.land, ends_stream=True)
 
     async def goto(
         self, lat: float, lon: float, alt_amsl: float, yaw_deg: float | None, speed_mps: float | None
     ) -> None:
-        self._check_link()
-        self._stop_stream()
-        self._do(self.vehicle.goto(lat, lon, alt_amsl, yaw_deg, speed_mps))
+        self._command(self.vehicle.goto, lat, lon, alt_amsl, yaw_deg, speed_mps, ends_stream=True)
 
     async def return_to_launch(self, alt_m: float) -> None:
-        self._check_link()
-        self._stop_stream()
-        self._do(self.vehicle.return_to_launch(alt_m))
+        self._command(self.vehicle.return_to_launch, alt_m, ends_stream=True)
 
     async def hold(self) -> None:
-        self._check_link()
-        self._stop_stream()
-        self._do(self.vehicle.hold())
+        self._command(self.vehicle.hold, ends_stream=True)
 
     async def set_setpoint(self, kind: str, values: dict[str, float | None]) -> None:
-        self._check_link()
+        if not self.vehicle.connected:
+            raise FcRejected("flight controller not responding")
         self._setpoint = (kind, dict(values))
         self._send_setpoint(self._clock.monotonic())
 
     async def start_offboard(self) -> None:
-        self._check_link()
-        self._do(self.vehicle.start_offboard())
+        self._command(self.vehicle.start_offboard)
 
     async def stop_offboard(self) -> None:
-        self._check_link()
-        self._stop_stream()
-        self._do(self.vehicle.stop_offboard())
-
-    def _stop_stream(self) -> None:
-        self._setpoint = None
+        self._command(self.vehicle.stop_offboard, ends_stream=True)
 
     async def close(self) -> None:
         if self._task is not None:
             self._task.cancel()
             await asyncio.wait([self._task])
 
-
-def _fields(state: FcState) -> dict[str, object]:
-    return {f: getattr(state, f) for f in state.__struct_fields__}

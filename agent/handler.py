@@ -15,6 +15,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import msgspec
 from msgspec import UNSET
 
 from agent.fc_port import FcError, FcState, FlightController
@@ -190,7 +191,7 @@ class CommandHandler:
             case c.StopOffboard():
                 await fc.stop_offboard()
             case c.PositionNed() | c.VelocityNed() | c.VelocityBody() | c.Attitude() | c.AttitudeRate():
-                values = {f: getattr(cmd, f) for f in cmd.__struct_fields__ if f not in _COMMON_FIELDS}
+                values = {k: v for k, v in msgspec.structs.asdict(cmd).items() if k not in _COMMON_FIELDS}
                 if cmd.name in ("position_ned", "velocity_ned") and values.get("yaw") is None:
                     values["yaw"] = s.heading
                 if isinstance(cmd, c.PositionNed):

@@ -116,7 +116,6 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
     from bus.zenoh_bus import ZenohBus
 
     clock = clock or SystemClock()
-    check_id(drone_id)
     # MAVSDK runs its blocking calls in the default executor; 6 threads on 2 cores
     # serialise a burst of commands (mavsdk-facts.md §2.1).
     asyncio.get_running_loop().set_default_executor(ThreadPoolExecutor(32, thread_name_prefix="fc"))

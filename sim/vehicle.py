@@ -312,9 +312,7 @@ class Vehicle:
                 self._target = (self.north, self.east, top)
                 self.events.append("Takeoff complete")
         elif mode == "land":
-            self.vn = self.ve = 0.0
-            rate = p.land_speed_mps if self.rel_alt <= p.land_slow_below_m else p.descent_speed_mps
-            self.vd = min(rate, (self.alt - self.ground_alt) / dt)
+            self._descend(dt)
         elif mode == "return_to_launch":
             self._step_rtl(dt)
         elif mode == "offboard":
@@ -341,9 +339,7 @@ class Vehicle:
             if self._fly_to((home_n, home_e, self._rtl_alt), self.cruise_speed, dt):
                 self._rtl_phase = "land"
         if self._rtl_phase == "land":
-            self.vn = self.ve = 0.0
-            rate = p.land_speed_mps if self.rel_alt <= p.land_slow_below_m else p.descent_speed_mps
-            self.vd = min(rate, (self.alt - self.ground_alt) / dt)
+            self._descend(dt)
             if self.landed_state != "on_ground":
                 self.landed_state = "landing"
 
@@ -393,6 +389,13 @@ class Vehicle:
         self.vn = forward * math.cos(h) - right * math.sin(h)
         self.ve = forward * math.sin(h) + right * math.cos(h)
         self.vd = down
+
+    def _descend(self, dt: float) -> None:
+        """Land where it is: fast above MPC_LAND_ALT2, slow below, stop at the ground."""
+        p = self.params
+        self.vn = self.ve = 0.0
+        rate = p.land_speed_mps if self.rel_alt <= p.land_slow_below_m else p.descent_speed_mps
+        self.vd = min(rate, (self.alt - self.ground_alt) / dt)
 
     def _vertical_rate(self, dz: float, rate: float, dt: float) -> float:
         """Signed climb rate (m/s, up positive) that closes dz without overshooting."""

@@ -10,6 +10,7 @@ import asyncio
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
+import msgspec
 import pytest
 
 from agent.fc_sim import SimFlightController
@@ -30,7 +31,7 @@ class Rig:
 
     def send(self, cmd: c.Command) -> str:
         self.n += 1
-        cmd = type(cmd)(**{**{f: getattr(cmd, f) for f in cmd.__struct_fields__}, "command_id": f"c{self.n}"})
+        cmd = msgspec.structs.replace(cmd, command_id=f"c{self.n}")
         reply = self.handler.submit(cmd)
         assert reply.accepted, reply.reason
         return cmd.command_id
