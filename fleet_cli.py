@@ -58,7 +58,8 @@ def main(verbose: int) -> None:
 @click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
 def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], telemetry_rate_ms: int | None) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
-    from agent.config import AgentConfig, load_config
+    from agent.config import AgentConfig
+    from schemas.config import load_config
     from agent.runtime import run_agent
     from schemas.keys import check_id
 

@@ -7,14 +7,10 @@ naming the file and the key.
 
 from __future__ import annotations
 
-from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import msgspec
-import yaml
 from msgspec import Meta
-
-from schemas.errors import ConfigError
 
 
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -26,29 +22,3 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = 15.0
     max_speed: Annotated[float, Meta(gt=0.0, le=50.0)] = 5.0
     namespace: str = ""
-
-
-def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[str, Any]) -> Any:
-    """Read `path` (YAML) into `kind`, apply non-None overrides, validate strictly."""
-    where = str(path) if path else "configuration"
-    data: dict[str, Any] = {}
-    if path is not None:
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-        if loaded is not None and not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of keys to values, got {type(loaded).__name__}")
-        data = dict(loaded or {})
-    data.update({k: v for k, v in overrides.items() if v is not None})
-    try:
-        return msgspec.convert(data, kind)
-    except msgspec.ValidationError as exc:
-        text = str(exc)
-        if "unknown field" in text:
-            key = text.split("`")[1]
-            known = ", ".join(kind.__struct_fields__)
-            raise ConfigError(f"{where}: unknown key {key!r} (known keys: {known})") from None
-        raise ConfigError(f"{where}: {text.replace('$.', '')}") from None

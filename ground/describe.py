@@ -1,0 +1,71 @@
+"""How the ground words status events: the thesis-style log lines and descriptions.
+
+"Start takeoff with altitude 10.0m", "Queued go to 40.634421, -8.660437 at 15.0m",
+"Finish takeoff", "Cancel land", "Success on arm", "Failure on takeoff: disarmed",
+"Auto disarmed" (thesis examples 24, 29, 30). A command's target (goto coordinates)
+names it in every later line; an altitude only in its start line, as the thesis does.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+
+from schemas.status import CommandStatus, SystemStatus
+
+Level = Literal["info", "warn", "error"]
+
+# Commands whose wire name reads badly in a sentence.
+_NAMES = {"goto": "go to", "move": "move to", "return": "return to launch"}
+
+
+class Described(msgspec.Struct, frozen=True):
+    name: str  # "go to 40.634421, -8.660437 at 15.0m", "takeoff"
+    current: str  # the registry's current_command description
+
+
+def _metres(value: float) -> str:
+    return f"{round(value, 2)}m"
+
+
+def describe_start(status: CommandStatus) -> Described:
+    name = _NAMES.get(status.command, status.command.replace("_", " "))
+    if status.coords is not None:
+        c = status.coords
+        name = f"{name} {c.lat:.6f}, {c.lon:.6f} at {_metres(c.alt)}"
+        return Described(name, name[0].upper() + name[1:])
+    current = name[0].upper() + name[1:]
+    if status.altitude is not None:
+        current = f"{current} with altitude {_metres(status.altitude)}"
+    return Described(name, current)
+
+
+def status_line(status: CommandStatus, described: Described) -> tuple[Level, str]:
+    reason = f": {status.reason}" if status.reason else ""
+    if status.state == "start":
+        return "info", f"Start {described.current[0].lower()}{described.current[1:]}"
+    if status.state == "failure":
+        return "warn", f"Failure on {described.name}{reason}"
+    if status.state == "success":
+        return "info", f"Success on {described.name}"
+    return "info", f"{status.state.capitalize()} {described.name}{reason}"
+
+
+_SYSTEM: dict[str, tuple[Level, str]] = {
+    "connect": ("info", "Flight controller system connected"),
+    "disconnect": ("warn", "Flight controller system disconnected"),
+    "disarm": ("info", "Auto disarmed"),
+    "return": ("warn", "Automatic return to launch"),
+    "stop_offboard": ("warn", "Offboard mode stopped by the flight controller"),
+    "start_manual": ("info", "Start manual mode"),
+    "stop_manual": ("info", "Stop manual mode"),
+    "link_lost": ("warn", "Lost link to ground station"),
+    "link_restored": ("info", "Link to ground station restored"),
+    "failsafe": ("warn", "Failsafe action by the agent"),
+}
+
+
+def system_line(status: SystemStatus) -> tuple[Level, str]:
+    level, message = _SYSTEM.get(status.state, ("info", f"System event {status.state}"))
+    return level, f"{message}: {status.reason}" if status.reason else message

@@ -1,0 +1,293 @@
+"""The fleet registry: what the ground knows of every drone, derived from events.
+
+Pure logic (thesis §4.2.4–4.2.7): feed it telemetry, statuses, sensor readings,
+liveliness changes and the time, and it keeps per drone the telemetry as received
+plus the derived `info` (state, current command, errors, warns, sensors, mission).
+Every method returns what happened as events — log lines for the event log and
+`InfoChanged` for whoever watches (the dashboard stream, missions) — and never
+reads a clock or touches I/O, so the whole table is tested without an event loop.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import msgspec
+
+from ground.config import GroundConfig
+from ground.describe import Described, Level, describe_start, status_line, system_line
+from schemas.status import CommandStatus, SystemStatus
+from schemas.telemetry import MANUAL_MODES, SensorReading, Telemetry
+
+DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
+DRONE_STATES: tuple[str, ...] = ("unknown", "error", "manual", "active", "hold", "ready")
+LEVELS: tuple[str, ...] = ("info", "warn", "error")
+
+CRITICAL_BATTERY = "Critical battery level"
+LOW_BATTERY = "Low battery level"
+FC_DISCONNECTED = "Flight controller disconnected"
+HEALTH_PREFIX = "Failed health check"
+
+
+class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):
+    description: str
+    timestamp: int  # ms since the epoch, when it started (ground clock)
+    command: str
+    command_id: str
+
+
+class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
+    drone_id: str
+    state: DroneState
+    current_command: CurrentCommand | None
+    sensors: list[str]
+    mission: str | None
+    errors: list[str]
+    warns: list[str]
+
+
+class LogLine(msgspec.Struct, frozen=True, kw_only=True):
+    timestamp: int  # ms since the epoch
+    level: Level
+    drone_id: str | None
+    message: str
+
+
+class InfoChanged(msgspec.Struct, frozen=True, kw_only=True):
+    info: DroneInfo
+
+
+Event = LogLine | InfoChanged
+
+
+class Refusal(msgspec.Struct, frozen=True, kw_only=True):
+    status: int  # the HTTP status it maps to: 404 unknown drone, 409 cannot now
+    reason: str
+
+
+@dataclass
+class _Sensor:
+    reading: SensorReading
+    received_ms: int
+
+
+@dataclass
+class _Drone:
+    drone_id: str
+    telem: Telemetry
+    last_telem_ms: int
+    unknown: bool = False
+    alive: bool | None = None  # None: never saw a liveliness token
+    fc_disconnected: bool = False
+    current: CurrentCommand | None = None
+    described: dict[str, Described] = field(default_factory=dict)  # command_id → how to name it
+    sensors: dict[str, _Sensor] = field(default_factory=dict)
+    mission: str | None = None
+    info: DroneInfo | None = None
+
+
+class Registry:
+    def __init__(self, config: GroundConfig) -> None:
+        self.config = config
+        self._drones: dict[str, _Drone] = {}
+
+    # ---- queries -------------------------------------------------------------------
+
+    def __contains__(self, drone_id: str) -> bool:
+        return drone_id in self._drones
+
+    def ids(self) -> list[str]:
+        return sorted(self._drones)
+
+    def info(self, drone_id: str) -> DroneInfo:
+        d = self._drones[drone_id]
+        assert d.info is not None
+        return d.info
+
+    def telemetry(self, drone_id: str) -> Telemetry:
+        return self._drones[drone_id].telem
+
+    def sensor_readings(self, drone_id: str) -> list[SensorReading]:
+        d = self._drones[drone_id]
+        return [d.sensors[t].reading for t in sorted(d.sensors)]
+
+    def select(self, state: str | None = None, sensors: list[str] | None = None) -> list[str]:
+        """Ids of the drones in `state` (if given) carrying every sensor type listed."""
+        return [
+            i for i in self.ids()
+            if (state is None or self.info(i).state == state)
+            and all(s in self._drones[i].sensors for s in sensors or [])
+        ]
+
+    def check_command(self, drone_id: str, cmd: str, mission_id: str | None = None) -> Refusal | None:
+        """Why the ground refuses `cmd` for this drone now, or None (thesis §4.2.4).
+        `return` always goes through: it is the way home whatever else is wrong."""
+        d = self._drones.get(drone_id)
+        if d is None:
+            return Refusal(status=404, reason=f"no drone {drone_id!r} is registered")
+        if cmd == "return":
+            return None
+        info = self.info(drone_id)
+        if info.state == "unknown":
+            return Refusal(status=409, reason="drone state is unknown: no recent telemetry")
+        if info.state == "error":
+            return Refusal(status=409, reason=f"drone is in error: {'; '.join(info.errors)}")
+        if info.state == "manual":
+            return Refusal(status=409, reason="drone is under manual control")
+        if d.mission is not None and d.mission != mission_id:
+            return Refusal(status=409, reason=f"drone is assigned to mission {d.mission}")
+        if mission_id is not None and d.mission != mission_id:
+            return Refusal(status=409, reason=f"drone is not assigned to mission {mission_id}")
+        return None
+
+    # ---- events in -----------------------------------------------------------------
+
+    def on_telemetry(self, telem: Telemetry, now_ms: int) -> list[Event]:
+        out: list[Event] = []
+        d = self._drones.get(telem.drone_id)
+        if d is None:
+            d = self._drones[telem.drone_id] = _Drone(telem.drone_id, telem, now_ms)
+            out.append(self._line(now_ms, "info", d, "Registered"))
+            before_errors: list[str] = []
+            before_warns: list[str] = []
+            reconnected = True
+        else:
+            assert d.info is not None
+            before_errors, before_warns = d.info.errors, d.info.warns
+            if d.alive is False:
+                return out  # late samples of a session whose token is gone
+            reconnected = d.unknown
+            d.telem, d.last_telem_ms, d.unknown = telem, now_ms, False
+        info = self._derive(d)
+        for message in info.errors:
+            if message not in before_errors:
+                out.append(self._line(now_ms, "error", d, message))
+        for message in info.warns:
+            if message not in before_warns and message != FC_DISCONNECTED:
+                out.append(self._line(now_ms, "warn", d, message))
+        if reconnected:
+            out.append(self._line(now_ms, "info", d, "Established connection with ground station"))
+        if before_errors and not info.errors:
+            out.append(self._line(now_ms, "info", d, "Errors cleared"))
+        return out + self._publish(d, info)
+
+    def on_status(self, status: CommandStatus | SystemStatus, now_ms: int) -> list[Event]:
+        d = self._drones.get(status.drone_id)
+        if d is None:
+            return []  # registration happens on telemetry; the agent repeats nothing we need
+        if isinstance(status, SystemStatus):
+            if status.state == "disconnect":
+                d.fc_disconnected = True
+            elif status.state == "connect":
+                d.fc_disconnected = False
+            level, message = system_line(status)
+            return [self._line(now_ms, level, d, message), *self._publish(d, self._derive(d))]
+        if status.state in ("start", "queued"):
+            d.described[status.command_id] = describe_start(status)
+        described = d.described.get(status.command_id) or describe_start(status)
+        if status.state == "start":
+            d.current = CurrentCommand(
+                description=described.current, timestamp=now_ms,
+                command=status.command, command_id=status.command_id,
+            )
+        elif status.state in ("finish", "cancel", "stop", "failure", "success"):
+            d.described.pop(status.command_id, None)
+            if d.current is not None and d.current.command_id == status.command_id:
+                d.current = None
+        level, message = status_line(status, described)
+        return [self._line(now_ms, level, d, message), *self._publish(d, self._derive(d))]
+
+    def on_sensor(self, reading: SensorReading, now_ms: int) -> list[Event]:
+        d = self._drones.get(reading.drone_id)
+        if d is None:
+            return []
+        first = reading.type not in d.sensors
+        d.sensors[reading.type] = _Sensor(reading, now_ms)
+        if not first:
+            return []
+        return [self._line(now_ms, "info", d, f"Detected {reading.type} sensor"), *self._publish(d, self._derive(d))]
+
+    def on_liveliness(self, drone_id: str, alive: bool, now_ms: int) -> list[Event]:
+        d = self._drones.get(drone_id)
+        if d is None:
+            return []
+        d.alive = alive
+        if alive or d.unknown:
+            return []
+        return self._lose(d, now_ms, "Stopped receiving messages from drone (liveliness token lost)")
+
+    def tick(self, now_ms: int) -> list[Event]:
+        """Time passing: drone and sensor timeouts (the thesis's scheduled monitors)."""
+        out: list[Event] = []
+        for d in self._drones.values():
+            if not d.unknown and now_ms - d.last_telem_ms > self.config.drone_timeout_ms:
+                out += self._lose(d, now_ms, "Stopped receiving messages from drone")
+            for kind, sensor in list(d.sensors.items()):
+                limit = self.config.sensor_timeout_ms.get(kind, 0)
+                if limit and now_ms - sensor.received_ms > limit:
+                    del d.sensors[kind]
+                    out.append(self._line(now_ms, "warn", d, f"Lost {kind} sensor: no reading for {limit} ms"))
+                    out += self._publish(d, self._derive(d))
+        return out
+
+    def assign(self, drone_id: str, mission_id: str, now_ms: int) -> list[Event]:
+        d = self._drones[drone_id]
+        d.mission = mission_id
+        return [self._line(now_ms, "info", d, f"Assigned to mission {mission_id}"), *self._publish(d, self._derive(d))]
+
+    def release(self, drone_id: str, now_ms: int) -> list[Event]:
+        d = self._drones[drone_id]
+        if d.mission is None:
+            return []
+        mission, d.mission = d.mission, None
+        return [self._line(now_ms, "info", d, f"Released from mission {mission}"), *self._publish(d, self._derive(d))]
+
+    # ---- derivation ----------------------------------------------------------------
+
+    def _lose(self, d: _Drone, now_ms: int, message: str) -> list[Event]:
+        d.unknown = True
+        d.current = None
+        d.described.clear()
+        return [self._line(now_ms, "warn", d, message), *self._publish(d, self._derive(d))]
+
+    def _derive(self, d: _Drone) -> DroneInfo:
+        t = d.telem
+        errors: list[str] = []
+        warns: list[str] = []
+        if t.battery is not None:
+            if t.battery.remaining_percent <= self.config.battery.critical:
+                errors.append(CRITICAL_BATTERY)
+            elif t.battery.remaining_percent <= self.config.battery.low:
+                warns.append(LOW_BATTERY)
+        if t.health_failures:
+            errors.append(f"{HEALTH_PREFIX}: {', '.join(t.health_failures)}")
+        if d.fc_disconnected:
+            warns.append(FC_DISCONNECTED)
+        state: DroneState
+        if d.unknown:
+            state = "unknown"
+        elif errors:
+            state = "error"
+        elif t.flight_mode in MANUAL_MODES:
+            state = "manual"
+        elif d.current is not None:
+            state = "active"
+        elif t.armed and t.landed_state != "on_ground":
+            state = "hold"
+        else:
+            state = "ready"
+        return DroneInfo(
+            drone_id=d.drone_id, state=state, current_command=d.current, sensors=sorted(d.sensors),
+            mission=d.mission, errors=errors, warns=warns,
+        )
+
+    def _publish(self, d: _Drone, info: DroneInfo) -> list[Event]:
+        if info == d.info:
+            return []
+        d.info = info
+        return [InfoChanged(info=info)]
+
+    @staticmethod
+    def _line(now_ms: int, level: Level, d: _Drone, message: str) -> LogLine:
+        return LogLine(timestamp=now_ms, level=level, drone_id=d.drone_id, message=message)

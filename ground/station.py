@@ -1,0 +1,229 @@
+"""The ground station's core shell: the mesh in, the registry in the middle, the log
+and the watchers out, and the one path by which commands reach a drone.
+
+Telemetry, statuses, sensor readings and liveliness arrive from the Bus on the event
+loop and feed the pure Registry; what it reports goes to the event log (SQLite) and
+to every watcher (the HTTP event stream, later missions). Commands from HTTP and
+missions pass `command()`: validated, checked against the registry (409 reasons),
+stamped, sent as a query to the agent, and answered with the agent's reply.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import msgspec
+
+from agent.remote import new_command_id
+from bus.clock import Clock, SystemClock
+from bus.port import Bus, Declaration, Sample
+from ground.config import GroundConfig
+from ground.eventlog import EventLog
+from ground.registry import Event, InfoChanged, LogLine, Registry
+from schemas.codec import decode_sensor, decode_status, decode_telemetry, encode
+from schemas.commands import Command, CommandReply, decode_command
+from schemas.errors import FleetError, InvalidMessage
+from schemas.keys import Keys, check_id
+from schemas.telemetry import SensorReading, Telemetry
+
+log = logging.getLogger(__name__)
+TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late
+WATCH_QUEUE = 2048
+_reply_decoder = msgspec.json.Decoder(CommandReply)
+
+
+class CommandRejected(FleetError):
+    """The ground or the agent will not run a command now; `status` is the HTTP code."""
+
+    def __init__(self, status: int, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+        self.reason = reason
+
+
+class WatchEvent(msgspec.Struct, frozen=True):
+    kind: str  # telemetry | status | drone | log
+    data: Any
+    id: int | None = None  # log lines: their row id in the event log
+
+
+class Watcher:
+    """A bounded queue of WatchEvents; a watcher that falls behind loses the oldest."""
+
+    def __init__(self) -> None:
+        self.queue: asyncio.Queue[WatchEvent] = asyncio.Queue(WATCH_QUEUE)
+        self.dropped = 0
+
+    def put(self, event: WatchEvent) -> None:
+        if self.queue.full():
+            self.queue.get_nowait()
+            self.dropped += 1
+        self.queue.put_nowait(event)
+
+
+class GroundStation:
+    def __init__(self, config: GroundConfig, bus: Bus, events: EventLog, clock: Clock | None = None) -> None:
+        self.config = config
+        self.bus = bus
+        self.events = events
+        self.clock = clock or SystemClock()
+        self.keys = Keys(config.namespace)
+        self.registry = Registry(config)
+        self._watchers: set[Watcher] = set()
+        self._last_telem_event: dict[str, float] = {}
+
+    # ---- running -------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Listen to the mesh and keep time until cancelled."""
+        k = self.keys
+        declarations: list[Declaration] = [
+            self.bus.subscribe(k.telem(), self._on_telemetry, latest_only=True, maxsize=8192),
+            self.bus.subscribe(k.status(), self._on_status, maxsize=65_536),
+            self.bus.subscribe(k.sensor(), self._on_sensor, latest_only=True, maxsize=8192),
+            self.bus.watch_liveliness(k.alive(), self._on_liveliness),
+            self.bus.serve(k.ground_ping(), self._on_ping),
+            self.bus.announce(k.ground_alive()),
+        ]
+        self.log_ground("info", "Ground station started")
+        try:
+            while True:
+                self._emit(self.registry.tick(self.clock.time_ms()))
+                await self.clock.sleep(TICK_S)
+        finally:
+            for declaration in reversed(declarations):
+                declaration.close()
+            self.log_ground("info", "Ground station stopped")
+
+    def log_ground(self, level: str, message: str) -> None:
+        """A line about the ground itself (no drone)."""
+        self._emit([LogLine(timestamp=self.clock.time_ms(), level=level, drone_id=None, message=message)])  # type: ignore[arg-type]
+
+    @contextmanager
+    def watch(self) -> Iterator[Watcher]:
+        watcher = Watcher()
+        self._watchers.add(watcher)
+        try:
+            yield watcher
+        finally:
+            self._watchers.discard(watcher)
+
+    # ---- commands ------------------------------------------------------------------
+
+    async def command(self, drone_id: str, body: bytes, mission_id: str | None = None) -> CommandReply:
+        """Validate, check and forward one command (SPEC §4 POST /drone/{id}/cmd).
+
+        Raises InvalidMessage (400), CommandRejected (404/409) or bus Unreachable (504).
+        """
+        check_id(drone_id)
+        if drone_id not in self.registry:
+            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+        command = self._stamp(drone_id, body)
+        refusal = self.registry.check_command(drone_id, command.name, mission_id)
+        if refusal is not None:
+            self._emit([LogLine(
+                timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
+                message=f"Refused {command.name}: {refusal.reason}",
+            )])
+            raise CommandRejected(refusal.status, refusal.reason)
+        raw = await self.bus.query(
+            self.keys.cmd(drone_id), encode(command), timeout_s=self.config.command_timeout_ms / 1000
+        )
+        try:
+            reply = _reply_decoder.decode(raw)
+        except msgspec.MsgspecError as exc:
+            raise CommandRejected(502, f"the agent answered something that is not a CommandReply: {exc}") from None
+        if not reply.accepted:
+            raise CommandRejected(409, reply.reason or "refused by the agent")
+        return reply
+
+    def _stamp(self, drone_id: str, body: bytes) -> Command:
+        """The request body plus drone_id, timestamp and (unless given) command_id."""
+        try:
+            obj = msgspec.json.decode(body)
+        except msgspec.DecodeError:
+            try:  # NaN/Infinity tokens: decode_command then names the field
+                obj = json.loads(body)
+            except (ValueError, UnicodeDecodeError) as exc:
+                raise InvalidMessage(f"malformed JSON: {exc}") from None
+        if not isinstance(obj, dict):
+            raise InvalidMessage(f"the body must be a JSON object (a command), got {type(obj).__name__}", field="$")
+        if obj.get("drone_id", drone_id) != drone_id:
+            raise InvalidMessage(f"drone_id: the path names {drone_id!r}, the body {obj['drone_id']!r}", field="$.drone_id")
+        obj.update(drone_id=drone_id, timestamp=self.clock.time_ms())
+        if not obj.get("command_id"):
+            obj["command_id"] = new_command_id()
+        return decode_command(json.dumps(obj))
+
+    # ---- events in -----------------------------------------------------------------
+
+    def _on_telemetry(self, sample: Sample) -> None:
+        telem = self._decode(decode_telemetry, sample)
+        if telem is None:
+            return
+        self._emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
+        self._offer_telemetry(telem)
+
+    def _on_status(self, sample: Sample) -> None:
+        status = self._decode(decode_status, sample)
+        if status is None:
+            return
+        self._broadcast(WatchEvent("status", status))
+        self._emit(self.registry.on_status(status, self.clock.time_ms()))
+
+    def _on_sensor(self, sample: Sample) -> None:
+        reading: SensorReading | None = self._decode(decode_sensor, sample)
+        parsed = self.keys.parse(sample.key)
+        if reading is None or parsed is None:
+            return
+        if reading.drone_id != parsed.drone_id:  # the key is the authority on who carries it
+            reading = msgspec.structs.replace(reading, drone_id=parsed.drone_id)
+        self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
+
+    def _on_liveliness(self, key: str, alive: bool) -> None:
+        parsed = self.keys.parse(key)
+        if parsed is not None:
+            self._emit(self.registry.on_liveliness(parsed.drone_id, alive, self.clock.time_ms()))
+
+    async def _on_ping(self, key: str, payload: bytes) -> bytes:
+        return payload
+
+    @staticmethod
+    def _decode(decoder: Any, sample: Sample) -> Any:
+        try:
+            return decoder(sample.payload)
+        except InvalidMessage as exc:
+            log.warning("ignored a bad message on %s: %s", sample.key, exc)
+            return None
+
+    # ---- events out ----------------------------------------------------------------
+
+    def _emit(self, events: list[Event]) -> None:
+        for event in events:
+            if isinstance(event, LogLine):
+                row = self.events.append(event)
+                log.log(_LOG_LEVELS[event.level], "%s - %s", event.drone_id or "ground", event.message)
+                self._broadcast(WatchEvent("log", event, row))
+            elif isinstance(event, InfoChanged):
+                self._broadcast(WatchEvent("drone", event.info))
+
+    def _offer_telemetry(self, telem: Telemetry) -> None:
+        """Telemetry reaches watchers at most once per `event_telemetry_ms` per drone."""
+        if not self._watchers:
+            return
+        now = self.clock.monotonic()
+        if now - self._last_telem_event.get(telem.drone_id, -1e9) >= self.config.event_telemetry_ms / 1000:
+            self._last_telem_event[telem.drone_id] = now
+            self._broadcast(WatchEvent("telemetry", telem))
+
+    def _broadcast(self, event: WatchEvent) -> None:
+        for watcher in self._watchers:
+            watcher.put(event)
+
+
+_LOG_LEVELS = {"info": logging.INFO, "warn": logging.WARNING, "error": logging.ERROR}

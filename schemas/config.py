@@ -1,0 +1,58 @@
+"""Strict loading of YAML configuration files (agent, ground) into msgspec Structs.
+
+A file supplies any subset of the keys; command-line flags override it. An unknown
+key or a value of the wrong type stops the program at start with a message naming
+the file and the key (nested keys dotted: `battery.low`), and the keys it knows.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import yaml
+
+from schemas.errors import ConfigError
+
+_UNKNOWN = re.compile(r"unknown field `([^`]*)`(?: - at `\$\.?([^`]*)`)?")
+
+
+def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[str, Any]) -> Any:
+    """Read `path` (YAML) into `kind`, apply non-None overrides, validate strictly."""
+    where = str(path) if path else "configuration"
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            loaded = yaml.safe_load(path.read_text())
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+        if loaded is not None and not isinstance(loaded, dict):
+            raise ConfigError(f"{path}: expected a mapping of keys to values, got {type(loaded).__name__}")
+        data = dict(loaded or {})
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        return msgspec.convert(data, kind)
+    except msgspec.ValidationError as exc:
+        text = str(exc)
+        unknown = _UNKNOWN.search(text)
+        if unknown:
+            key, parent = unknown.group(1), unknown.group(2) or ""
+            known = ", ".join(_fields_at(kind, parent))
+            dotted = f"{parent}.{key}" if parent else key
+            raise ConfigError(f"{where}: unknown key {dotted!r} (known keys{' of ' + parent if parent else ''}: {known})") from None
+        raise ConfigError(f"{where}: {text.replace('$.', '')}") from None
+
+
+def _fields_at(kind: type[msgspec.Struct], dotted: str) -> tuple[str, ...]:
+    """Field names of the Struct found by following `dotted` from `kind`."""
+    for part in filter(None, dotted.split(".")):
+        hint = msgspec.structs.fields(kind)
+        match = next((f for f in hint if f.encode_name == part), None)
+        if match is None or not isinstance(match.type, type) or not issubclass(match.type, msgspec.Struct):
+            return ()
+        kind = match.type
+    return kind.__struct_fields__

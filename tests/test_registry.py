@@ -1,0 +1,168 @@
+"""The fleet registry as pure logic: events in, state and thesis-style log lines out."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgspec
+import pytest
+
+from ground.config import GroundConfig
+from ground.registry import InfoChanged, LogLine, Registry
+from schemas.status import CommandStatus, Coords, SystemStatus
+from schemas.telemetry import Battery, Position, SensorReading, Telemetry
+
+
+def telem(drone: str = "drone01", **fields: Any) -> Telemetry:
+    base: dict[str, Any] = dict(
+        drone_id=drone, timestamp=0, armed=False, flight_mode="ready", landed_state="on_ground",
+        battery=Battery(remaining_percent=0.9, voltage=12.1),
+        position=Position(lat=40.6, lon=-8.6, alt=10.0, rel_alt=0.0),
+    )
+    base.update(fields)
+    return Telemetry(**base)
+
+
+def cmd_status(state: str, command: str = "takeoff", command_id: str = "c1", **fields: Any) -> CommandStatus:
+    return CommandStatus(drone_id="drone01", timestamp=0, command_id=command_id, command=command, state=state, **fields)  # type: ignore[arg-type]
+
+
+def lines(events: list[Any]) -> list[str]:
+    return [f"{e.level.upper()} {e.message}" for e in events if isinstance(e, LogLine)]
+
+
+@pytest.fixture
+def reg() -> Registry:
+    return Registry(GroundConfig(sensor_timeout_ms={"temperature": 1000}))
+
+
+def test_first_telemetry_registers_the_drone_ready(reg: Registry) -> None:
+    events = reg.on_telemetry(telem(), 1000)
+    assert lines(events) == ["INFO Registered", "INFO Established connection with ground station"]
+    assert reg.info("drone01").state == "ready"
+    assert any(isinstance(e, InfoChanged) for e in events)
+    assert reg.on_telemetry(telem(), 1100) == []  # nothing changed, nothing said
+
+
+def test_health_failure_is_an_error_and_refuses_commands_but_return(reg: Registry) -> None:
+    events = reg.on_telemetry(telem(health_failures=["accelerometer"]), 0)
+    assert lines(events) == [
+        "INFO Registered", "ERROR Failed health check: accelerometer", "INFO Established connection with ground station",
+    ]
+    assert reg.info("drone01").state == "error"
+    refusal = reg.check_command("drone01", "arm")
+    assert refusal is not None and refusal.status == 409 and "accelerometer" in refusal.reason
+    assert reg.check_command("drone01", "return") is None
+    assert lines(reg.on_telemetry(telem(), 100)) == ["INFO Errors cleared"]
+    assert reg.check_command("drone01", "arm") is None
+
+
+@pytest.mark.parametrize(
+    ("battery", "state", "errors", "warns"),
+    [(0.9, "ready", [], []), (0.15, "ready", [], ["Low battery level"]), (0.05, "error", ["Critical battery level"], [])],
+)
+def test_battery_thresholds(reg: Registry, battery: float, state: str, errors: list[str], warns: list[str]) -> None:
+    reg.on_telemetry(telem(battery=Battery(remaining_percent=battery, voltage=11.0)), 0)
+    info = reg.info("drone01")
+    assert (info.state, info.errors, info.warns) == (state, errors, warns)
+
+
+def test_command_life_cycle_sets_current_command_and_words_the_log(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    assert lines(reg.on_status(cmd_status("success", "arm", "a"), 10)) == ["INFO Success on arm"]
+    reg.on_telemetry(telem(armed=True), 20)
+    assert lines(reg.on_status(cmd_status("start", altitude=10.0), 30)) == ["INFO Start takeoff with altitude 10.0m"]
+    info = reg.info("drone01")
+    assert info.state == "active"
+    assert info.current_command is not None and info.current_command.description == "Takeoff with altitude 10.0m"
+    goto = dict(command="goto", command_id="g1", coords=Coords(lat=40.634421, lon=-8.660437, alt=15.0))
+    assert lines(reg.on_status(cmd_status("queued", **goto), 40)) == ["INFO Queued go to 40.634421, -8.660437 at 15.0m"]
+    assert lines(reg.on_status(cmd_status("finish"), 50)) == ["INFO Finish takeoff"]
+    assert lines(reg.on_status(cmd_status("start", **goto), 51)) == ["INFO Start go to 40.634421, -8.660437 at 15.0m"]
+    assert reg.info("drone01").current_command.description == "Go to 40.634421, -8.660437 at 15.0m"  # type: ignore[union-attr]
+    reg.on_telemetry(telem(armed=True, landed_state="in_air", flight_mode="hold"), 55)
+    assert lines(reg.on_status(cmd_status("finish", command="goto", command_id="g1"), 60)) == [
+        "INFO Finish go to 40.634421, -8.660437 at 15.0m"
+    ]
+    assert reg.info("drone01").state == "hold"
+    reg.on_status(cmd_status("start", "land", "l1"), 70)
+    assert lines(reg.on_status(cmd_status("cancel", "land", "l1"), 71)) == ["INFO Cancel land"]
+    assert lines(reg.on_status(cmd_status("failure", "takeoff", "t2", reason="disarmed"), 80)) == [
+        "WARN Failure on takeoff: disarmed"
+    ]
+    assert reg.on_status(
+        SystemStatus(drone_id="drone01", timestamp=0, component="system", state="disarm"), 90
+    )[0].message == "Auto disarmed"  # type: ignore[union-attr]
+
+
+def test_manual_mode_refuses_commands(reg: Registry) -> None:
+    reg.on_telemetry(telem(flight_mode="posctl"), 0)
+    assert reg.info("drone01").state == "manual"
+    refusal = reg.check_command("drone01", "takeoff")
+    assert refusal is not None and refusal.reason == "drone is under manual control"
+
+
+def test_unknown_drone_is_404(reg: Registry) -> None:
+    refusal = reg.check_command("ghost", "return")
+    assert refusal is not None and refusal.status == 404
+
+
+def test_silence_past_the_timeout_makes_the_drone_unknown_until_telemetry_resumes(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    reg.on_status(cmd_status("start"), 10)
+    assert reg.tick(5000) == []
+    assert lines(reg.tick(5001)) == ["WARN Stopped receiving messages from drone"]
+    info = reg.info("drone01")
+    assert info.state == "unknown" and info.current_command is None
+    assert reg.tick(9000) == []  # said once
+    assert reg.check_command("drone01", "arm").status == 409  # type: ignore[union-attr]
+    assert lines(reg.on_telemetry(telem(), 9100)) == ["INFO Established connection with ground station"]
+    assert reg.info("drone01").state == "ready"
+
+
+def test_liveliness_loss_is_unknown_at_once_and_late_samples_do_not_revive(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    reg.on_liveliness("drone01", True, 1)
+    assert lines(reg.on_liveliness("drone01", False, 100)) == [
+        "WARN Stopped receiving messages from drone (liveliness token lost)"
+    ]
+    assert reg.on_telemetry(telem(), 150) == []
+    assert reg.info("drone01").state == "unknown"
+    reg.on_liveliness("drone01", True, 2000)
+    assert lines(reg.on_telemetry(telem(), 2100)) == ["INFO Established connection with ground station"]
+
+
+def test_flight_controller_disconnect_is_a_warning(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    sys = SystemStatus(drone_id="drone01", timestamp=0, component="system", state="disconnect")
+    assert lines(reg.on_status(sys, 1)) == ["WARN Flight controller system disconnected"]
+    assert reg.info("drone01").warns == ["Flight controller disconnected"]
+    reg.on_status(msgspec.structs.replace(sys, state="connect"), 2)
+    assert reg.info("drone01").warns == []
+
+
+def test_sensors_appear_with_their_first_reading_and_time_out_per_type(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    temp = SensorReading(drone_id="drone01", timestamp=0, type="temperature", value=21.5, unit="degC")
+    cam = msgspec.structs.replace(temp, type="camera", value="frame.jpg", unit="")
+    assert lines(reg.on_sensor(temp, 10)) == ["INFO Detected temperature sensor"]
+    assert reg.on_sensor(temp, 20) == []
+    reg.on_sensor(cam, 30)
+    assert reg.info("drone01").sensors == ["camera", "temperature"]
+    assert reg.select(sensors=["temperature", "camera"]) == ["drone01"]
+    reg.on_telemetry(telem(), 1000)
+    assert lines(reg.tick(1021)) == ["WARN Lost temperature sensor: no reading for 1000 ms"]
+    assert reg.info("drone01").sensors == ["camera"]  # camera: timeout 0 = never
+    assert reg.select(sensors=["temperature"]) == []
+
+
+def test_mission_assignment_guards_commands(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    reg.assign("drone01", "m1", 1)
+    assert reg.info("drone01").mission == "m1"
+    assert reg.check_command("drone01", "arm").reason == "drone is assigned to mission m1"  # type: ignore[union-attr]
+    assert reg.check_command("drone01", "arm", mission_id="m1") is None
+    assert reg.check_command("drone01", "return") is None
+    reg.release("drone01", 2)
+    assert reg.check_command("drone01", "arm", mission_id="m1") is not None
+    assert reg.check_command("drone01", "arm") is None
