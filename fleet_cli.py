@@ -126,10 +126,10 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
 @click.argument("drone")
 @click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "status"]))
 @click.argument("value", required=False)
-@click.option("--control", default="127.0.0.1:14539", show_default=True, help="Control channel of `fleet sim` (base port - 1).")
+@click.option("--control", default="127.0.0.1:14539", show_default=True, help="Control channel: `fleet sim` (base port - 1) or an agent on `--fc sim://?control=PORT`.")
 def fault(drone: str, kind: str, value: str | None, control: str) -> None:
     """Inject a fault into a vehicle of a running `fleet sim`."""
-    from sim.fleet_sim import send_fault
+    from sim.faults import send_fault
 
     host, _, port = control.rpartition(":")
     try:

@@ -6,7 +6,9 @@ refused with the vehicle's reason, offboard setpoints are re-sent at 20 Hz (as
 MAVSDK streams them) until offboard stops, and a pulled link shows as
 `connected=False` with the last values kept.
 
-URL: `sim` or `sim://?lat=40.63&lon=-8.66&alt=8.2` for the spawn point.
+URL: `sim` or `sim://?lat=40.63&lon=-8.66&alt=8.2` for the spawn point; add
+`control=PORT` to accept faults (`fleet fault --control 127.0.0.1:PORT …`, e.g. an
+RC takeover) on a UDP control channel, as `fleet sim` does.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import msgspec
 from agent.fc_port import FcRejected, FcState
 from bus.clock import Clock
 from schemas.errors import ConfigError
+from sim.faults import FaultChannel, open_fault_channel
 from sim.vehicle import Vehicle
 
 DEFAULT_SPAWN = (40.633490, -8.660815, 8.2)  # thesis test field, Aveiro
@@ -27,24 +30,28 @@ STEP_S = 0.02
 SETPOINT_PERIOD_S = 0.05
 
 
-def vehicle_from_url(url: str) -> Vehicle:
+def parse_sim_url(url: str) -> tuple[Vehicle, int | None]:
+    """The vehicle a sim URL describes, and its fault-control port if any."""
     parts = urlsplit(url)
     if url != "sim" and parts.scheme != "sim":
         raise ConfigError(f"not a sim URL: {url!r}")
     query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-    unknown = set(query) - {"lat", "lon", "alt"}
+    unknown = set(query) - {"lat", "lon", "alt", "control"}
     if unknown:
-        raise ConfigError(f"fc {url!r}: unknown parameter(s) {', '.join(sorted(unknown))} (known: lat, lon, alt)")
+        raise ConfigError(f"fc {url!r}: unknown parameter(s) {', '.join(sorted(unknown))} (known: lat, lon, alt, control)")
     try:
         lat, lon, alt = (float(query.get(k, d)) for k, d in zip(("lat", "lon", "alt"), DEFAULT_SPAWN, strict=True))
+        control = int(query["control"]) if "control" in query else None
     except ValueError as exc:
         raise ConfigError(f"fc {url!r}: {exc}") from None
-    return Vehicle(lat, lon, alt)
+    return Vehicle(lat, lon, alt), control
 
 
 class SimFlightController:
-    def __init__(self, vehicle: Vehicle, clock: Clock) -> None:
+    def __init__(self, vehicle: Vehicle, clock: Clock, control_port: int | None = None) -> None:
         self.vehicle = vehicle
+        self._control_port = control_port
+        self._control: asyncio.BaseTransport | None = None
         self._clock = clock
         self._task: asyncio.Task[None] | None = None
         self._setpoint: tuple[str, dict[str, float | None]] | None = None
@@ -53,6 +60,14 @@ class SimFlightController:
 
     async def start(self) -> None:
         self._snapshot = self._read()
+        if self._control_port is not None:
+            try:
+                self._control = await open_fault_channel(self._control_port, FaultChannel(
+                    lambda name: self.vehicle,
+                    lambda: {"vehicle": f"{self.vehicle.mode} {self.vehicle.landed_state} battery {self.vehicle.battery:.0%}"},
+                ))
+            except OSError as exc:
+                raise ConfigError(f"sim fault control port {self._control_port}: {exc.strerror}") from None
         self._task = asyncio.get_running_loop().create_task(self._run(), name="sim vehicle")
 
     async def _run(self) -> None:
@@ -145,6 +160,8 @@ class SimFlightController:
         self._command(self.vehicle.stop_offboard, ends_stream=True)
 
     async def close(self) -> None:
+        if self._control is not None:
+            self._control.close()
         if self._task is not None:
             self._task.cancel()
             await asyncio.wait([self._task])

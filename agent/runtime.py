@@ -17,7 +17,7 @@ import msgspec
 
 from agent.config import AgentConfig
 from agent.fc_port import FcUnavailable, FlightController
-from agent.fc_sim import SimFlightController, vehicle_from_url
+from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
@@ -34,7 +34,8 @@ FC_CONNECT_TIMEOUT_S = 8.0
 
 def make_flight_controller(url: str, clock: Clock) -> FlightController:
     if url == "sim" or url.startswith("sim://"):
-        return SimFlightController(vehicle_from_url(url), clock)
+        vehicle, control_port = parse_sim_url(url)
+        return SimFlightController(vehicle, clock, control_port)
     from agent.fc_mavsdk import MavsdkFlightController
 
     return MavsdkFlightController(url, connect_timeout_s=FC_CONNECT_TIMEOUT_S)

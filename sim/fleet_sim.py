@@ -11,7 +11,6 @@ started here stops on Ctrl-C/SIGTERM.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import subprocess
 import sys
@@ -19,9 +18,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from sim.faults import FaultChannel, apply_fault, open_fault_channel
 from sim.mavlink_endpoint import MavlinkVehicle
 from sim.vehicle import Vehicle
-from sim.world import DroneSpec, FaultKind, World
+from sim.world import DroneSpec, World
 
 log = logging.getLogger(__name__)
 PX4_SITL_BASE = 14540
@@ -35,27 +35,10 @@ class SimVehicle:
     port: int  # where its MAVLink goes (the agent listens here)
 
 
-def apply_fault(vehicle: Vehicle, fault: FaultKind | str, value: float | str | None = None) -> None:
-    if fault == "rc_takeover":
-        vehicle.inject_manual(True)
-    elif fault == "rc_release":
-        vehicle.inject_manual(False)
-    elif fault == "low_battery":
-        vehicle.inject_battery(float(value) if value is not None else 0.08)
-    elif fault == "link_pull":
-        vehicle.inject_link_loss(True)
-    elif fault == "link_restore":
-        vehicle.inject_link_loss(False)
-    elif fault == "health_failure":
-        vehicle.inject_health_failure(str(value or "accelerometer"))
-    elif fault == "health_ok":
-        vehicle.inject_health_failure()
-    elif fault == "gps_loss":
-        vehicle.inject_gps("no_fix")
-    elif fault == "gps_ok":
-        vehicle.inject_gps("fix_3d")
-    else:
-        raise ValueError(f"unknown fault {fault!r}")
+def _find(vehicles: dict[str, SimVehicle], name: str) -> SimVehicle:
+    if name not in vehicles:
+        raise ValueError(f"unknown drone {name!r} (have {', '.join(vehicles)})")
+    return vehicles[name]
 
 
 def status_line(v: SimVehicle) -> str:
@@ -65,32 +48,6 @@ def status_line(v: SimVehicle) -> str:
         f"{'armed' if veh.armed else 'disarmed':<8} alt {veh.rel_alt:6.1f} m  battery {veh.battery:4.0%}"
         + ("" if veh.connected else "  LINK PULLED")
     )
-
-
-class _Control(asyncio.DatagramProtocol):
-    def __init__(self, vehicles: dict[str, SimVehicle]) -> None:
-        self.vehicles = vehicles
-        self.transport: asyncio.DatagramTransport | None = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        try:
-            request = json.loads(data)
-            if request.get("fault") == "status":
-                reply = {"ok": True, "status": {k: status_line(v) for k, v in self.vehicles.items()}}
-            else:
-                target = self.vehicles.get(request.get("drone", ""))
-                if target is None:
-                    raise ValueError(f"unknown drone {request.get('drone')!r} (have {', '.join(self.vehicles)})")
-                apply_fault(target.endpoint.vehicle, request["fault"], request.get("value"))
-                log.warning("fault %s injected into %s", request["fault"], target.spec.id)
-                reply = {"ok": True}
-        except (ValueError, KeyError, TypeError) as exc:
-            reply = {"ok": False, "error": str(exc)}
-        assert self.transport is not None
-        self.transport.sendto(json.dumps(reply).encode(), addr)
 
 
 async def run_sim(
@@ -125,9 +82,10 @@ async def run_sim(
             tasks.append(loop.create_task(endpoint.run(), name=f"sim {spec.id}"))
             for fault in spec.faults:
                 loop.call_later(fault.at_s, apply_fault, vehicle, fault.fault, fault.value)
-        control_transport, _ = await loop.create_datagram_endpoint(
-            lambda: _Control(vehicles), local_addr=("127.0.0.1", base_port - 1)
-        )
+        control_transport = await open_fault_channel(base_port - 1, FaultChannel(
+            lambda name: _find(vehicles, name).endpoint.vehicle,
+            lambda: {k: status_line(v) for k, v in vehicles.items()},
+        ))
         out(f"{len(vehicles)} simulated vehicle(s); fault control on udp 127.0.0.1:{base_port - 1}")
         for v in vehicles.values():
             out(status_line(v))
@@ -157,25 +115,3 @@ async def run_sim(
             v.endpoint.close()
         if control_transport is not None:
             control_transport.close()
-
-
-async def send_fault(drone: str, fault: str, value: str | None, control: tuple[str, int], timeout_s: float = 3.0) -> dict[str, object]:
-    """Client side of the control channel (`fleet fault`, tests)."""
-    loop = asyncio.get_running_loop()
-    reply: asyncio.Future[bytes] = loop.create_future()
-
-    class _Client(asyncio.DatagramProtocol):
-        def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-            if not reply.done():
-                reply.set_result(data)
-
-    transport, _ = await loop.create_datagram_endpoint(_Client, remote_addr=control)
-    try:
-        body: dict[str, object] = {"drone": drone, "fault": fault}
-        if value is not None:
-            body["value"] = float(value) if value.replace(".", "", 1).isdigit() else value
-        transport.sendto(json.dumps(body).encode())
-        async with asyncio.timeout(timeout_s):
-            return json.loads(await reply)
-    finally:
-        transport.close()

@@ -15,7 +15,7 @@ from pymavlink import mavutil
 
 from bus.zenoh_bus import ZenohBus
 from schemas.geo import destination, distance_m
-from sim.fleet_sim import send_fault
+from sim.faults import send_fault
 from tests.harness import AgentProcess, Operator, SimProcess, fleet_command
 from tests.helpers import free_udp_base
 
