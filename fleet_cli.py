@@ -80,6 +80,28 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
 
 
 @main.command()
+@click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Ground YAML config.")
+@click.option("--listen", multiple=True, help="Zenoh endpoint the router listens on (repeatable); default tcp/0.0.0.0:7447.")
+@click.option("--http-port", type=click.IntRange(0, 65535), help="HTTP API port; default 8001.")
+@click.option("--data-dir", help="Where the event log and mission records live; default ~/.local/share/fleet.")
+def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None) -> None:
+    """Run the ground station: Zenoh router, fleet registry, event log, HTTP API."""
+    from ground.config import GroundConfig
+    from ground.lifecycle import run_ground
+    from schemas.config import load_config
+
+    try:
+        config = load_config(
+            GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir}
+        )
+        run_async(run_ground(config, lambda line: click.echo(line)))
+    except ConfigError as exc:
+        fail(str(exc), 2)
+    except FleetError as exc:
+        fail(str(exc), 1)
+
+
+@main.command()
 @click.argument("keyexpr", default="**")
 @click.option("--connect", multiple=True, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
 @click.option("--count", type=int, help="Exit after this many samples.")
@@ -154,6 +176,15 @@ def demo(port: int) -> None:
         fail(str(exc))
     sys.exit(0 if ok else 1)
 
+
+def _add_http_clients() -> None:
+    from ground.cli import drone, logs
+
+    main.add_command(drone)
+    main.add_command(logs)
+
+
+_add_http_clients()
 
 if __name__ == "__main__":
     main()

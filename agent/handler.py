@@ -110,7 +110,7 @@ class CommandHandler:
             self._armed_belief = (name == "arm", now + EFFECT_LAG_S)
         if decision.verdict == "queue":
             self._queued = job
-            self._status(cmd, "queued")
+            self._status(cmd, "queued", **self._queued_target(cmd, state))
         else:
             if name not in INSTANT:
                 self._running = job
@@ -206,6 +206,19 @@ class CommandHandler:
         else:
             job.started = True
             self._status(cmd, "start", **extra)
+
+    def _queued_target(self, cmd: Command, s: FcState) -> dict[str, object]:
+        """Where a goto queued behind a takeoff will fly, as far as known now: with no
+        alt it keeps the altitude the takeoff reaches. (A move depends on where the
+        takeoff ends, so its target is told only when it starts.)"""
+        if not isinstance(cmd, c.Goto) or s.position is None:
+            return {}
+        alt = cmd.alt
+        if alt is None:
+            goal = self._running.goal if self._running is not None else None
+            climbing = goal is not None and goal.kind == "altitude" and s.home is not None
+            alt = s.home.alt + goal.rel_alt if climbing else s.position.alt  # type: ignore[union-attr]
+        return {"coords": Coords(lat=cmd.lat, lon=cmd.lon, alt=alt)}
 
     def _goto_target(
         self, cmd: c.Goto | c.Move, s: FcState

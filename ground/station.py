@@ -28,7 +28,7 @@ from ground.registry import Event, InfoChanged, LogLine, Registry
 from schemas.codec import decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command
 from schemas.errors import FleetError, InvalidMessage
-from schemas.keys import Keys, check_id
+from schemas.keys import Keys
 from schemas.telemetry import SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
@@ -47,7 +47,7 @@ class CommandRejected(FleetError):
 
 
 class WatchEvent(msgspec.Struct, frozen=True):
-    kind: str  # telemetry | status | drone | log
+    kind: str  # telemetry | status | drone | log | end
     data: Any
     id: int | None = None  # log lines: their row id in the event log
 
@@ -120,7 +120,6 @@ class GroundStation:
 
         Raises InvalidMessage (400), CommandRejected (404/409) or bus Unreachable (504).
         """
-        check_id(drone_id)
         if drone_id not in self.registry:
             raise CommandRejected(404, f"no drone {drone_id!r} is registered")
         command = self._stamp(drone_id, body)
@@ -163,9 +162,12 @@ class GroundStation:
     # ---- events in -----------------------------------------------------------------
 
     def _on_telemetry(self, sample: Sample) -> None:
-        telem = self._decode(decode_telemetry, sample)
-        if telem is None:
+        telem: Telemetry | None = self._decode(decode_telemetry, sample)
+        parsed = self.keys.parse(sample.key)
+        if telem is None or parsed is None:
             return
+        if telem.drone_id != parsed.drone_id:  # the key is the authority on who sent it
+            telem = msgspec.structs.replace(telem, drone_id=parsed.drone_id)
         self._emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
         self._offer_telemetry(telem)
 
@@ -211,6 +213,10 @@ class GroundStation:
                 self._broadcast(WatchEvent("log", event, row))
             elif isinstance(event, InfoChanged):
                 self._broadcast(WatchEvent("drone", event.info))
+
+    def end_watches(self) -> None:
+        """Tell every watcher the ground is stopping (event streams then close)."""
+        self._broadcast(WatchEvent("end", None))
 
     def _offer_telemetry(self, telem: Telemetry) -> None:
         """Telemetry reaches watchers at most once per `event_telemetry_ms` per drone."""

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import httpx
 import yaml
 
 from agent.remote import send_command
@@ -21,7 +22,7 @@ from schemas.commands import CommandReply
 from schemas.keys import Keys
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
-from tests.helpers import Collector
+from tests.helpers import Collector, free_port, until
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -152,3 +153,57 @@ class SimProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+
+
+class GroundProcess:
+    """`fleet ground` as a child process on unique ports, with its own data dir."""
+
+    def __init__(self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), **config: Any) -> None:
+        self.zenoh_port = free_port()
+        self.http_port = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
+        self.url = f"http://127.0.0.1:{self.http_port}"
+        self.data_dir = data_dir or tmp / "ground-data"
+        self.log = tmp / f"ground-{self.http_port}.log"
+        cfg = tmp / f"ground-{self.http_port}.yml"
+        cfg.write_text(yaml.safe_dump(config))
+        self.args = fleet_command(
+            "-v", "ground", "--config", str(cfg), "--listen", self.endpoint,
+            "--http-port", str(self.http_port), "--data-dir", str(self.data_dir), *extra_args,
+        )
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.start()
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
+
+    async def ready(self, timeout_s: float = 15) -> None:
+        """Wait until the HTTP API answers (the router is up before it)."""
+        async with httpx.AsyncClient(base_url=self.url) as http:
+            async def answers() -> bool:
+                assert self.proc is not None and self.proc.poll() is None, f"ground exited:\n{self.output()}"
+                try:
+                    return (await http.get("/")).status_code == 200
+                except httpx.TransportError:
+                    return False
+
+            await until(answers, timeout_s, "the ground's HTTP API")
+
+    def kill(self) -> None:
+        assert self.proc is not None
+        self.proc.kill()
+        self.proc.wait()
+
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10) -> int | None:
+        if self.proc is None or self.proc.poll() is not None:
+            return self.proc.returncode if self.proc else None
+        self.proc.send_signal(sig)
+        try:
+            return self.proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            raise AssertionError(f"ground did not stop within {timeout_s} s on signal {sig}:\n{self.output()}") from None
+
+    def output(self) -> str:
+        return self.log.read_text(errors="replace") if self.log.exists() else ""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import inspect
 import socket
 import time
 from collections.abc import Callable
@@ -16,11 +17,13 @@ def free_port() -> int:
 
 
 async def until(predicate: Callable[[], Any], timeout_s: float, what: str = "condition") -> Any:
-    """Wait until predicate() is truthy (re-checked on every loop turn, at most every
-    20 ms) and return its value; fail with `what` when the deadline passes."""
+    """Wait until predicate() (plain or async) is truthy, re-checked at most every
+    20 ms, and return its value; fail with `what` when the deadline passes."""
     deadline = time.monotonic() + timeout_s
     while True:
         value = predicate()
+        if inspect.isawaitable(value):
+            value = await value
         if value:
             return value
         if time.monotonic() > deadline:

@@ -1,0 +1,266 @@
+"""The ground's HTTP API (SPEC §4) on Litestar: drones, commands, logs, live events.
+
+Handlers are thin: they read the GroundStation and translate its answers and errors
+into HTTP. Every error, including Litestar's own (bad query parameter, unknown
+route, wrong method), answers `{"error": "...", "detail": ...}`. The command body is
+decoded by the schemas' own decoder (so a 400 names the field exactly as an agent
+would) while the OpenAPI document still describes it as the Command union.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import msgspec
+from litestar import Litestar, MediaType, Request, Response, get, post
+from litestar.datastructures import ResponseHeader
+from litestar.di import Provide
+from litestar.exceptions import HTTPException, ValidationException
+from litestar.openapi import OpenAPIConfig, ResponseSpec
+from litestar.openapi.spec import OpenAPIMediaType, Operation, RequestBody
+from litestar.params import Parameter
+from litestar.response import ServerSentEvent, ServerSentEventMessage
+
+from bus.port import QueryRefused, Unreachable
+from ground.eventlog import format_line
+from ground.registry import DroneInfo
+from ground.station import CommandRejected, GroundStation, WatchEvent
+from schemas.commands import Command, CommandReply
+from schemas.errors import InvalidMessage
+from schemas.telemetry import SensorReading, Telemetry
+
+log = logging.getLogger(__name__)
+KEEPALIVE_S = 15.0
+LOG_CURSOR = "Fleet-Log-Cursor"
+
+DroneStateParam = Literal["unknown", "error", "manual", "active", "hold", "ready"]
+DataParam = Literal["telem", "info", "sensors"]
+LevelParam = Literal["info", "warn", "error"]
+EventKind = Literal["telemetry", "status", "drone", "log"]
+
+
+class ApiError(msgspec.Struct, frozen=True, kw_only=True):
+    error: str
+    detail: Any = None
+
+
+class DroneView(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    """One drone; `data=` keeps only the named part."""
+
+    info: DroneInfo | None = None
+    telem: Telemetry | None = None
+    sensors: list[SensorReading] | None = None
+
+
+def _errors(*codes: int) -> dict[int, ResponseSpec]:
+    return {c: ResponseSpec(ApiError, description=_REASONS[c], generate_examples=False) for c in codes}
+
+
+_REASONS = {
+    400: "malformed request (the field at fault is named)",
+    404: "no such drone or route",
+    409: "the drone cannot run this command now (reason given)",
+    502: "the agent answered with an error",
+    504: "the drone's agent did not answer (unreachable)",
+}
+
+
+def _error(status: int, error: str, detail: Any = None) -> Response[ApiError]:
+    return Response(ApiError(error=error, detail=detail), status_code=status)
+
+
+# ---- command body: decoded by schemas/, documented as the Command union --------------
+
+
+def _command_body_schema() -> tuple[dict[str, Any], dict[str, Any]]:
+    """OpenAPI schema of the POST body: each Command without drone_id/timestamp."""
+    (schema,), components = msgspec.json.schema_components((Command,), ref_template="#/components/schemas/{name}")
+    for component in components.values():
+        props = component.get("properties", {})
+        for name in ("drone_id", "timestamp"):
+            props.pop(name, None)
+    return {"oneOf": schema.pop("anyOf"), **schema}, components
+
+
+_BODY_SCHEMA, _BODY_COMPONENTS = _command_body_schema()
+
+
+@dataclass
+class _CommandOperation(Operation):
+    def __post_init__(self) -> None:
+        self.request_body = RequestBody(
+            content={"application/json": OpenAPIMediaType(schema=_BODY_SCHEMA)},  # type: ignore[arg-type]
+            required=True,
+            description="A command (SPEC §2) without drone_id and timestamp; the ground adds them and a command_id if absent.",
+        )
+
+
+# ---- handlers ---------------------------------------------------------------------
+
+
+def _view(station: GroundStation, drone_id: str, data: DataParam | None) -> DroneView:
+    reg = station.registry
+    return DroneView(
+        info=reg.info(drone_id) if data in (None, "info") else None,
+        telem=reg.telemetry(drone_id) if data in (None, "telem") else None,
+        sensors=reg.sensor_readings(drone_id) if data in (None, "sensors") else None,
+    )
+
+
+@get("/drone", sync_to_thread=False, responses=_errors(400), summary="All drones matching the filters")
+def list_drones(
+    station: GroundStation,
+    state_filter: Annotated[DroneStateParam | None, Parameter(query="state", description="only drones in this state")] = None,
+    sensors: Annotated[list[str] | None, Parameter(description="only drones carrying all these sensor types")] = None,
+    data_part: Annotated[DataParam | None, Parameter(query="data", description="keep only this part")] = None,
+) -> list[DroneView]:
+    return [_view(station, i, data_part) for i in station.registry.select(state_filter, sensors)]
+
+
+@get(
+    "/drone/logs", sync_to_thread=False, media_type=MediaType.TEXT, responses=_errors(400),
+    response_headers=[ResponseHeader(
+        name=LOG_CURSOR, value="0", documentation_only=True,
+        description="id of the last line returned (or `after` when none): pass it as `after` to get only newer lines",
+    )],
+    summary="The event log as text lines, oldest first",
+)
+def drone_logs(
+    station: GroundStation,
+    drone_id: list[str] | None = None,
+    loglevel: list[LevelParam] | None = None,
+    after: Annotated[int, Parameter(ge=0, description="only lines after this cursor")] = 0,
+    limit: Annotated[int | None, Parameter(ge=1, le=100_000)] = None,
+) -> Response[str]:
+    rows = station.events.query(drone_id or (), loglevel or (), after_id=after, limit=limit)
+    text = "".join(format_line(line) + "\n" for _, line in rows)
+    cursor = rows[-1][0] if rows else after
+    return Response(text, media_type=MediaType.TEXT, headers={LOG_CURSOR: str(cursor)})
+
+
+@get("/drone/{drone_id:str}", sync_to_thread=False, responses=_errors(400, 404), summary="One drone")
+def show_drone(
+    station: GroundStation,
+    drone_id: str,
+    data_part: Annotated[DataParam | None, Parameter(query="data", description="keep only this part")] = None,
+) -> Response[DroneView]:
+    if drone_id not in station.registry:
+        return _error(404, f"no drone {drone_id!r} is registered", {"drone_id": drone_id})  # type: ignore[return-value]
+    return Response(_view(station, drone_id, data_part))
+
+
+@post(
+    "/drone/{drone_id:str}/cmd", status_code=200, operation_class=_CommandOperation,
+    responses=_errors(400, 404, 409, 502, 504), summary="Send a command; 200 when the agent accepted it",
+)
+async def send_command(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[CommandReply]:
+    body = await request.body()
+    try:
+        reply = await station.command(drone_id, body)
+    except InvalidMessage as exc:
+        field = exc.field.removeprefix("$.") if exc.field else None
+        return _error(400, str(exc), {"field": field})  # type: ignore[return-value]
+    except CommandRejected as exc:
+        return _error(exc.status, exc.reason, {"drone_id": drone_id})  # type: ignore[return-value]
+    except QueryRefused as exc:
+        return _error(502, f"the agent of {drone_id} answered with an error: {exc}", {"drone_id": drone_id})  # type: ignore[return-value]
+    except Unreachable as exc:
+        return _error(504, f"{drone_id} did not answer: {exc}", {"drone_id": drone_id})  # type: ignore[return-value]
+    return Response(reply)
+
+
+@get(
+    "/events", sync_to_thread=False, media_type="text/event-stream", responses=_errors(400),
+    summary="Live server-sent events: telemetry (rate-capped per drone), status, drone (registry changes), log",
+)
+def events(station: GroundStation, types: list[EventKind] | None = None) -> ServerSentEvent:
+    wanted = set(types or ("telemetry", "status", "drone", "log"))
+    return ServerSentEvent(_stream(station, wanted))
+
+
+async def _stream(station: GroundStation, wanted: set[str]) -> AsyncIterator[ServerSentEventMessage]:
+    with station.watch() as watcher:
+        # First the current picture, so a dashboard needs no separate GET to start.
+        for drone_id in station.registry.ids():
+            if "drone" in wanted:
+                yield _message(WatchEvent("drone", station.registry.info(drone_id)))
+        while True:
+            try:
+                async with asyncio.timeout(KEEPALIVE_S):
+                    event = await watcher.queue.get()
+            except TimeoutError:
+                yield ServerSentEventMessage(comment="keepalive")
+                continue
+            if event.kind == "end":
+                return
+            if event.kind in wanted:
+                yield _message(event)
+
+
+def _message(event: WatchEvent) -> ServerSentEventMessage:
+    data = event.data
+    if event.kind == "log":
+        data = {**msgspec.to_builtins(data), "text": format_line(data)}
+    return ServerSentEventMessage(
+        event=event.kind, data=msgspec.json.encode(data).decode(), id=str(event.id) if event.id is not None else None
+    )
+
+
+@get("/", sync_to_thread=False, include_in_schema=False)
+def index() -> dict[str, str]:
+    return {"name": "fleet ground", "openapi": "/openapi.json", "drones": "/drone", "events": "/events", "logs": "/drone/logs"}
+
+
+@get("/openapi.json", sync_to_thread=False, include_in_schema=False, media_type="application/vnd.oai.openapi+json")
+def openapi_json(request: Request[Any, Any, Any]) -> bytes:
+    return msgspec.json.encode(request.app.openapi_schema.to_schema())
+
+
+# ---- errors -----------------------------------------------------------------------
+
+
+# Python names of query parameters whose wire name is a Litestar reserved word.
+_QUERY_ALIASES = {"data_part": "data", "state_filter": "state"}
+
+
+def _http_error(request: Request[Any, Any, Any], exc: HTTPException) -> Response[ApiError]:
+    error, detail = str(exc.detail), None
+    if isinstance(exc, ValidationException) and isinstance(exc.extra, list) and exc.extra:
+        detail = [
+            {**item, "key": _QUERY_ALIASES.get(item.get("key"), item.get("key"))} if isinstance(item, dict) else item
+            for item in exc.extra
+        ]
+        error = "; ".join(f"{d.get('key')}: {d.get('message')}" for d in detail if isinstance(d, dict)) or error
+    response = _error(exc.status_code, error, detail)
+    if exc.headers:
+        response.headers.update(exc.headers)
+    return response
+
+
+def _internal_error(request: Request[Any, Any, Any], exc: Exception) -> Response[ApiError]:
+    log.exception("%s %s failed", request.method, request.url.path)
+    return _error(500, f"internal error: {type(exc).__name__}")
+
+
+def _add_command_components(app: Litestar) -> None:
+    # Litestar rebuilds components from its own registry, so the body's are added after.
+    schemas = app.openapi_schema.components.schemas
+    assert schemas is not None
+    for name, schema in _BODY_COMPONENTS.items():
+        schemas.setdefault(name, schema)  # type: ignore[arg-type]
+
+
+def create_app(station: GroundStation) -> Litestar:
+    return Litestar(
+        [list_drones, drone_logs, show_drone, send_command, events, index, openapi_json],
+        dependencies={"station": Provide(lambda: station, sync_to_thread=False)},
+        exception_handlers={HTTPException: _http_error, Exception: _internal_error},
+        openapi_config=OpenAPIConfig(title="Fleet ground station", version="0.1.0"),
+        on_startup=[_add_command_components],
+        debug=False,
+        logging_config=None,  # the CLI configures logging, not the framework
+    )

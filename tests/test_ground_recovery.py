@@ -1,0 +1,146 @@
+"""The ground through failures: an agent killed and restarted, the ground itself killed
+and restarted on the same data directory, and a clean stop with a live event stream."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+from pathlib import Path
+
+import httpx
+from tests.harness import AgentProcess, GroundProcess, fleet_command
+from tests.helpers import until
+
+
+async def drone_state(http: httpx.AsyncClient, drone_id: str) -> str | None:
+    response = await http.get(f"/drone/{drone_id}", params={"data": "info"})
+    return response.json()["info"]["state"] if response.status_code == 200 else None
+
+
+async def wait_state(http: httpx.AsyncClient, drone_id: str, state: str, timeout_s: float) -> None:
+    async def reached() -> bool:
+        return await drone_state(http, drone_id) == state
+
+    await until(reached, timeout_s, f"{drone_id} {state}")
+
+
+async def test_killed_agent_is_unknown_within_3_s_and_ready_again_after_restart(tmp_path: Path) -> None:
+    ground = GroundProcess(tmp_path)
+    agent = AgentProcess("drone01", ground.endpoint, tmp_path)
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            await wait_state(http, "drone01", "ready", 30)
+            assert agent.proc is not None
+            agent.proc.kill()
+            agent.proc.wait()
+            await wait_state(http, "drone01", "unknown", 3.0)  # the agent's 2 s liveliness lease
+            log = (await http.get("/drone/logs", params={"drone_id": "drone01", "loglevel": "warn"})).text
+            assert "WARN drone01 - Stopped receiving messages from drone" in log
+            refused = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})
+            assert refused.status_code == 409 and "unknown" in refused.json()["error"]
+            # `return` always goes through the ground; nobody answers it: 504.
+            unreachable = await http.post("/drone/drone01/cmd", json={"cmd": "return"})
+            assert unreachable.status_code == 504, unreachable.text
+            assert "drone01" in unreachable.json()["error"]
+
+            agent.start()
+            await wait_state(http, "drone01", "ready", 30)
+            lines = (await http.get("/drone/logs", params={"drone_id": "drone01"})).text.splitlines()
+            stopped = max(i for i, line in enumerate(lines) if "Stopped receiving messages" in line)
+            assert any("Established connection with ground station" in line for line in lines[stopped:])
+    finally:
+        agent.stop()
+        ground.stop()
+
+
+async def test_killed_ground_restarted_on_the_same_data_dir_keeps_every_log_line(tmp_path: Path) -> None:
+    ground = GroundProcess(tmp_path)
+    agent = AgentProcess("drone01", ground.endpoint, tmp_path)
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            await wait_state(http, "drone01", "ready", 30)
+            assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+            await until(lambda: _has(http, "Success on arm"), 10, "the arm in the log")
+            before = (await http.get("/drone/logs")).text
+        ground.kill()  # SIGKILL: no chance to flush anything
+        ground.start()
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            after = (await http.get("/drone/logs")).text
+            assert after.startswith(before), f"lines lost across the crash:\nbefore:\n{before}\nafter:\n{after}"
+            assert "Success on arm" in before and after.count("Ground station started") == 2
+            # The agent finds the new router by itself and registers again.
+            await until(lambda: _registered(http), 30, "drone01 registered with the restarted ground")
+    finally:
+        agent.stop()
+        ground.stop()
+
+
+async def _has(http: httpx.AsyncClient, text: str) -> bool:
+    return text in (await http.get("/drone/logs")).text
+
+
+async def _registered(http: httpx.AsyncClient) -> bool:
+    return await drone_state(http, "drone01") not in (None, "unknown")
+
+
+async def test_sigterm_stops_the_ground_cleanly_even_with_an_open_event_stream(tmp_path: Path) -> None:
+    ground = GroundProcess(tmp_path)
+    await ground.ready()
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        connected, ended = asyncio.Event(), asyncio.Event()
+
+        async def listen() -> None:
+            async with http.stream("GET", "/events", timeout=None) as response:
+                connected.set()
+                async for _ in response.aiter_lines():
+                    pass
+            ended.set()
+
+        listener = asyncio.get_running_loop().create_task(listen())
+        try:
+            async with asyncio.timeout(10):
+                await connected.wait()
+            code = await asyncio.to_thread(ground.stop, signal.SIGTERM)  # fails if not stopped in 10 s
+            async with asyncio.timeout(5):
+                await ended.wait()  # the stream ended normally, not by a broken connection
+        finally:
+            listener.cancel()
+            await asyncio.gather(listener, return_exceptions=True)
+    assert code == 0, ground.output()
+    assert "Traceback" not in ground.output()
+    restarted = GroundProcess(tmp_path, data_dir=ground.data_dir)
+    try:
+        await restarted.ready()
+        async with httpx.AsyncClient(base_url=restarted.url) as http:
+            assert "INFO - Ground station stopped" in (await http.get("/drone/logs")).text
+    finally:
+        restarted.stop()
+
+
+def test_bad_ground_config_is_a_clear_error_at_start(tmp_path: Path) -> None:
+    import subprocess
+
+    config = tmp_path / "ground.yml"
+    config.write_text("battery:\n  lowe: 0.2\n")
+    result = subprocess.run(fleet_command("ground", "--config", str(config)), capture_output=True, text=True, timeout=30)
+    assert result.returncode == 2
+    assert "unknown key 'battery.lowe'" in result.stderr and str(config) in result.stderr
+
+
+def test_http_port_in_use_is_a_clear_error(tmp_path: Path) -> None:
+    import socket
+    import subprocess
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        result = subprocess.run(
+            fleet_command("ground", "--http-port", str(port), "--data-dir", str(tmp_path / "d"), "--listen", "tcp/127.0.0.1:0"),
+            capture_output=True, text=True, timeout=30,
+        )
+    assert result.returncode == 2, result.stderr
+    assert f"cannot serve HTTP on 127.0.0.1:{port}" in result.stderr and "Traceback" not in result.stderr
