@@ -133,7 +133,7 @@ def drone_logs(
     station: GroundStation,
     drone_id: list[str] | None = None,
     loglevel: list[LevelParam] | None = None,
-    after: Annotated[int, Parameter(ge=0, description="only lines after this cursor")] = 0,
+    after: Annotated[int, Parameter(ge=0, le=2**62, description="only lines after this cursor")] = 0,
     limit: Annotated[int | None, Parameter(ge=1, le=100_000)] = None,
 ) -> Response[str]:
     rows = station.events.query(drone_id or (), loglevel or (), after_id=after, limit=limit)
