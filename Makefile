@@ -22,6 +22,8 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/agent_cpu.py
 	$(BIN)/python bench/agent_mavsdk.py
+	$(BIN)/python bench/ground_fanin.py
+	$(BIN)/python bench/ground_command.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info
