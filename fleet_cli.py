@@ -47,7 +47,8 @@ def fail(message: str, code: int = 1) -> None:
 def main(verbose: int) -> None:
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose + 1, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr)
-    logging.getLogger("zenoh").setLevel(logging.WARNING)
+    for noisy in ("zenoh", "httpx", "httpcore"):
+        logging.getLogger(noisy).setLevel(logging.WARNING)
 
 
 @main.command()
@@ -165,13 +166,16 @@ def fault(drone: str, kind: str, value: str | None, control: str) -> None:
 
 
 @main.command()
-@click.option("--port", type=int, default=7447, show_default=True, help="Port of the demo's Zenoh router.")
-def demo(port: int) -> None:
+@click.option("--port", type=int, default=7447, show_default=True, help="Port of the demo ground's Zenoh router.")
+@click.option("--http-port", type=int, default=8001, show_default=True, help="Port of the demo ground's HTTP API.")
+def demo(port: int, http_port: int) -> None:
     """Start a simulated drone and fly a short pattern, printing live telemetry."""
     from sim.demo import run_demo
 
     try:
-        ok = run_async(run_demo(port, lambda line: click.echo(line)))
+        ok = run_async(run_demo(port, http_port, lambda line: click.echo(line)))
+    except ConfigError as exc:
+        fail(str(exc), 2)
     except FleetError as exc:
         fail(str(exc))
     sys.exit(0 if ok else 1)

@@ -1,9 +1,10 @@
 """`fleet demo`: one simulated drone flown through its agent, live telemetry printed.
 
-Starts a Zenoh router in this process, the agent (`fleet agent --fc sim`) as a child
-process, then flies arm → takeoff → a 40 m square → return to launch, printing each
-telemetry sample and status as it arrives. Grows into the full demo (ground,
-dashboard, missions) in later issues.
+Starts a ground station in this process (Zenoh router, registry, event log in a
+temporary directory, HTTP API — its URL is printed), the agent (`fleet agent --fc
+sim`) as a child process, then flies arm → takeoff → a 40 m square → return to
+launch, printing each telemetry sample and status as it arrives, and finally the
+ground's event log. Grows into the full demo (dashboard, missions) in later issues.
 """
 
 from __future__ import annotations
@@ -12,11 +13,16 @@ import asyncio
 import contextlib
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable
+
+import httpx
 
 from agent.remote import send_command
 from bus.port import Bus, Sample, Unreachable
 from bus.zenoh_bus import ZenohBus
+from ground.config import GroundConfig
+from ground.lifecycle import run_ground
 from schemas.codec import decode_status, decode_telemetry
 from schemas.geo import destination
 from schemas.keys import Keys
@@ -86,16 +92,19 @@ async def _fly(bus: Bus, watch: _Watch, out: Callable[[str], None]) -> bool:
     return True
 
 
-async def run_demo(port: int, out: Callable[[str], None]) -> bool:
+async def run_demo(port: int, http_port: int, out: Callable[[str], None]) -> bool:
     endpoint = f"tcp/127.0.0.1:{port}"
     keys = Keys()
-    router = await ZenohBus.open("router", listen=[endpoint])
+    data_dir = tempfile.TemporaryDirectory(prefix="fleet-demo-")
+    config = GroundConfig(listen=[endpoint], http_port=http_port, data_dir=data_dir.name)
+    ground = asyncio.get_running_loop().create_task(run_ground(config, out), name="demo ground")
     agent = subprocess.Popen(
         [sys.executable, "-m", "fleet_cli", "agent", "--id", DRONE, "--fc", "sim", "--connect", endpoint, "--telemetry-rate-ms", "500"],
     )
-    client = await ZenohBus.open("client", connect=[endpoint])
+    client: ZenohBus | None = None
     try:
-        out(f"Zenoh router on {endpoint}; agent {DRONE} (pid {agent.pid}) on a simulated vehicle.")
+        client = await ZenohBus.open("client", connect=[endpoint], wait=True)
+        out(f"Agent {DRONE} (pid {agent.pid}) on a simulated vehicle; try `fleet drone list --url http://127.0.0.1:{http_port}`.")
         out(f"Watch the raw traffic in another terminal: fleet sub 'drone/**' --connect {endpoint}")
         watch = _Watch(out)
         client.subscribe(keys.telem(DRONE), watch.on_telem, latest_only=True)
@@ -106,7 +115,11 @@ async def run_demo(port: int, out: Callable[[str], None]) -> bool:
         except (RuntimeError, Unreachable) as exc:
             out(f"demo failed: {exc}")
             return False
-        out("Demo flight complete: the drone is home and disarmed.")
+        out("Demo flight complete: the drone is home and disarmed. The ground's event log:")
+        async with httpx.AsyncClient() as http:
+            log = await http.get(f"http://127.0.0.1:{http_port}/drone/logs")
+        for line in log.text.splitlines():
+            out(f"  {line}")
         return ok
     finally:
         agent.terminate()
@@ -114,5 +127,8 @@ async def run_demo(port: int, out: Callable[[str], None]) -> bool:
             agent.wait(timeout=10)
         if agent.poll() is None:
             agent.kill()
-        await client.close()
-        await router.close()
+        if client is not None:
+            await client.close()
+        ground.cancel()
+        await asyncio.gather(ground, return_exceptions=True)
+        data_dir.cleanup()
