@@ -162,14 +162,10 @@ class GroundStation:
     # ---- events in -----------------------------------------------------------------
 
     def _on_telemetry(self, sample: Sample) -> None:
-        telem: Telemetry | None = self._decode(decode_telemetry, sample)
-        parsed = self.keys.parse(sample.key)
-        if telem is None or parsed is None:
-            return
-        if telem.drone_id != parsed.drone_id:  # the key is the authority on who sent it
-            telem = msgspec.structs.replace(telem, drone_id=parsed.drone_id)
-        self._emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
-        self._offer_telemetry(telem)
+        telem: Telemetry | None = self._from_drone(decode_telemetry, sample)
+        if telem is not None:
+            self._emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
+            self._offer_telemetry(telem)
 
     def _on_status(self, sample: Sample) -> None:
         status = self._decode(decode_status, sample)
@@ -179,13 +175,9 @@ class GroundStation:
         self._emit(self.registry.on_status(status, self.clock.time_ms()))
 
     def _on_sensor(self, sample: Sample) -> None:
-        reading: SensorReading | None = self._decode(decode_sensor, sample)
-        parsed = self.keys.parse(sample.key)
-        if reading is None or parsed is None:
-            return
-        if reading.drone_id != parsed.drone_id:  # the key is the authority on who carries it
-            reading = msgspec.structs.replace(reading, drone_id=parsed.drone_id)
-        self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
+        reading: SensorReading | None = self._from_drone(decode_sensor, sample)
+        if reading is not None:
+            self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         parsed = self.keys.parse(key)
@@ -194,6 +186,17 @@ class GroundStation:
 
     async def _on_ping(self, key: str, payload: bytes) -> bytes:
         return payload
+
+    def _from_drone(self, decoder: Any, sample: Sample) -> Any:
+        """A drone's message, its drone_id taken from the key (the key is the authority
+        on who sent it: a sensor program may leave the field empty)."""
+        message = self._decode(decoder, sample)
+        parsed = self.keys.parse(sample.key)
+        if message is None or parsed is None:
+            return None
+        if message.drone_id != parsed.drone_id:
+            message = msgspec.structs.replace(message, drone_id=parsed.drone_id)
+        return message
 
     @staticmethod
     def _decode(decoder: Any, sample: Sample) -> Any:

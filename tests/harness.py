@@ -22,7 +22,7 @@ from schemas.commands import CommandReply
 from schemas.keys import Keys
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
-from tests.helpers import Collector, free_port, until
+from tests.helpers import Collector, free_port, free_udp_base, until
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -33,20 +33,25 @@ def fleet_command(*args: str) -> list[str]:
     return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet_cli", *args]
 
 
-class AgentProcess:
-    """`fleet agent` as a child process; always stopped by the fixture that made it."""
+class ChildProcess:
+    """A `fleet …` child process logging to a file; always stopped by whoever made it."""
 
-    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
-        self.drone_id = drone_id
-        cfg = tmp / f"{drone_id}.yml"
-        cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, **config}))
-        self.log = tmp / f"{drone_id}.log"
-        self.args = fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args)
+    name = "process"
+
+    def __init__(self, args: list[str], log: Path) -> None:
+        self.args = args
+        self.log = log
         self.proc: subprocess.Popen[bytes] | None = None
         self.start()
 
     def start(self) -> None:
         self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
+
+    def kill(self) -> None:
+        """SIGKILL: no cleanup of any kind, as in a crash."""
+        assert self.proc is not None
+        self.proc.kill()
+        self.proc.wait()
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10) -> int | None:
         if self.proc is None or self.proc.poll() is not None:
@@ -57,10 +62,23 @@ class AgentProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.proc.wait()
-            raise AssertionError(f"agent {self.drone_id} did not stop within {timeout_s} s on signal {sig}") from None
+            raise AssertionError(f"{self.name} did not stop within {timeout_s} s on signal {sig}:\n{self.output()[-3000:]}") from None
 
     def output(self) -> str:
         return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+
+class AgentProcess(ChildProcess):
+    """`fleet agent` as a child process."""
+
+    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
+        self.drone_id = self.name = drone_id
+        cfg = tmp / f"{drone_id}.yml"
+        cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, **config}))
+        super().__init__(
+            fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args),
+            tmp / f"{drone_id}.log",
+        )
 
 
 class Operator:
@@ -122,21 +140,18 @@ class Operator:
 os.environ.setdefault("PYTHONUNBUFFERED", "1")
 
 
-class SimProcess:
+class SimProcess(ChildProcess):
     """`fleet sim` as a child process on a unique port range."""
 
-    def __init__(self, tmp: Path, n: int = 1, base_port: int | None = None, extra_args: Sequence[str] = ()) -> None:
-        from tests.helpers import free_udp_base
+    name = "fleet sim"
 
+    def __init__(self, tmp: Path, n: int = 1, base_port: int | None = None, extra_args: Sequence[str] = ()) -> None:
         self.base_port = base_port or free_udp_base(n)
         self.n = n
-        self.log = tmp / f"sim-{self.base_port}.log"
-        self.args = fleet_command("sim", "-n", str(n), "--base-port", str(self.base_port), *extra_args)
-        self.proc: subprocess.Popen[bytes] | None = None
-        self.start()
-
-    def start(self) -> None:
-        self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
+        super().__init__(
+            fleet_command("sim", "-n", str(n), "--base-port", str(self.base_port), *extra_args),
+            tmp / f"sim-{self.base_port}.log",
+        )
 
     def fc_url(self, i: int = 0) -> str:
         return f"udpin://127.0.0.1:{self.base_port + i}"
@@ -145,18 +160,11 @@ class SimProcess:
     def control(self) -> tuple[str, int]:
         return ("127.0.0.1", self.base_port - 1)
 
-    def stop(self, sig: int = signal.SIGTERM) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
 
-
-class GroundProcess:
+class GroundProcess(ChildProcess):
     """`fleet ground` as a child process on unique ports, with its own data dir."""
+
+    name = "fleet ground"
 
     def __init__(self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), **config: Any) -> None:
         self.zenoh_port = free_port()
@@ -164,18 +172,15 @@ class GroundProcess:
         self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
         self.url = f"http://127.0.0.1:{self.http_port}"
         self.data_dir = data_dir or tmp / "ground-data"
-        self.log = tmp / f"ground-{self.http_port}.log"
         cfg = tmp / f"ground-{self.http_port}.yml"
         cfg.write_text(yaml.safe_dump(config))
-        self.args = fleet_command(
-            "-v", "ground", "--config", str(cfg), "--listen", self.endpoint,
-            "--http-port", str(self.http_port), "--data-dir", str(self.data_dir), *extra_args,
+        super().__init__(
+            fleet_command(
+                "-v", "ground", "--config", str(cfg), "--listen", self.endpoint,
+                "--http-port", str(self.http_port), "--data-dir", str(self.data_dir), *extra_args,
+            ),
+            tmp / f"ground-{self.http_port}.log",
         )
-        self.proc: subprocess.Popen[bytes] | None = None
-        self.start()
-
-    def start(self) -> None:
-        self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
 
     async def ready(self, timeout_s: float = 15) -> None:
         """Wait until the HTTP API answers (the router is up before it)."""
@@ -188,22 +193,3 @@ class GroundProcess:
                     return False
 
             await until(answers, timeout_s, "the ground's HTTP API")
-
-    def kill(self) -> None:
-        assert self.proc is not None
-        self.proc.kill()
-        self.proc.wait()
-
-    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10) -> int | None:
-        if self.proc is None or self.proc.poll() is not None:
-            return self.proc.returncode if self.proc else None
-        self.proc.send_signal(sig)
-        try:
-            return self.proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"ground did not stop within {timeout_s} s on signal {sig}:\n{self.output()}") from None
-
-    def output(self) -> str:
-        return self.log.read_text(errors="replace") if self.log.exists() else ""

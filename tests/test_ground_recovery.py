@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import signal
+from collections.abc import AsyncIterator
 from pathlib import Path
 
 import httpx
+import pytest
 from tests.harness import AgentProcess, GroundProcess, fleet_command
 from tests.helpers import until
 
@@ -24,58 +26,57 @@ async def wait_state(http: httpx.AsyncClient, drone_id: str, state: str, timeout
     await until(reached, timeout_s, f"{drone_id} {state}")
 
 
-async def test_killed_agent_is_unknown_within_3_s_and_ready_again_after_restart(tmp_path: Path) -> None:
+@pytest.fixture
+async def ground_and_agent(tmp_path: Path) -> AsyncIterator[tuple[GroundProcess, AgentProcess]]:
+    """A ground and one sim agent, drone01 registered and ready."""
     ground = GroundProcess(tmp_path)
     agent = AgentProcess("drone01", ground.endpoint, tmp_path)
     try:
         await ground.ready()
         async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
             await wait_state(http, "drone01", "ready", 30)
-            assert agent.proc is not None
-            agent.proc.kill()
-            agent.proc.wait()
-            await wait_state(http, "drone01", "unknown", 3.0)  # the agent's 2 s liveliness lease
-            log = (await http.get("/drone/logs", params={"drone_id": "drone01", "loglevel": "warn"})).text
-            assert "WARN drone01 - Stopped receiving messages from drone" in log
-            refused = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})
-            assert refused.status_code == 409 and "unknown" in refused.json()["error"]
-            # `return` always goes through the ground; nobody answers it: 504.
-            unreachable = await http.post("/drone/drone01/cmd", json={"cmd": "return"})
-            assert unreachable.status_code == 504, unreachable.text
-            assert "drone01" in unreachable.json()["error"]
-
-            agent.start()
-            await wait_state(http, "drone01", "ready", 30)
-            lines = (await http.get("/drone/logs", params={"drone_id": "drone01"})).text.splitlines()
-            stopped = max(i for i, line in enumerate(lines) if "Stopped receiving messages" in line)
-            assert any("Established connection with ground station" in line for line in lines[stopped:])
+        yield ground, agent
     finally:
         agent.stop()
         ground.stop()
 
 
-async def test_killed_ground_restarted_on_the_same_data_dir_keeps_every_log_line(tmp_path: Path) -> None:
-    ground = GroundProcess(tmp_path)
-    agent = AgentProcess("drone01", ground.endpoint, tmp_path)
-    try:
-        await ground.ready()
-        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-            await wait_state(http, "drone01", "ready", 30)
-            assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
-            await until(lambda: _has(http, "Success on arm"), 10, "the arm in the log")
-            before = (await http.get("/drone/logs")).text
-        ground.kill()  # SIGKILL: no chance to flush anything
-        ground.start()
-        await ground.ready()
-        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-            after = (await http.get("/drone/logs")).text
-            assert after.startswith(before), f"lines lost across the crash:\nbefore:\n{before}\nafter:\n{after}"
-            assert "Success on arm" in before and after.count("Ground station started") == 2
-            # The agent finds the new router by itself and registers again.
-            await until(lambda: _registered(http), 30, "drone01 registered with the restarted ground")
-    finally:
-        agent.stop()
-        ground.stop()
+async def test_killed_agent_is_unknown_within_3_s_and_ready_again_after_restart(ground_and_agent: tuple[GroundProcess, AgentProcess]) -> None:
+    ground, agent = ground_and_agent
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        agent.kill()
+        await wait_state(http, "drone01", "unknown", 3.0)  # the agent's 2 s liveliness lease
+        log = (await http.get("/drone/logs", params={"drone_id": "drone01", "loglevel": "warn"})).text
+        assert "WARN drone01 - Stopped receiving messages from drone" in log
+        refused = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})
+        assert refused.status_code == 409 and "unknown" in refused.json()["error"]
+        # `return` always goes through the ground; nobody answers it: 504.
+        unreachable = await http.post("/drone/drone01/cmd", json={"cmd": "return"})
+        assert unreachable.status_code == 504, unreachable.text
+        assert "drone01" in unreachable.json()["error"]
+
+        agent.start()
+        await wait_state(http, "drone01", "ready", 30)
+        lines = (await http.get("/drone/logs", params={"drone_id": "drone01"})).text.splitlines()
+        stopped = max(i for i, line in enumerate(lines) if "Stopped receiving messages" in line)
+        assert any("Established connection with ground station" in line for line in lines[stopped:])
+
+
+async def test_killed_ground_restarted_on_the_same_data_dir_keeps_every_log_line(ground_and_agent: tuple[GroundProcess, AgentProcess]) -> None:
+    ground, _ = ground_and_agent
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+        await until(lambda: _has(http, "Success on arm"), 10, "the arm in the log")
+        before = (await http.get("/drone/logs")).text
+    ground.kill()  # SIGKILL: no chance to flush anything
+    ground.start()
+    await ground.ready()
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        after = (await http.get("/drone/logs")).text
+        assert after.startswith(before), f"lines lost across the crash:\nbefore:\n{before}\nafter:\n{after}"
+        assert "Success on arm" in before and after.count("Ground station started") == 2
+        # The agent finds the new router by itself and registers again.
+        await until(lambda: _registered(http), 30, "drone01 registered with the restarted ground")
 
 
 async def _has(http: httpx.AsyncClient, text: str) -> bool:
@@ -144,3 +145,12 @@ def test_http_port_in_use_is_a_clear_error(tmp_path: Path) -> None:
         )
     assert result.returncode == 2, result.stderr
     assert f"cannot serve HTTP on 127.0.0.1:{port}" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_the_shipped_ground_config_loads() -> None:
+    from ground.config import GroundConfig
+    from schemas.config import load_config
+    from tests.harness import REPO
+
+    config = load_config(GroundConfig, REPO / "deploy" / "ground.yml", {})
+    assert config.http_host == "0.0.0.0" and config.sensor_timeout_ms == {"temperature": 10000}
