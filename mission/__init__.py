@@ -1,0 +1,1 @@
+"""The mission runtime: DSL verbs, units, assignment, subroutines, sandbox (SPEC §5)."""
