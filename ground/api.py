@@ -27,7 +27,8 @@ from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from bus.port import QueryRefused, Unreachable
 from ground.eventlog import format_line
-from ground.registry import DroneInfo
+from ground.describe import Level
+from ground.registry import DroneInfo, DroneState
 from ground.station import CommandRejected, GroundStation, WatchEvent
 from schemas.commands import Command, CommandReply
 from schemas.errors import InvalidMessage
@@ -37,9 +38,7 @@ log = logging.getLogger(__name__)
 KEEPALIVE_S = 15.0
 LOG_CURSOR = "Fleet-Log-Cursor"
 
-DroneStateParam = Literal["unknown", "error", "manual", "active", "hold", "ready"]
 DataParam = Literal["telem", "info", "sensors"]
-LevelParam = Literal["info", "warn", "error"]
 EventKind = Literal["telemetry", "status", "drone", "log"]
 
 
@@ -114,7 +113,7 @@ def _view(station: GroundStation, drone_id: str, data: DataParam | None) -> Dron
 @get("/drone", sync_to_thread=False, responses=_errors(400), summary="All drones matching the filters")
 def list_drones(
     station: GroundStation,
-    state_filter: Annotated[DroneStateParam | None, Parameter(query="state", description="only drones in this state")] = None,
+    state_filter: Annotated[DroneState | None, Parameter(query="state", description="only drones in this state")] = None,
     sensors: Annotated[list[str] | None, Parameter(description="only drones carrying all these sensor types")] = None,
     data_part: Annotated[DataParam | None, Parameter(query="data", description="keep only this part")] = None,
 ) -> list[DroneView]:
@@ -132,7 +131,7 @@ def list_drones(
 def drone_logs(
     station: GroundStation,
     drone_id: list[str] | None = None,
-    loglevel: list[LevelParam] | None = None,
+    loglevel: list[Level] | None = None,
     after: Annotated[int, Parameter(ge=0, le=2**62, description="only lines after this cursor")] = 0,
     limit: Annotated[int | None, Parameter(ge=1, le=100_000)] = None,
 ) -> Response[str]:

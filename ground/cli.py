@@ -10,10 +10,13 @@ from __future__ import annotations
 import json
 import sys
 import time
-from typing import Any, NoReturn
+from typing import Any, NoReturn, get_args
 
 import click
 import httpx
+
+from ground.describe import Level
+from ground.registry import DRONE_STATES
 
 DEFAULT_URL = "http://127.0.0.1:8001"
 FOLLOW_PERIOD_S = 0.5
@@ -71,7 +74,7 @@ def drone_table(views: list[dict[str, Any]]) -> list[str]:
 
 @drone.command("list")
 @url_option
-@click.option("--state", type=click.Choice(["unknown", "error", "manual", "active", "hold", "ready"]), help="Only drones in this state.")
+@click.option("--state", type=click.Choice(DRONE_STATES), help="Only drones in this state.")
 @click.option("--sensor", "sensors", multiple=True, help="Only drones carrying this sensor type (repeatable).")
 @click.option("--json", "as_json", is_flag=True, help="Print the API's JSON instead of a table.")
 def list_drones(url: str, state: str | None, sensors: tuple[str, ...], as_json: bool) -> None:
@@ -127,7 +130,7 @@ def command(url: str, drone_id: str, cmd: str, fields: tuple[str, ...]) -> None:
 @click.command()
 @url_option
 @click.option("--drone", "drones", multiple=True, help="Only this drone (repeatable).")
-@click.option("--level", "levels", multiple=True, type=click.Choice(["info", "warn", "error"]), help="Only this level (repeatable).")
+@click.option("--level", "levels", multiple=True, type=click.Choice(get_args(Level)), help="Only this level (repeatable).")
 @click.option("--follow", "-f", is_flag=True, help="Keep printing new lines until Ctrl-C.")
 def logs(url: str, drones: tuple[str, ...], levels: tuple[str, ...], follow: bool) -> None:
     """The ground's event log, oldest first."""

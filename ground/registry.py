@@ -11,7 +11,7 @@ reads a clock or touches I/O, so the whole table is tested without an event loop
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, get_args
 
 import msgspec
 
@@ -21,8 +21,7 @@ from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import MANUAL_MODES, SensorReading, Telemetry
 
 DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
-DRONE_STATES: tuple[str, ...] = ("unknown", "error", "manual", "active", "hold", "ready")
-LEVELS: tuple[str, ...] = ("info", "warn", "error")
+DRONE_STATES: tuple[str, ...] = get_args(DroneState)
 
 CRITICAL_BATTERY = "Critical battery level"
 LOW_BATTERY = "Low battery level"

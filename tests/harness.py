@@ -193,3 +193,15 @@ class GroundProcess(ChildProcess):
                     return False
 
             await until(answers, timeout_s, "the ground's HTTP API")
+
+
+async def drone_state(http: httpx.AsyncClient, drone_id: str) -> str | None:
+    response = await http.get(f"/drone/{drone_id}", params={"data": "info"})
+    return response.json()["info"]["state"] if response.status_code == 200 else None
+
+
+async def wait_state(http: httpx.AsyncClient, drone_id: str, state: str, timeout_s: float) -> None:
+    async def reached() -> bool:
+        return await drone_state(http, drone_id) == state
+
+    await until(reached, timeout_s, f"{drone_id} {state}")

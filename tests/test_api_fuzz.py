@@ -12,6 +12,7 @@ import asyncio
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 import requests
 import schemathesis
@@ -27,7 +28,7 @@ from schemathesis.checks import (
 )
 from schemathesis.core.failures import FailureGroup
 
-from tests.harness import AgentProcess, GroundProcess
+from tests.harness import AgentProcess, GroundProcess, wait_state
 
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance, response_headers_conformance]
 EXAMPLES_PER_MODE = 80
@@ -39,19 +40,17 @@ def ground(tmp_path: Path) -> Iterator[GroundProcess]:
     ground = GroundProcess(tmp_path)
     agent = AgentProcess("drone01", ground.endpoint, tmp_path)
     try:
-        asyncio.run(ground.ready())
-        deadline_s = 30
-        session = requests.Session()
-        for _ in range(deadline_s * 10):
-            if session.get(f"{ground.url}/drone/drone01").status_code == 200:
-                break
-            asyncio.run(asyncio.sleep(0.1))
-        else:
-            raise AssertionError("drone01 never registered")
+        asyncio.run(_registered(ground))
         yield ground
     finally:
         agent.stop()
         ground.stop()
+
+
+async def _registered(ground: GroundProcess) -> None:
+    await ground.ready()
+    async with httpx.AsyncClient(base_url=ground.url) as http:
+        await wait_state(http, "drone01", "ready", 30)
 
 
 @pytest.mark.timeout(600)

@@ -19,7 +19,7 @@ from bus.zenoh_bus import ZenohBus
 from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.telemetry import SensorReading
-from tests.harness import AgentProcess, GroundProcess, fleet_command
+from tests.harness import AgentProcess, GroundProcess, fleet_command, wait_state
 from tests.helpers import Collector, free_udp_base, until
 
 DRONES = ("drone01", "drone02", "drone03")
@@ -62,10 +62,6 @@ async def http(fleet: Fleet) -> AsyncIterator[httpx.AsyncClient]:
 
 async def states(http: httpx.AsyncClient) -> dict[str, str]:
     return {v["info"]["drone_id"]: v["info"]["state"] for v in (await http.get("/drone", params={"data": "info"})).json()}
-
-
-async def state_of(http: httpx.AsyncClient, drone_id: str) -> str:
-    return (await http.get(f"/drone/{drone_id}", params={"data": "info"})).json()["info"]["state"]
 
 
 async def all_ready(http: httpx.AsyncClient) -> None:
@@ -223,7 +219,7 @@ async def test_unknown_drone_404_agent_refusal_409_and_manual_mode_409_but_retur
     )
     assert manual.returncode == 0, manual.stderr
     try:
-        await until(lambda: _state_is(http, "drone03", "manual"), 10, "drone03 in manual mode")
+        await wait_state(http, "drone03", "manual", 10)
         conflict = await post(http, "drone03", {"cmd": "arm"})
         assert conflict.status_code == 409 and "manual" in conflict.json()["error"]
         home = await post(http, "drone03", {"cmd": "return"})
@@ -231,15 +227,11 @@ async def test_unknown_drone_404_agent_refusal_409_and_manual_mode_409_but_retur
         assert "Refused arm: drone is under manual control" in await log_lines(http, drone_id="drone03", loglevel="warn")
     finally:
         subprocess.run(fleet_command("fault", "drone03", "rc_release", "--control", f"127.0.0.1:{fleet.control_port}"), timeout=30)
-    await until(lambda: _state_is(http, "drone03", "ready"), 20, "drone03 ready again")
-
-
-async def _state_is(http: httpx.AsyncClient, drone_id: str, state: str) -> bool:
-    return await state_of(http, drone_id) == state
+    await wait_state(http, "drone03", "ready", 20)
 
 
 async def test_cli_lists_shows_commands_and_reads_logs(fleet: Fleet, http: httpx.AsyncClient) -> None:
-    await until(lambda: _state_is(http, "drone02", "ready"), 30, "drone02 ready")
+    await wait_state(http, "drone02", "ready", 30)
     url = ["--url", fleet.ground.url]
 
     def fleet_cli(*args: str) -> subprocess.CompletedProcess[str]:

@@ -10,20 +10,8 @@ from pathlib import Path
 
 import httpx
 import pytest
-from tests.harness import AgentProcess, GroundProcess, fleet_command
+from tests.harness import AgentProcess, GroundProcess, drone_state, fleet_command, wait_state
 from tests.helpers import until
-
-
-async def drone_state(http: httpx.AsyncClient, drone_id: str) -> str | None:
-    response = await http.get(f"/drone/{drone_id}", params={"data": "info"})
-    return response.json()["info"]["state"] if response.status_code == 200 else None
-
-
-async def wait_state(http: httpx.AsyncClient, drone_id: str, state: str, timeout_s: float) -> None:
-    async def reached() -> bool:
-        return await drone_state(http, drone_id) == state
-
-    await until(reached, timeout_s, f"{drone_id} {state}")
 
 
 @pytest.fixture
