@@ -54,20 +54,33 @@ class VirtualClock:
         await fut
 
     async def advance(self, seconds: float) -> None:
-        """Move time forward, waking each sleeper at its deadline and letting it run."""
+        """Move time forward, waking each sleeper at its deadline and letting it run.
+
+        Sleepers due at the same instant wake together, then the loop runs until
+        nothing is ready before time moves on: the order of events is a function of
+        the deadlines alone, so a simulation replays identically.
+        """
         target = self._now + seconds
         await _settle()
         while self._timers and self._timers[0][0] <= target:
-            deadline, _, fut = heapq.heappop(self._timers)
+            deadline = self._timers[0][0]
             self._now = max(self._now, deadline)
-            if not fut.done():
-                fut.set_result(None)
+            while self._timers and self._timers[0][0] == deadline:
+                _, _, fut = heapq.heappop(self._timers)
+                if not fut.done():
+                    fut.set_result(None)
             await _settle()
         self._now = target
         await _settle()
 
 
-async def _settle(rounds: int = 8) -> None:
-    # Several loop iterations let chains of call_soon / task wake-ups run to rest.
-    for _ in range(rounds):
+async def _settle(max_rounds: int = 64) -> None:
+    """Let chains of call_soon / task wake-ups run until the loop has nothing ready."""
+    loop = asyncio.get_running_loop()
+    ready = getattr(loop, "_ready", None)  # CPython's run queue; absent: fixed rounds
+    for i in range(max_rounds):
         await asyncio.sleep(0)
+        if ready is not None and not ready and i >= 1:
+            return
+        if ready is None and i >= 7:
+            return

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 from msgspec import Meta
@@ -30,7 +30,8 @@ class BatteryLevels(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
 
 
 class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    return_on_critical_battery: bool = True
+    return_on_critical_battery: bool = True  # a mission drone at critical battery is sent home
+    end_action: Literal["hold", "return"] = "hold"  # what flying drones do when their mission ends
 
 
 class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

@@ -17,7 +17,7 @@ import msgspec
 
 from ground.config import GroundConfig
 from ground.describe import Described, Level, describe_start, status_line, system_line
-from schemas.status import CommandStatus, SystemStatus
+from schemas.status import CommandStatus, Coords, SystemStatus
 from schemas.telemetry import MANUAL_MODES, SensorReading, Telemetry
 
 DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
@@ -34,6 +34,8 @@ class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):
     timestamp: int  # ms since the epoch, when it started (ground clock)
     command: str
     command_id: str
+    coords: Coords | None = None  # goto/move: the target
+    altitude: float | None = None  # takeoff/return: the altitude it climbs to
 
 
 class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
@@ -189,6 +191,7 @@ class Registry:
             d.current = CurrentCommand(
                 description=described.current, timestamp=now_ms,
                 command=status.command, command_id=status.command_id,
+                coords=status.coords, altitude=status.altitude,
             )
         elif status.state in ("finish", "cancel", "stop", "failure", "success"):
             d.described.pop(status.command_id, None)

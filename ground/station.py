@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
@@ -75,6 +75,7 @@ class GroundStation:
         self.keys = Keys(config.namespace)
         self.registry = Registry(config)
         self._watchers: set[Watcher] = set()
+        self._listeners: list[Callable[[WatchEvent], None]] = []
         self._last_telem_event: dict[str, float] = {}
 
     # ---- running -------------------------------------------------------------------
@@ -112,6 +113,23 @@ class GroundStation:
             yield watcher
         finally:
             self._watchers.discard(watcher)
+
+    def listen(self, listener: Callable[[WatchEvent], None]) -> Callable[[], None]:
+        """Call `listener` synchronously with every event, telemetry unthrottled
+        (missions); returns the function that stops it."""
+        self._listeners.append(listener)
+        return lambda: self._listeners.remove(listener) if listener in self._listeners else None
+
+    def _tell(self, event: WatchEvent) -> None:
+        for listener in list(self._listeners):
+            listener(event)
+
+    def assign(self, drone_id: str, mission_id: str) -> None:
+        self._emit(self.registry.assign(drone_id, mission_id, self.clock.time_ms()))
+
+    def release(self, drone_id: str) -> None:
+        if drone_id in self.registry:
+            self._emit(self.registry.release(drone_id, self.clock.time_ms()))
 
     # ---- commands ------------------------------------------------------------------
 
@@ -166,18 +184,21 @@ class GroundStation:
         if telem is not None:
             self._emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
             self._offer_telemetry(telem)
+            self._tell(WatchEvent("telemetry", telem))
 
     def _on_status(self, sample: Sample) -> None:
         status = self._decode(decode_status, sample)
         if status is None:
             return
-        self._broadcast(WatchEvent("status", status))
+        self.broadcast(WatchEvent("status", status))
         self._emit(self.registry.on_status(status, self.clock.time_ms()))
+        self._tell(WatchEvent("status", status))
 
     def _on_sensor(self, sample: Sample) -> None:
         reading: SensorReading | None = self._from_drone(decode_sensor, sample)
         if reading is not None:
             self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
+            self._tell(WatchEvent("sensor", reading))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         parsed = self.keys.parse(key)
@@ -213,13 +234,14 @@ class GroundStation:
             if isinstance(event, LogLine):
                 row = self.events.append(event)
                 log.log(_LOG_LEVELS[event.level], "%s - %s", event.drone_id or "ground", event.message)
-                self._broadcast(WatchEvent("log", event, row))
+                self.broadcast(WatchEvent("log", event, row))
             elif isinstance(event, InfoChanged):
-                self._broadcast(WatchEvent("drone", event.info))
+                self.broadcast(WatchEvent("drone", event.info))
+                self._tell(WatchEvent("drone", event.info))
 
     def end_watches(self) -> None:
         """Tell every watcher the ground is stopping (event streams then close)."""
-        self._broadcast(WatchEvent("end", None))
+        self.broadcast(WatchEvent("end", None))
 
     def _offer_telemetry(self, telem: Telemetry) -> None:
         """Telemetry reaches watchers at most once per `event_telemetry_ms` per drone."""
@@ -228,9 +250,9 @@ class GroundStation:
         now = self.clock.monotonic()
         if now - self._last_telem_event.get(telem.drone_id, -1e9) >= self.config.event_telemetry_ms / 1000:
             self._last_telem_event[telem.drone_id] = now
-            self._broadcast(WatchEvent("telemetry", telem))
+            self.broadcast(WatchEvent("telemetry", telem))
 
-    def _broadcast(self, event: WatchEvent) -> None:
+    def broadcast(self, event: WatchEvent) -> None:
         for watcher in self._watchers:
             watcher.put(event)
 

@@ -1,0 +1,486 @@
+"""What a mission script sees: verbs, the drone wrapper, units, geo and channels (SPEC §5).
+
+Every verb blocks its subroutine (never the loop) until its effect is done: `move`
+returns when the drone has arrived, `arm` when the autopilot armed. Relative moves
+are planned from where the previous verb left the drone — its last target and
+heading while it is still there — so a survey visits exactly the waypoints it
+describes instead of accumulating each stop's acceptance-radius error.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+from mission import assignment as a
+from mission import geo, units
+from mission.geo import Position, as_position
+from mission.mission import Mission, MissionOver
+from mission.runtime import Stopped, Subroutine, await_
+from mission.sandbox import Guards
+from schemas.geo import angle_diff_deg, normalize_deg
+
+ANCHOR_RADIUS_M = 2.0  # a drone this close to its last target plans from that target
+ANCHOR_HEADING_DEG = 5.0
+
+
+class _AnyDrone:
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return "any_drone"
+
+
+any_drone = _AnyDrone()
+
+
+def _call(mission: Mission, awaitable: Any) -> Any:
+    """Run a mission coroutine from a script; a mission that ends unwinds the caller."""
+    try:
+        return await_(awaitable)
+    except MissionOver:
+        raise Stopped() from None
+
+
+class CommandView:
+    """`drone.cmd`: the drone's current command, with `.target` for takeoff/goto/move."""
+
+    __slots__ = ("description", "name", "target")
+
+    def __init__(self, name: str, description: str, target: Position | float | None) -> None:
+        self.name = name
+        self.description = description
+        self.target = target
+
+    def as_position(self) -> Position:
+        if not isinstance(self.target, Position):
+            raise ValueError(f"the current command ({self.description}) has no target position")
+        return self.target
+
+    def distance(self, other: Any) -> float:
+        return self.as_position().distance(other)
+
+    def bearing(self, other: Any) -> float:
+        return self.as_position().bearing(other)
+
+    def __repr__(self) -> str:
+        return f"<cmd {self.description}>"
+
+
+class SensorView:
+    """`drone.sensor.temperature`: the latest reading of that type, or None."""
+
+    __slots__ = ("_drone",)
+
+    def __init__(self, drone: Drone) -> None:
+        self._drone = drone
+
+    def __getattr__(self, kind: str) -> Any:
+        if kind.startswith("_"):
+            raise AttributeError(kind)
+        for reading in self._drone._m.station.registry.sensor_readings(self._drone._live()):
+            if reading.type == kind:
+                return reading.value
+        return None
+
+
+class Drone:
+    """The drone wrapper (thesis table 5.4). It keeps its identity across `replace`."""
+
+    __slots__ = ("_anchor", "_id", "_m", "sensor")
+
+    def __init__(self, mission: Mission, drone_id: str) -> None:
+        self._m = mission
+        self._id = drone_id
+        self._anchor: Position | None = None
+        self.sensor = SensorView(self)
+
+    def _live(self) -> str:
+        if self._id not in self._m.requests:
+            try:
+                self._m.check_assigned(self._id)
+            except MissionOver:
+                raise Stopped() from None
+        return self._id
+
+    def _telem(self) -> Any:
+        return self._m.station.registry.telemetry(self._live())
+
+    def __repr__(self) -> str:
+        return f"<drone {self._id}>"
+
+    @property
+    def id(self) -> str:
+        return self._id
+
+    @property
+    def state(self) -> str:
+        return self._m.station.registry.info(self._live()).state
+
+    @property
+    def armed(self) -> bool:
+        return bool(self._telem().armed)
+
+    @property
+    def battery(self) -> float:
+        t = self._telem()
+        return t.battery.remaining_percent if t.battery else 0.0
+
+    @property
+    def heading(self) -> float:
+        return float(self._telem().heading)
+
+    @property
+    def speed(self) -> float:
+        return float(self._telem().speed)
+
+    @property
+    def position(self) -> Position:
+        t = self._telem()
+        if t.position is None:
+            raise ValueError(f"{self._id} reports no position")
+        return Position(t.position.lat, t.position.lon, t.position.alt, t.heading)
+
+    @property
+    def rel_alt(self) -> float:
+        t = self._telem()
+        return t.position.rel_alt if t.position else 0.0
+
+    @property
+    def home(self) -> Position | None:
+        h = self._telem().home
+        return Position(h.lat, h.lon, h.alt) if h else None
+
+    @property
+    def cmd(self) -> CommandView | None:
+        current = self._m.station.registry.info(self._live()).current_command
+        if current is None:
+            return None
+        c = current.command
+        target: Position | float | None = None
+        if current.coords is not None:
+            target = Position(current.coords.lat, current.coords.lon, current.coords.alt)
+        elif c in ("takeoff", "return") and current.altitude is not None:
+            target = current.altitude
+        return CommandView(c, current.description, target)
+
+    @property
+    def link(self) -> None:
+        return None  # link quality arrives with the link-probe work (SPEC §2 LinkQuality)
+
+    def as_position(self) -> Position:
+        return self.position
+
+    # geo shortcuts on the drone itself
+    def distance(self, other: Any) -> float:
+        return self.position.distance(other)
+
+    def bearing(self, other: Any) -> float:
+        return self.position.bearing(other)
+
+    def target(self, dist: Any, bearing: Any) -> Position:
+        return self.position.target(dist, bearing)
+
+    def forward(self, d: Any) -> Position:
+        return self._plan_base().forward(d)
+
+    def backward(self, d: Any) -> Position:
+        return self._plan_base().backward(d)
+
+    def left(self, d: Any) -> Position:
+        return self._plan_base().left(d)
+
+    def right(self, d: Any) -> Position:
+        return self._plan_base().right(d)
+
+    def up(self, d: Any) -> Position:
+        return self._plan_base().up(d)
+
+    def down(self, d: Any) -> Position:
+        return self._plan_base().down(d)
+
+    def _plan_base(self) -> Position:
+        """Where the next relative move starts: the last target while the drone is there."""
+        here = self.position
+        anchor = self._anchor
+        if (
+            anchor is not None
+            and here.distance(anchor) <= ANCHOR_RADIUS_M
+            and abs(angle_diff_deg(here.heading, anchor.heading)) <= ANCHOR_HEADING_DEG
+        ):
+            return Position(anchor.lat, anchor.lon, anchor.alt if anchor.alt is not None else here.alt, anchor.heading)
+        return here
+
+
+class Channel:
+    """`channel.name = v` binds once; reading `channel.name` blocks until bound."""
+
+    def __init__(self, mission: Mission) -> None:
+        object.__setattr__(self, "_m", mission)
+        object.__setattr__(self, "_values", {})
+        object.__setattr__(self, "_waiters", {})
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        values: dict[str, Any] = object.__getattribute__(self, "_values")
+        if name in values:
+            if values[name] == value:
+                return
+            raise ValueError(f"channel.{name} is already bound to {values[name]!r}")
+        values[name] = value
+        waiters: dict[str, list[Any]] = object.__getattribute__(self, "_waiters")
+        for fut in waiters.pop(name, []):
+            if not fut.done():
+                fut.set_result(value)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        values: dict[str, Any] = object.__getattribute__(self, "_values")
+        if name in values:
+            return values[name]
+        import asyncio
+
+        fut = asyncio.get_running_loop().create_future()
+        object.__getattribute__(self, "_waiters").setdefault(name, []).append(fut)
+        return _call(object.__getattribute__(self, "_m"), fut)
+
+
+def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
+    """The globals one mission script runs with."""
+    m = mission
+    clock = mission.clock
+    wrappers: dict[int, Drone] = {}
+
+    def drone_id(d: Any) -> str:
+        if not isinstance(d, Drone):
+            raise TypeError(f"expected a drone (from assign), got {d!r}")
+        return d._live()
+
+    def send(d: Drone, body: dict[str, Any], wait: bool = True) -> Any:
+        return _call(m, m.execute(drone_id(d), body, wait=wait))
+
+    # ---- assignment ----------------------------------------------------------------
+
+    def request_of(item: Any) -> a.Request:
+        if isinstance(item, str):
+            return a.ById(item)
+        if item is any_drone or item is None:
+            return a.AnyDrone()
+        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.AnyDrone)):
+            return item
+        raise TypeError(f"assign: expected a drone id, any_drone, with_sensors(…), near(…) or of_kind(…), got {item!r}")
+
+    def assign(*items: Any, sensor: str | None = None, sensors: list[str] | None = None,
+               near: Any = None, kind: str | None = None) -> Any:
+        requests = [request_of(i) for i in items]
+        if sensor is not None or sensors is not None:
+            requests.append(a.BySensors(frozenset(([sensor] if sensor else []) + list(sensors or []))))
+        if near is not None:
+            requests.append(nearby(near))
+        if kind is not None:
+            requests.append(a.ByKind(kind))
+        if not requests:
+            requests = [a.AnyDrone()]
+        try:
+            ids = m.assign(requests)
+        except MissionOver:
+            raise Stopped() from None
+        drones = [Drone(m, i) for i in ids]
+        for d in drones:
+            wrappers[id(d)] = d
+        return drones[0] if len(drones) == 1 else tuple(drones)
+
+    def with_sensors(*kinds: str) -> a.BySensors:
+        return a.BySensors(frozenset(kinds))
+
+    def nearby(place: Any) -> a.Near:
+        p = as_position(place)
+        return a.Near(p.lat, p.lon)
+
+    def of_kind(kind: str) -> a.ByKind:
+        return a.ByKind(kind)
+
+    def revoke(d: Drone) -> None:
+        try:
+            m.revoke(drone_id(d))
+        except MissionOver:
+            raise Stopped() from None
+
+    def replace(d: Drone) -> Drone:
+        """Send `d` home and put the closest free drone in its place (same wrapper)."""
+        old = drone_id(d)
+        try:
+            new = m.replacement_for(old)
+        except MissionOver:
+            raise Stopped() from None
+        request = m.requests[old]
+        send(d, {"cmd": "return"}, wait=False)
+        m.revoke(old)
+        m.take(new, request)
+        m.log("info", f"Replaced {old} with {new}")
+        d._id = new
+        d._anchor = None
+        return d
+
+    # ---- commands ------------------------------------------------------------------
+
+    def arm(d: Drone) -> None:
+        send(d, {"cmd": "arm"})
+
+    def disarm(d: Drone) -> None:
+        send(d, {"cmd": "disarm"})
+
+    def takeoff(d: Drone, alt: Any = None) -> None:
+        body: dict[str, Any] = {"cmd": "takeoff"}
+        if alt is not None:
+            body["alt"] = units.length(alt, "takeoff altitude")
+        send(d, body)
+        d._anchor = None
+
+    def land(d: Drone) -> None:
+        send(d, {"cmd": "land"})
+        d._anchor = None
+
+    def home(d: Drone, alt: Any = None) -> None:
+        body: dict[str, Any] = {"cmd": "return"}
+        if alt is not None:
+            body["alt"] = units.length(alt, "return altitude")
+        send(d, body)
+        d._anchor = None
+
+    def cancel(d: Drone) -> None:
+        send(d, {"cmd": "cancel"})
+
+    def turn(d: Drone, by: Any = None, to: Any = None) -> None:
+        if (by is None) == (to is None):
+            raise TypeError("turn: give exactly one of by= (degrees) or to= (a direction, angle or position)")
+        base = d._plan_base()
+        if by is not None:
+            goal = normalize_deg(base.heading + units.angle(by, "turn by"))
+        elif isinstance(to, (units.Quantity, int, float)) and not isinstance(to, bool):
+            goal = normalize_deg(units.angle(to, "turn to"))
+        else:
+            goal = base.bearing(to)
+        delta = angle_diff_deg(goal, d.heading)
+        send(d, {"cmd": "turn", "deg": delta})
+        d._anchor = Position(base.lat, base.lon, base.alt, goal)
+
+    def move(d: Drone, *, forward: Any = 0, backward: Any = 0, right: Any = 0, left: Any = 0,
+             up: Any = 0, down: Any = 0, to: Any = None, lat: Any = None, lon: Any = None,
+             alt: Any = None, yaw: Any = None, speed: Any = None) -> None:
+        base = d._plan_base()
+        relative = any(v != 0 for v in (forward, backward, right, left, up, down))
+        if to is not None or lat is not None or lon is not None:
+            if relative:
+                raise TypeError("move: give either a position (to=/lat=/lon=) or directions, not both")
+            if to is not None:
+                goal = as_position(to)
+            else:
+                if lat is None or lon is None:
+                    raise TypeError("move: lat= and lon= go together")
+                goal = Position(lat, lon)
+            if alt is not None:
+                goal = Position(goal.lat, goal.lon, alt, goal.heading)
+        elif relative:
+            fwd = units.length(forward, "forward") - units.length(backward, "backward")
+            rgt = units.length(right, "right") - units.length(left, "left")
+            vertical = units.length(up, "up") - units.length(down, "down")
+            goal = base.forward(fwd).right(rgt) if (fwd or rgt) else base
+            goal = Position(goal.lat, goal.lon, (base.alt or 0.0) + vertical, base.heading)
+            if alt is not None:
+                goal = Position(goal.lat, goal.lon, alt, goal.heading)
+        else:
+            raise TypeError("move: give a destination (to=, lat=/lon=) or a direction (forward=, right=, up=, …)")
+        body: dict[str, Any] = {"cmd": "goto", "lat": goal.lat, "lon": goal.lon}
+        if goal.alt is not None:
+            body["alt"] = goal.alt
+        heading = base.heading
+        if yaw is not None:
+            heading = normalize_deg(units.angle(yaw, "yaw"))
+            body["yaw"] = heading
+        if speed is not None:
+            body["speed"] = units.speed(speed)
+        send(d, body)
+        d._anchor = Position(goal.lat, goal.lon, goal.alt, heading)
+
+    # ---- time and concurrency ------------------------------------------------------
+
+    def sleep(duration: Any) -> None:
+        _call(m, clock.sleep(units.duration(duration, "sleep")))
+
+    def run(fn: Callable[..., Any], *args: Any) -> Subroutine:
+        if not callable(fn):
+            raise TypeError(f"run: expected a function, got {fn!r}")
+        assert m.scheduler is not None
+        return m.scheduler.spawn(fn, *args)
+
+    def wait(*things: Any) -> None:
+        import asyncio
+
+        for thing in things:
+            if isinstance(thing, Drone):
+                _call(m, m.next_telemetry(drone_id(thing)))
+            elif isinstance(thing, Subroutine):
+                if thing.running:
+                    _call(m, asyncio.wait([thing._done]))
+            elif isinstance(thing, (list, tuple)):
+                wait(*thing)
+            else:
+                raise TypeError(f"wait: expected drones or subroutines, got {thing!r}")
+
+    def stop(*subs: Subroutine) -> None:
+        assert m.scheduler is not None
+        for sub in subs:
+            if not isinstance(sub, Subroutine):
+                raise TypeError(f"stop: expected a subroutine (from run), got {sub!r}")
+            m.scheduler.stop(sub)
+
+    # ---- plugins (loaded by the plugin system; none are loaded yet) --------------
+
+    def enable(plugin_id: str, **inputs: Any) -> None:
+        raise m.fail("plugin_missing", f"plugin {plugin_id!r} is not loaded")
+
+    def disable(plugin_id: str) -> None:
+        raise m.fail("plugin_missing", f"plugin {plugin_id!r} is not loaded")
+
+    def guarded(fn: Callable[..., Any]) -> Callable[..., Any]:
+        def verb(*args: Any, **kwargs: Any) -> Any:
+            try:
+                return fn(*args, **kwargs)
+            except MissionOver:
+                raise Stopped() from None
+
+        verb.__name__ = fn.__name__
+        verb.__doc__ = fn.__doc__
+        return verb
+
+    verbs: dict[str, Any] = {
+        f.__name__: guarded(f) for f in (
+            assign, revoke, replace, arm, disarm, takeoff, land, home, cancel, turn, move,
+            sleep, run, wait, stop, enable, disable,
+        )
+    }
+    namespace: dict[str, Any] = {
+        "__builtins__": guards.builtins(),
+        "__name__": "mission",
+        **guards.hooks(),
+        **verbs,
+        "any_drone": any_drone,
+        "with_sensors": with_sensors,
+        "near": nearby,
+        "of_kind": of_kind,
+        "channel": Channel(m),
+        "position": geo.position,
+        "distance": geo.distance,
+        "bearing": geo.bearing,
+        "target": geo.target,
+        "north": 0 * units.deg,
+        "east": 90 * units.deg,
+        "south": 180 * units.deg,
+        "west": 270 * units.deg,
+        "mission_id": m.id,
+        "pi": math.pi,
+    }
+    namespace.update(units.UNITS)
+    return namespace

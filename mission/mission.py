@@ -1,0 +1,439 @@
+"""One running mission: its script and subroutines, its drones, its end.
+
+A Mission lives on the ground's event loop next to the GroundStation. It hears every
+station event (telemetry, statuses, drone changes, sensor readings) synchronously,
+wakes the verbs waiting on them, and ends itself when one of its drones turns manual,
+errs, times out, loses a sensor it was assigned for, or starts an automatic return.
+The first end wins: it records status and cause (thesis tables 5.2/5.3), stops every
+subroutine (within a second even for a script spinning without verbs), leaves flying
+drones holding (or returning, by config), sends drones at critical battery home, and
+releases all of them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import traceback
+from collections.abc import Callable
+from typing import Any, Literal
+
+import msgspec
+
+from agent.remote import new_command_id
+from bus.clock import Clock
+from bus.port import Unreachable
+from ground.config import GroundConfig
+from ground.registry import CRITICAL_BATTERY, DroneInfo
+from ground.station import CommandRejected, GroundStation, WatchEvent
+from mission import assignment as a
+from mission.runtime import Scheduler, Stopped, Subroutine
+from mission.sandbox import Guards, SecurityViolation
+from mission.units import UnitError
+from schemas.errors import InvalidMessage
+from schemas.status import CommandStatus, SystemStatus
+from schemas.telemetry import Telemetry
+
+log = logging.getLogger(__name__)
+
+MissionStatus = Literal["pending", "running", "finished", "failed", "cancelled"]
+# Thesis table 5.3, plus geofence, link_lost and ground_restart.
+CAUSES: dict[str, tuple[MissionStatus, str]] = {
+    "success": ("finished", "success"),
+    "user": ("cancelled", "user request"),
+    "manual": ("cancelled", "manual mode activated"),
+    "return": ("cancelled", "automatic return to launch detected"),
+    "requirements": ("failed", "not enough drones to fulfill mission requirements"),
+    "cmd_exec": ("failed", "failure in command execution"),
+    "cmd_parse": ("failed", "failure in command parsing"),
+    "plugin_error": ("failed", "plugin encountered an error"),
+    "plugin_param": ("failed", "illegal or missing plugin input parameter"),
+    "plugin_missing": ("failed", "plugin is not loaded"),
+    "plugin_disabled": ("failed", "plugin is not enabled"),
+    "timeout": ("failed", "drone timeout"),
+    "sensor": ("failed", "sensor timeout"),
+    "script": ("failed", "malformed script"),
+    "revoked": ("failed", "referenced revoked drone"),
+    "drone_error": ("failed", "drone entered error state"),
+    "security": ("failed", "mission script called a blacklisted method or import"),
+    "irreplaceable": ("failed", "requested replacement of drone that can not be replaced"),
+    "unexpected": ("failed", "unexpected exception"),
+    "geofence": ("failed", "drone left the geofence"),
+    "link_lost": ("failed", "lost the link to a drone"),
+    "ground_restart": ("failed", "the ground station stopped while the mission ran"),
+}
+TERMINAL_COMMAND_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})
+INSTANT_COMMANDS = frozenset({"arm", "disarm", "cancel"})
+STOP_GRACE_S = 1.0
+FREE_STATES = frozenset({"ready", "hold"})
+
+
+class MissionRecord(msgspec.Struct, kw_only=True):
+    """SPEC §4 / thesis table 5.1."""
+
+    mission_id: str
+    name: str = ""
+    status: MissionStatus = "pending"
+    cause: str | None = None
+    message: str | None = None
+    start: int | None = None  # ms since the epoch
+    end: int | None = None
+    plugins: list[str] = msgspec.field(default_factory=list)
+    active_drones: list[str] = msgspec.field(default_factory=list)
+    used_drones: list[str] = msgspec.field(default_factory=list)
+
+
+class MissionLogLine(msgspec.Struct, frozen=True, kw_only=True):
+    timestamp: int
+    level: Literal["info", "warn", "error"]
+    message: str
+
+
+class CommandResult(msgspec.Struct, frozen=True, kw_only=True):
+    """What one verb sent and how it ended, for the simulation result."""
+
+    drone_id: str
+    cmd: str
+    t_sent_ms: int
+    t_end_ms: int
+    state: str
+    target: dict[str, float] | None = None
+
+
+class MissionOver(Exception):
+    """Internal: a verb found the mission failing; its subroutine unwinds."""
+
+
+class Mission:
+    def __init__(
+        self,
+        record: MissionRecord,
+        code: Any,
+        station: GroundStation,
+        clock: Clock,
+        *,
+        deterministic: bool = False,
+        seed: int | None = None,
+        on_change: Callable[[Mission], None] = lambda m: None,
+        on_log: Callable[[Mission, MissionLogLine], None] = lambda m, line: None,
+    ) -> None:
+        self.record = record
+        self.code = code
+        self.station = station
+        self.config: GroundConfig = station.config
+        self.clock = clock
+        self.deterministic = deterministic
+        self.seed = seed
+        self._on_change = on_change
+        self._on_log = on_log
+        self.scheduler: Scheduler | None = None
+        self.requests: dict[str, a.Request] = {}  # drone id → how it was assigned
+        self.commands: list[CommandResult] = []
+        self._pending: dict[str, tuple[asyncio.Future[CommandStatus], str]] = {}
+        self._pulses: dict[str, list[asyncio.Future[None]]] = {}
+        self._ended = asyncio.Event()
+        self._stop_listening: Callable[[], None] | None = None
+        self._critical: set[str] = set()
+
+    @property
+    def id(self) -> str:
+        return self.record.mission_id
+
+    @property
+    def ending(self) -> bool:
+        return self.record.cause is not None
+
+    # ---- log and record -----------------------------------------------------------
+
+    def log(self, level: Literal["info", "warn", "error"], message: str) -> None:
+        self._on_log(self, MissionLogLine(timestamp=self.clock.time_ms(), level=level, message=message))
+
+    def _changed(self) -> None:
+        self.record.active_drones = sorted(self.requests)
+        self._on_change(self)
+
+    # ---- life cycle ---------------------------------------------------------------
+
+    async def run(self) -> MissionRecord:
+        """Run the script to its end (or the mission's), then clean up. Never raises."""
+        from mission.dsl import build_namespace
+
+        self.record.status = "running"
+        self.record.start = self.clock.time_ms()
+        self._changed()
+        self.log("info", "Mission started")
+        self._stop_listening = self.station.listen(self._on_event)
+        self.scheduler = Scheduler(self._on_error, deterministic=self.deterministic)
+        guards = Guards(self.scheduler.tick, lambda text: self.log("info", text), self.seed)
+        namespace = build_namespace(self, guards)
+        try:
+            self.scheduler.spawn(exec, self.code, namespace, name="main")
+            idle = asyncio.ensure_future(self.scheduler.wait_idle())
+            ended = asyncio.ensure_future(self._ended.wait())
+            try:
+                await asyncio.wait([idle, ended], return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                idle.cancel()
+                ended.cancel()
+            if not self.ending:
+                self.end("success")
+            await self._wind_down()
+        except asyncio.CancelledError:  # the ground is stopping
+            if not self.ending:
+                self.end("ground_restart")
+            await asyncio.shield(self._wind_down())
+            raise
+        except Exception as exc:  # noqa: BLE001 - a bug here must still end the mission
+            log.exception("mission %s: runtime failure", self.id)
+            if not self.ending:
+                self.end("unexpected", f"{type(exc).__name__}: {exc}")
+            await self._wind_down()
+        return self.record
+
+    def end(self, cause: str, message: str | None = None) -> bool:
+        """Conclude the mission with `cause` (the first call wins); True if this one did."""
+        if self.ending:
+            return False
+        status, default = CAUSES[cause]
+        self.record.cause = cause
+        self.record.message = message or default
+        self.record.status = status
+        level = "info" if status == "finished" else ("warn" if status == "cancelled" else "error")
+        self.log(level, f"Mission {status}: {cause}" + (f" - {message}" if message else ""))
+        if self.scheduler is not None:
+            self.scheduler.stop_all()
+        self._ended.set()
+        return True
+
+    def fail(self, cause: str, message: str) -> MissionOver:
+        """End with `cause` and return the exception the calling verb raises."""
+        self.end(cause, message)
+        return MissionOver(message)
+
+    async def _wind_down(self) -> None:
+        assert self.scheduler is not None
+        self.scheduler.stop_all()
+        if not await self.scheduler.join_all(STOP_GRACE_S):
+            self.log("error", "a subroutine did not stop within 1 s")
+        if self._stop_listening is not None:
+            self._stop_listening()
+        for fut, _ in self._pending.values():
+            if not fut.done():
+                fut.cancel()
+        for drone_id in sorted(self.requests):
+            await self._leave(drone_id)
+        self.requests.clear()
+        self.record.end = self.clock.time_ms()
+        self._changed()
+
+    async def _leave(self, drone_id: str) -> None:
+        """Hold a flying drone (or send it home) and release it."""
+        registry = self.station.registry
+        if drone_id in registry:
+            info = registry.info(drone_id)
+            telem = registry.telemetry(drone_id)
+            flying = telem.armed and telem.landed_state != "on_ground"
+            critical = drone_id in self._critical and self.config.mission.return_on_critical_battery
+            action = None
+            if critical or (flying and self.config.mission.end_action == "return"):
+                action = "return"
+            elif info.state == "active" and info.current_command is not None:
+                action = "cancel"
+            if action is not None:
+                try:
+                    await self.station.command(drone_id, json.dumps({"cmd": action}).encode(), self.id)
+                    self.log("info", f"{drone_id}: {'return to launch' if action == 'return' else 'hold'} at mission end")
+                except Exception as exc:  # noqa: BLE001 - the drone is released anyway
+                    self.log("warn", f"{drone_id}: could not {action} at mission end: {exc}")
+        self.station.release(drone_id)
+
+    # ---- failures from subroutines ------------------------------------------------
+
+    def _on_error(self, sub: Subroutine, exc: BaseException) -> None:
+        if isinstance(exc, MissionOver):
+            return
+        where = _script_line(exc)
+        prefix = f"line {where}: " if where else ""
+        if isinstance(exc, SecurityViolation):
+            self.end("security", f"{prefix}{exc}")
+        elif isinstance(exc, (UnitError, Exception)):
+            self.end("script", f"{prefix}{type(exc).__name__}: {exc}" + ("" if sub.name == "main" else f" (in subroutine {sub.name})"))
+        else:
+            self.end("unexpected", f"{prefix}{type(exc).__name__}: {exc}")
+
+    # ---- events from the station --------------------------------------------------
+
+    def _on_event(self, event: WatchEvent) -> None:
+        data = event.data
+        if event.kind == "telemetry":
+            self._on_telemetry(data)
+        elif event.kind == "status":
+            if isinstance(data, CommandStatus):
+                self._on_command_status(data)
+            elif isinstance(data, SystemStatus) and data.drone_id in self.requests:
+                self._on_system_status(data)
+        elif event.kind == "drone" and data.drone_id in self.requests:
+            self._on_drone(data)
+
+    def _on_telemetry(self, telem: Telemetry) -> None:
+        waiters = self._pulses.pop(telem.drone_id, None)
+        for fut in waiters or ():
+            if not fut.done():
+                fut.set_result(None)
+
+    def _on_command_status(self, status: CommandStatus) -> None:
+        entry = self._pending.get(status.command_id)
+        if entry is not None and status.state in TERMINAL_COMMAND_STATES and not entry[0].done():
+            entry[0].set_result(status)
+
+    def _on_system_status(self, status: SystemStatus) -> None:
+        if status.state == "return":
+            self.end("return", f"{status.drone_id} started an automatic return to launch" + (f": {status.reason}" if status.reason else ""))
+        elif status.state == "start_manual":
+            self.end("manual", f"{status.drone_id} is under manual control")
+
+    def _on_drone(self, info: DroneInfo) -> None:
+        if info.state == "manual":
+            self.end("manual", f"{info.drone_id} is under manual control")
+        elif info.state == "unknown":
+            self.end("timeout", f"{info.drone_id} stopped sending telemetry")
+        elif info.state == "error":
+            if CRITICAL_BATTERY in info.errors:
+                self._critical.add(info.drone_id)
+            self.end("drone_error", f"{info.drone_id}: {'; '.join(info.errors)}")
+        else:
+            request = self.requests.get(info.drone_id)
+            if isinstance(request, a.BySensors):
+                missing = sorted(request.sensors - set(info.sensors))
+                if missing:
+                    self.end("sensor", f"{info.drone_id} lost its {', '.join(missing)} sensor")
+
+    # ---- what verbs call (on the loop) ----------------------------------------------
+
+    def check_assigned(self, drone_id: str) -> None:
+        if drone_id not in self.requests:
+            raise self.fail("revoked", f"{drone_id} is not assigned to this mission (revoked or replaced)")
+
+    def free_candidates(self, exclude: str | None = None) -> list[a.Candidate]:
+        registry = self.station.registry
+        out = []
+        for drone_id in registry.ids():
+            info = registry.info(drone_id)
+            if info.mission is not None or info.state not in FREE_STATES or drone_id == exclude:
+                continue
+            t = registry.telemetry(drone_id)
+            out.append(a.Candidate(
+                drone_id=drone_id,
+                sensors=frozenset(info.sensors),
+                battery=t.battery.remaining_percent if t.battery else 0.0,
+                lat=t.position.lat if t.position else None,
+                lon=t.position.lon if t.position else None,
+            ))
+        return out
+
+    def assign(self, requests: list[a.Request]) -> list[str]:
+        if self.ending:
+            raise MissionOver(self.record.message or "")
+        try:
+            ids = a.assign_many(requests, self.free_candidates())
+        except a.Unfulfilled as exc:
+            raise self.fail("requirements", str(exc)) from None
+        for drone_id, request in zip(ids, requests, strict=True):
+            self.take(drone_id, request)
+        return ids
+
+    def take(self, drone_id: str, request: a.Request) -> None:
+        self.station.assign(drone_id, self.id)
+        self.requests[drone_id] = request
+        if drone_id not in self.record.used_drones:
+            self.record.used_drones.append(drone_id)
+        self.log("info", f"Assigned {drone_id} ({a.describe(request)})")
+        self._changed()
+
+    def revoke(self, drone_id: str) -> None:
+        self.check_assigned(drone_id)
+        del self.requests[drone_id]
+        self.station.release(drone_id)
+        self.log("info", f"Revoked {drone_id}")
+        self._changed()
+
+    def replacement_for(self, drone_id: str) -> str:
+        self.check_assigned(drone_id)
+        request = self.requests[drone_id]
+        if not a.replaceable(request):
+            raise self.fail("irreplaceable", f"{drone_id} was assigned as {a.describe(request)} and cannot be replaced")
+        t = self.station.registry.telemetry(drone_id)
+        if t.position is None:
+            raise self.fail("requirements", f"{drone_id} reports no position to find a replacement near")
+        new_id = a.replacement(t.position.lat, t.position.lon, self.free_candidates(exclude=drone_id))
+        if new_id is None:
+            raise self.fail("requirements", f"no free drone can replace {drone_id}")
+        return new_id
+
+    async def next_telemetry(self, drone_id: str) -> None:
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._pulses.setdefault(drone_id, []).append(fut)
+        await fut
+
+    async def execute(self, drone_id: str, body: dict[str, Any], *, wait: bool = True) -> CommandStatus | None:
+        """Send one command as this mission; with `wait`, return its terminal status.
+
+        Failures end the mission: the ground's 400 → cmd_parse, a refusal, a failure
+        status or no answer → cmd_exec, anything else → unexpected.
+        """
+        self.check_assigned(drone_id)
+        name = str(body["cmd"])
+        command_id = new_command_id()
+        fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
+        if wait:
+            self._pending[command_id] = (fut, drone_id)
+        sent = self.clock.time_ms()
+        try:
+            await self.station.command(drone_id, json.dumps({**body, "command_id": command_id}).encode(), self.id)
+            if not wait:
+                return None
+            try:
+                status = await fut
+            except asyncio.CancelledError:
+                if not self.ending:  # the subroutine was stopped: so is its command
+                    asyncio.get_running_loop().create_task(self._cancel_quietly(drone_id))
+                raise
+        except InvalidMessage as exc:
+            raise self.fail("cmd_parse", f"{name} {drone_id}: {exc}") from None
+        except CommandRejected as exc:
+            raise self.fail("cmd_exec", f"{name} {drone_id} refused: {exc.reason}") from None
+        except Unreachable as exc:
+            raise self.fail("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
+        except (asyncio.CancelledError, MissionOver):
+            raise
+        except Exception as exc:  # noqa: BLE001
+            log.exception("mission %s: %s %s", self.id, name, drone_id)
+            raise self.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
+        finally:
+            self._pending.pop(command_id, None)
+        target = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
+        self.commands.append(CommandResult(
+            drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
+        ))
+        if status.state == "failure":
+            raise self.fail("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
+        return status
+
+    async def _cancel_quietly(self, drone_id: str) -> None:
+        try:
+            await self.station.command(drone_id, b'{"cmd": "cancel"}', self.id)
+        except Exception as exc:  # noqa: BLE001 - best effort; the mission goes on
+            self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
+
+
+def _script_line(exc: BaseException) -> int | None:
+    """The line of the mission script where `exc` was raised (innermost script frame)."""
+    line = None
+    for frame in traceback.extract_tb(exc.__traceback__):
+        if frame.filename.startswith("<mission"):
+            line = frame.lineno
+    return line
+
+
+__all__ = ["CAUSES", "Mission", "MissionLogLine", "MissionRecord", "MissionStatus", "Stopped"]
