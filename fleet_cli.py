@@ -183,9 +183,11 @@ def demo(port: int, http_port: int) -> None:
 
 def _add_http_clients() -> None:
     from ground.cli import drone, logs
+    from mission.cli import mission
 
     main.add_command(drone)
     main.add_command(logs)
+    main.add_command(mission)
 
 
 _add_http_clients()

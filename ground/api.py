@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import msgspec
-from litestar import Litestar, MediaType, Request, Response, get, post
+from litestar import Litestar, MediaType, Request, Response, delete, get, post
 from litestar.datastructures import ResponseHeader
 from litestar.di import Provide
 from litestar.exceptions import HTTPException, ValidationException
@@ -30,6 +30,9 @@ from ground.eventlog import format_line
 from ground.describe import Level
 from ground.registry import DroneInfo, DroneState
 from ground.station import CommandRejected, GroundStation, WatchEvent
+from mission.manager import MissionEnded, MissionManager, UnknownMission
+from mission.mission import MissionLogLine, MissionRecord
+from mission.sandbox import ScriptError
 from schemas.commands import Command, CommandReply
 from schemas.errors import InvalidMessage
 from schemas.telemetry import SensorReading, Telemetry
@@ -39,7 +42,8 @@ KEEPALIVE_S = 15.0
 LOG_CURSOR = "Fleet-Log-Cursor"
 
 DataParam = Literal["telem", "info", "sensors"]
-EventKind = Literal["telemetry", "status", "drone", "log"]
+EventKind = Literal["telemetry", "status", "drone", "log", "mission", "mission_log"]
+MAX_SCRIPT_BYTES = 1_000_000
 
 
 class ApiError(msgspec.Struct, frozen=True, kw_only=True):
@@ -55,14 +59,25 @@ class DroneView(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     sensors: list[SensorReading] | None = None
 
 
+class MissionCreated(msgspec.Struct, frozen=True, kw_only=True):
+    mission_id: str
+
+
+class MissionView(MissionRecord, kw_only=True):
+    """A mission record with its log lines (GET /mission/{id})."""
+
+    log: list[MissionLogLine] = msgspec.field(default_factory=list)
+
+
 def _errors(*codes: int) -> dict[int, ResponseSpec]:
     return {c: ResponseSpec(ApiError, description=_REASONS[c], generate_examples=False) for c in codes}
 
 
 _REASONS = {
-    400: "malformed request (the field at fault is named)",
-    404: "no such drone or route",
-    409: "the drone cannot run this command now (reason given)",
+    400: "malformed request (the field at fault is named; for a script: line and column)",
+    404: "no such drone, mission or route",
+    409: "the drone cannot run this command now, or the mission already ended (reason given)",
+    413: "the script is too large",
     502: "the agent answered with an error",
     504: "the drone's agent did not answer (unreachable)",
 }
@@ -172,12 +187,77 @@ async def send_command(station: GroundStation, drone_id: str, request: Request[A
     return Response(reply)
 
 
+# ---- missions ---------------------------------------------------------------------
+
+
+@dataclass
+class _ScriptOperation(Operation):
+    def __post_init__(self) -> None:
+        self.request_body = RequestBody(
+            content={"text/plain": OpenAPIMediaType(schema={"type": "string"})},  # type: ignore[arg-type]
+            required=True,
+            description="The mission script (Python DSL, SPEC §5), as text.",
+        )
+
+
+@post(
+    "/mission", status_code=201, operation_class=_ScriptOperation, responses=_errors(400, 413),
+    summary="Submit a mission script; 201 with its id, 400 with line/column when it does not compile",
+)
+async def submit_mission(
+    missions: MissionManager,
+    request: Request[Any, Any, Any],
+    name: Annotated[str, Parameter(max_length=200, description="a label for lists")] = "",
+) -> Response[MissionCreated]:
+    body = await request.body()
+    if len(body) > MAX_SCRIPT_BYTES:
+        return _error(413, f"the script is {len(body)} bytes; the limit is {MAX_SCRIPT_BYTES}")  # type: ignore[return-value]
+    try:
+        source = body.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return _error(400, f"the script is not UTF-8 text: {exc}", {"line": None, "column": None})  # type: ignore[return-value]
+    try:
+        record = missions.submit(source, name)
+    except ScriptError as exc:
+        return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
+    return Response(MissionCreated(mission_id=record.mission_id), status_code=201)
+
+
+@get("/mission", sync_to_thread=False, summary="Every mission record, oldest first")
+def list_missions(missions: MissionManager) -> list[MissionRecord]:
+    return missions.list()
+
+
+@get("/mission/{mission_id:str}", sync_to_thread=False, responses=_errors(404), summary="One mission record and its log")
+def show_mission(missions: MissionManager, mission_id: str) -> Response[MissionView]:
+    try:
+        record = missions.get(mission_id)
+        lines = missions.log(mission_id)
+    except UnknownMission:
+        return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
+    return Response(MissionView(**msgspec.structs.asdict(record), log=lines))
+
+
+@delete(
+    "/mission/{mission_id:str}", status_code=200, responses=_errors(404, 409),
+    summary="Cancel a running mission (cause user)",
+)
+async def cancel_mission(missions: MissionManager, mission_id: str) -> Response[MissionRecord]:
+    try:
+        record = missions.cancel(mission_id)
+    except UnknownMission:
+        return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
+    except MissionEnded as exc:
+        return _error(409, str(exc), {"mission_id": mission_id})  # type: ignore[return-value]
+    return Response(record, status_code=200)
+
+
 @get(
     "/events", sync_to_thread=False, media_type="text/event-stream", responses=_errors(400),
     summary="Live server-sent events: telemetry (rate-capped per drone), status, drone (registry changes), log",
 )
 def events(station: GroundStation, types: list[EventKind] | None = None) -> ServerSentEvent:
-    wanted = set(types or ("telemetry", "status", "drone", "log"))
+    wanted = set(types or ("telemetry", "status", "drone", "log", "mission", "mission_log"))
     return ServerSentEvent(_stream(station, wanted))
 
 
@@ -211,7 +291,10 @@ def _message(event: WatchEvent) -> ServerSentEventMessage:
 
 @get("/", sync_to_thread=False, include_in_schema=False)
 def index() -> dict[str, str]:
-    return {"name": "fleet ground", "openapi": "/openapi.json", "drones": "/drone", "events": "/events", "logs": "/drone/logs"}
+    return {
+        "name": "fleet ground", "openapi": "/openapi.json", "drones": "/drone", "missions": "/mission",
+        "events": "/events", "logs": "/drone/logs",
+    }
 
 
 @get("/openapi.json", sync_to_thread=False, include_in_schema=False, media_type="application/vnd.oai.openapi+json")
@@ -253,10 +336,16 @@ def _add_command_components(app: Litestar) -> None:
         schemas.setdefault(name, schema)  # type: ignore[arg-type]
 
 
-def create_app(station: GroundStation) -> Litestar:
+def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     return Litestar(
-        [list_drones, drone_logs, show_drone, send_command, events, index, openapi_json],
-        dependencies={"station": Provide(lambda: station, sync_to_thread=False)},
+        [
+            list_drones, drone_logs, show_drone, send_command, submit_mission, list_missions, show_mission,
+            cancel_mission, events, index, openapi_json,
+        ],
+        dependencies={
+            "station": Provide(lambda: station, sync_to_thread=False),
+            "missions": Provide(lambda: missions, sync_to_thread=False),
+        },
         exception_handlers={HTTPException: _http_error, Exception: _internal_error},
         openapi_config=OpenAPIConfig(title="Fleet ground station", version="0.1.0"),
         on_startup=[_add_command_components],

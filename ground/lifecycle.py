@@ -1,6 +1,7 @@
 """The `fleet ground` process: resources opened in order, closed in reverse.
 
-Data directory → event log (SQLite) → Zenoh router → station → HTTP server. The
+Data directory → event log and mission store (SQLite) → Zenoh router → station and
+mission manager → HTTP server. The
 HTTP port is bound before anything listens for drones, so a port in use is a clear
 error at start, not a half-started ground. Cancellation (SIGTERM, Ctrl-C) ends the
 event streams, stops the HTTP server, closes the router and the log.
@@ -22,6 +23,7 @@ from ground.api import create_app
 from ground.config import GroundConfig
 from ground.eventlog import EventLog
 from ground.station import GroundStation
+from mission.manager import MissionManager, MissionStore
 from schemas.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -65,12 +67,14 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     data_dir = _prepare_data_dir(config)
     sock = _bind(config.http_host, config.http_port)
     events = EventLog(data_dir / "events.db")
+    store = MissionStore(data_dir / "missions.db")
     try:
         bus = await ZenohBus.open("router", listen=config.listen)
         try:
             station = GroundStation(config, bus, events)
+            missions = MissionManager(station, store, station.clock)
             server = _EmbeddedServer(uvicorn.Config(
-                create_app(station), log_level="warning", lifespan="on",
+                create_app(station, missions), log_level="warning", lifespan="on",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
             ))
             host, port = sock.getsockname()[:2]
@@ -82,6 +86,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
                 try:
                     await asyncio.Event().wait()
                 finally:
+                    await missions.close()  # while the mesh is up: drones are told to hold
                     station.end_watches()
                     server.should_exit = True
                     await asyncio.wait([http_task])
@@ -89,5 +94,6 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
         finally:
             await bus.close()
     finally:
+        store.close()
         events.close()
         sock.close()

@@ -21,8 +21,9 @@ from mission.runtime import Stopped, Subroutine, await_
 from mission.sandbox import Guards
 from schemas.geo import angle_diff_deg, normalize_deg
 
-ANCHOR_RADIUS_M = 2.0  # a drone this close to its last target plans from that target
-ANCHOR_HEADING_DEG = 5.0
+# An idle drone this close to its last target (by telemetry up to a period old, at
+# cruise speed) plans from that target.
+ANCHOR_RADIUS_M = 10.0
 
 
 class _AnyDrone:
@@ -201,16 +202,20 @@ class Drone:
         return self._plan_base().down(d)
 
     def _plan_base(self) -> Position:
-        """Where the next relative move starts: the last target while the drone is there."""
-        here = self.position
+        """Where the next relative move or turn starts.
+
+        While the drone idles where its last verb left it, that verb's target (and
+        heading) — exact, unlike telemetry up to one period old. Otherwise the next
+        fresh telemetry sample, so a heading caught mid-turn is never used.
+        """
         anchor = self._anchor
-        if (
-            anchor is not None
-            and here.distance(anchor) <= ANCHOR_RADIUS_M
-            and abs(angle_diff_deg(here.heading, anchor.heading)) <= ANCHOR_HEADING_DEG
-        ):
-            return Position(anchor.lat, anchor.lon, anchor.alt if anchor.alt is not None else here.alt, anchor.heading)
-        return here
+        if anchor is not None and self._m.station.registry.info(self._live()).current_command is None:
+            here = self.position
+            if here.distance(anchor) <= ANCHOR_RADIUS_M:
+                alt = anchor.alt if anchor.alt is not None else here.alt
+                return Position(anchor.lat, anchor.lon, alt, anchor.heading)
+        _call(self._m, self._m.next_telemetry(self._live()))
+        return self.position
 
 
 class Channel:
@@ -362,7 +367,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             goal = normalize_deg(units.angle(to, "turn to"))
         else:
             goal = base.bearing(to)
-        delta = angle_diff_deg(goal, d.heading)
+        delta = angle_diff_deg(goal, base.heading)
         send(d, {"cmd": "turn", "deg": delta})
         d._anchor = Position(base.lat, base.lon, base.alt, goal)
 

@@ -99,7 +99,7 @@ class _Checker(ast.NodeVisitor):
     def name(self, node: ast.AST, name: str | None, what: str) -> None:
         if name is None:
             return
-        if name.startswith("_"):
+        if name.startswith("_") and name != "_":
             self.refuse(node, f"{what} {name!r}: names starting with '_' are not allowed in missions")
         elif name in BLOCKED_NAMES:
             self.refuse(node, f"{name!r} is not available in missions")

@@ -1,0 +1,65 @@
+"""The four plots of a simulation result (SPEC §5), drawn with matplotlib (Agg)."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+from typing import Any
+
+from schemas.geo import distance_m
+from sim.projection import LocalFrame
+
+
+def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    gs = result["ground_station"]
+    frame = LocalFrame(gs["lat"], gs["lon"])
+    drones = {k: v["samples"] for k, v in result["drones"].items() if v["samples"]}
+    title = f"mission {result['mission']['mission_id']}: {result['mission']['status']} ({result['mission']['cause']})"
+    written = []
+
+    def save(fig: Any, name: str) -> None:
+        path = out_dir / name
+        fig.savefig(path, dpi=110, metadata={"Software": None})
+        plt.close(fig)
+        written.append(path)
+
+    fig, ax = plt.subplots(figsize=(7, 7))
+    for drone_id, samples in drones.items():
+        north_east = [frame.to_local(s["lat"], s["lon"]) for s in samples]
+        ax.plot([e for _, e in north_east], [n for n, _ in north_east], label=drone_id, linewidth=1.5)
+        ax.plot(north_east[0][1], north_east[0][0], "o", color=ax.lines[-1].get_color())
+    ax.plot(0, 0, "k^", markersize=10, label="ground station")
+    ax.set(xlabel="east (m)", ylabel="north (m)", title=f"paths - {title}")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    save(fig, "paths.png")
+
+    for key, label, name in (("rel_alt", "altitude above home (m)", "altitude.png"), ("battery", "battery (0-1)", "battery.png")):
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for drone_id, samples in drones.items():
+            ax.plot([s["t_s"] for s in samples], [s[key] if s[key] is not None else float("nan") for s in samples], label=drone_id)
+        ax.set(xlabel="time (s)", ylabel=label, title=title)
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+        save(fig, name)
+
+    fig, ax = plt.subplots(figsize=(8, 4))
+    for drone_id, samples in drones.items():
+        ax.plot([s["t_s"] for s in samples], [distance_m(s["lat"], s["lon"], gs["lat"], gs["lon"]) for s in samples],
+                label=f"{drone_id} - ground")
+    for a, b in itertools.combinations(sorted(drones), 2):
+        by_t = {s["t_s"]: s for s in drones[b]}
+        pairs = [(s, by_t[s["t_s"]]) for s in drones[a] if s["t_s"] in by_t]
+        ax.plot([s["t_s"] for s, _ in pairs], [distance_m(s["lat"], s["lon"], o["lat"], o["lon"]) for s, o in pairs],
+                linestyle="--", label=f"{a} - {b}")
+    ax.set(xlabel="time (s)", ylabel="distance (m)", title=title)
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    save(fig, "distances.png")
+    return written
