@@ -1,7 +1,9 @@
 """What a mission script sees: verbs, the drone wrapper, units, geo and channels (SPEC §5).
 
 Every verb blocks its subroutine (never the loop) until its effect is done: `move`
-returns when the drone has arrived, `arm` when the autopilot armed. Relative moves
+returns when the drone has arrived, `arm` when the autopilot armed — and the first
+telemetry after that has arrived, so `drone.position` or `drone.armed` read right
+after a verb show its effect. Relative moves
 are planned from where the previous verb left the drone — its last target and
 heading while it is still there — so a survey visits exactly the waypoints it
 describes instead of accumulating each stop's acceptance-radius error.
@@ -263,7 +265,10 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         return d._live()
 
     def send(d: Drone, body: dict[str, Any], wait: bool = True) -> Any:
-        return _call(m, m.execute(drone_id(d), body, wait=wait))
+        status = _call(m, m.execute(drone_id(d), body, wait=wait))
+        if wait:  # the wrapper then shows the effect (telemetry after completion)
+            _call(m, m.next_telemetry(d._live()))
+        return status
 
     # ---- assignment ----------------------------------------------------------------
 

@@ -288,14 +288,26 @@ def _safe_hasattr(obj: object, name: str) -> bool:
     return hasattr(obj, name)
 
 
-def _module_copy(module: types.ModuleType, overrides: dict[str, object]) -> types.SimpleNamespace:
-    """The public, non-module attributes of a module, as a plain read-only-ish namespace."""
+class _ModuleCopy(types.SimpleNamespace):
+    """The public, non-module attributes of an allowed module. Reaching for a hidden
+    one (`statistics.sys`) is a violation, not a typo."""
+
+    def __getattr__(self, name: str) -> Any:
+        hidden: frozenset[str] = vars(self).get("_hidden", frozenset())
+        if name in hidden:
+            raise SecurityViolation(f"{name!r} of this module is not available in missions")
+        raise AttributeError(name)
+
+
+def _module_copy(module: types.ModuleType, overrides: dict[str, object]) -> _ModuleCopy:
     names = {
         k: v for k, v in vars(module).items()
         if not k.startswith("_") and not isinstance(v, types.ModuleType)
     }
     names.update(overrides)
-    return types.SimpleNamespace(**names)
+    copy = _ModuleCopy(**names)
+    vars(copy)["_hidden"] = frozenset(vars(module)) - set(names)
+    return copy
 
 
 class Guards:
@@ -305,7 +317,7 @@ class Guards:
         self.tick = tick
         self.rng = _random.Random(seed)
         self._print_line = print_line
-        self._modules: dict[str, types.SimpleNamespace] = {}
+        self._modules: dict[str, _ModuleCopy] = {}
 
     def _ticking(self, source: Iterable[Any]) -> Iterator[Any]:
         for item in source:

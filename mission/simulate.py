@@ -71,6 +71,7 @@ class SimField:
         self.vehicles: dict[str, Vehicle] = {}
         self.tracks: dict[str, Track] = {}
         self._tasks: list[asyncio.Task[Any]] = []
+        self._agents: dict[str, asyncio.Task[Any]] = {}
         self._buses: list[MemoryBus] = []
         self._fcs: list[SimFlightController] = []
         self.events = EventLog(self.data_dir / "events.db")
@@ -95,7 +96,8 @@ class SimField:
             await fc.start()
             self._fcs.append(fc)
             agent = Agent(spec.id, self.agent_config, fc, self._bus(), self.clock)
-            self._tasks.append(loop.create_task(agent.run(), name=f"agent {spec.id}"))
+            self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
+            self._tasks.append(self._agents[spec.id])
             for fault in spec.faults:
                 self._tasks.append(loop.create_task(self._fault_at(vehicle, fault.at_s, fault.fault, fault.value)))
             if spec.sensors:
@@ -106,6 +108,10 @@ class SimField:
             self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
         # Let every drone register (first telemetry) before the mission starts.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000 + 0.1)
+
+    def kill_agent(self, drone_id: str) -> None:
+        """The agent process dies: its liveliness token and telemetry vanish."""
+        self._agents[drone_id].cancel()
 
     async def _fault_at(self, vehicle: Vehicle, at_s: float, fault: str, value: Any) -> None:
         from sim.faults import apply_fault
@@ -150,16 +156,35 @@ class SimField:
     async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S) -> MissionRecord:
         assert self.manager is not None
         record = self.manager.submit(source, name)
-        task = asyncio.ensure_future(self.manager.wait(record.mission_id))
+        return await self.run_mission_started(record.mission_id, max_s=max_s)
+
+    async def run_mission_started(self, mission_id: str, *, max_s: float = DEFAULT_MAX_S) -> MissionRecord:
+        """Advance virtual time until the mission ends (cancelled after `max_s`)."""
+        assert self.manager is not None
+        task = asyncio.ensure_future(self.manager.wait(mission_id))
         start = self.clock.monotonic()
+        limited = False
         while not task.done():
-            if self.clock.monotonic() - start >= max_s:
-                self.manager.cancel(record.mission_id, "user")
+            if self.clock.monotonic() - start >= max_s and not limited:
+                limited = True
                 self.station.log_ground("warn", f"simulation time limit of {max_s:g} s reached")
+                self.manager.cancel(mission_id, "user")
             await self.clock.advance(STEP_S)
         # One more telemetry period so the series shows the state the mission left.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000)
         return task.result()
+
+    async def until(self, predicate: Callable[[], bool], max_s: float = 600.0) -> None:
+        """Let virtual time pass (in small steps) until `predicate` holds."""
+        start = self.clock.monotonic()
+        while not predicate():
+            if self.clock.monotonic() - start > max_s:
+                raise TimeoutError(f"not within {max_s:g} simulated seconds")
+            await asyncio.sleep(0)
+
+    def mission_log(self, mission_id: str) -> list[Any]:
+        assert self.manager is not None
+        return self.manager.store.log(mission_id)
 
     def result(self, record: MissionRecord) -> dict[str, Any]:
         assert self.manager is not None

@@ -1,0 +1,261 @@
+"""Missions in fast time: examples, every cause the runtime produces, concurrency.
+
+A real GroundStation, agents with the sim adapter and the mission runtime, joined by
+the memory bus under a VirtualClock (SPEC §5 fast-time simulation). Faults come from
+the world file, as an operator would script them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import pytest
+
+from mission.mission import MissionRecord
+from mission.simulate import SimField
+from sim.projection import LocalFrame
+from sim.world import Fault, World
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+FLY = "d = assign()\narm(d)\ntakeoff(d, 10*m)\n"
+
+
+def world_with(faults: list[Fault] | None = None, n: int = 2) -> World:
+    base = World().spawn(n)
+    if faults:
+        base[0] = msgspec.structs.replace(base[0], faults=faults)
+    return World(drones=base)
+
+
+async def fly(
+    script: str,
+    world: World | None = None,
+    *,
+    during: Callable[[SimField, str], Awaitable[None]] | None = None,
+    max_s: float = 600,
+) -> tuple[MissionRecord, SimField, list[str]]:
+    """Run `script` to its end; the record, the (closed) field and the mission's log."""
+    field = SimField(world or World(), None if world else 2)
+    await field.start()
+    try:
+        if during is None:
+            record = await field.run_mission(script, max_s=max_s)
+        else:
+            assert field.manager is not None
+            submitted = field.manager.submit(script)
+            runner = asyncio.ensure_future(field.run_mission_started(submitted.mission_id, max_s=max_s))
+            await during(field, submitted.mission_id)
+            record = await runner
+        for drone_id in field.station.registry.ids():
+            assert field.station.registry.info(drone_id).mission is None, f"{drone_id} not released"
+        return record, field, [line.message for line in field.mission_log(record.mission_id)]
+    finally:
+        await field.close()
+
+
+def cause(record: MissionRecord) -> tuple[str, str | None]:
+    return record.status, record.cause
+
+
+# ---- examples ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("example", ["mapping", "replacement_mapping", "two_drones", "synchronisation"])
+async def test_examples_finish(example: str) -> None:
+    record, _, _ = await fly((EXAMPLES / f"{example}.py").read_text())
+    assert cause(record) == ("finished", "success"), record.message
+
+
+def test_mapping_visits_the_thesis_waypoints_and_replays_identically(tmp_path: Path) -> None:
+    outs = []
+    for run in ("a", "b"):
+        out = tmp_path / run
+        done = subprocess.run(
+            [sys.executable, "-m", "fleet_cli", "mission", "simulate", str(EXAMPLES / "mapping.py"),
+             "--drones", "1", "--seed", "7", "--out", str(out)],
+            capture_output=True, text=True, timeout=120, cwd=ROOT,
+        )
+        assert done.returncode == 0, done.stderr + done.stdout
+        assert "finished: success" in done.stdout
+        outs.append(out)
+    first = (outs[0] / "result.json").read_bytes()
+    assert first == (outs[1] / "result.json").read_bytes()
+    for plot in ("paths.png", "altitude.png", "battery.png", "distances.png"):
+        assert (outs[0] / plot).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    result = json.loads(first)
+    drone = result["drones"]["drone01"]
+    start = drone["samples"][0]
+    frame = LocalFrame(start["lat"], start["lon"])
+    gotos = [c["target"] for c in drone["commands"] if c["cmd"] == "goto"]
+    # Script 5.1, 100 m x 80 m, 2 x 4 steps: sweep east, step north, sweep west, ...
+    expected = []
+    for row in range(5):
+        ys = 20.0 * row
+        xs = [50.0, 100.0] if row % 2 == 0 else [50.0, 0.0]
+        if row > 0:
+            expected.append((100.0 if row % 2 else 0.0, ys))
+        expected += [(x, ys) for x in xs]
+    planned = [(lambda ne: (ne[1], ne[0]))(frame.to_local(g["lat"], g["lon"])) for g in gotos]
+    assert len(planned) == len(expected) == 14
+    for (e, n), (ex, ny) in zip(planned, expected, strict=True):
+        assert abs(e - ex) < 0.05 and abs(n - ny) < 0.05, (planned, expected)
+    # ... and the drone really was at each waypoint (the agent's 0.5 m acceptance radius).
+    track = [frame.to_local(s["lat"], s["lon"]) for s in drone["samples"]]
+    for ex, ny in expected:
+        closest = min(((n - ny) ** 2 + (e - ex) ** 2) ** 0.5 for n, e in track)
+        assert closest < 3.0, (ex, ny, closest)  # 1 Hz samples at 5 m/s pass within a few m
+    assert result["mission"]["status"] == "finished"
+    assert drone["samples"][-1]["rel_alt"] < 0.5
+
+
+# ---- causes --------------------------------------------------------------------------
+
+
+async def test_requirements() -> None:
+    record, _, _ = await fly('assign("drone09")')
+    assert cause(record) == ("failed", "requirements")
+    assert "drone09" in (record.message or "")
+
+
+async def test_cmd_exec_from_the_agent_refusal() -> None:
+    record, _, _ = await fly("d = assign()\ntakeoff(d)")
+    assert cause(record) == ("failed", "cmd_exec")
+    assert "disarmed" in (record.message or "")
+
+
+async def test_cmd_parse() -> None:
+    record, _, _ = await fly("d = assign()\narm(d)\ntakeoff(d, -5*m)")
+    assert cause(record) == ("failed", "cmd_parse")
+    assert "alt" in (record.message or "")
+
+
+async def test_script_error_names_the_line() -> None:
+    record, _, _ = await fly("d = assign()\nx = 1\ny = x / 0\n")
+    assert cause(record) == ("failed", "script")
+    assert "line 3" in (record.message or "") and "ZeroDivisionError" in (record.message or "")
+
+
+async def test_unit_error_at_the_offending_line() -> None:
+    record, _, _ = await fly("d = assign()\narm(d)\nh = 10*m + 2*s\n")
+    assert cause(record) == ("failed", "script")
+    assert "line 3" in (record.message or "") and "UnitError" in (record.message or "")
+
+
+async def test_failing_subroutine_fails_the_mission() -> None:
+    record, _, _ = await fly("def bad():\n    sleep(1)\n    raise ValueError('nope')\nh = run(bad)\nsleep(100)\n")
+    assert cause(record) == ("failed", "script")
+    assert "nope" in (record.message or "") and "line 3" in (record.message or "")
+
+
+async def test_revoked() -> None:
+    record, _, _ = await fly("d = assign()\nrevoke(d)\narm(d)")
+    assert cause(record) == ("failed", "revoked")
+
+
+async def test_revoked_wrapper_cannot_be_read() -> None:
+    record, _, _ = await fly("d = assign()\nrevoke(d)\nprint(d.battery)")
+    assert cause(record) == ("failed", "revoked")
+
+
+async def test_irreplaceable() -> None:
+    record, _, _ = await fly('d = assign("drone01")\nreplace(d)')
+    assert cause(record) == ("failed", "irreplaceable")
+
+
+async def test_plugin_missing() -> None:
+    record, _, _ = await fly('enable("relay", target_dist=50*m)')
+    assert cause(record) == ("failed", "plugin_missing")
+
+
+async def test_user_cancel_leaves_the_drone_holding_and_released() -> None:
+    async def cancel_in_flight(field: SimField, mission_id: str) -> None:
+        await field.until(lambda: field.vehicles["drone01"].rel_alt > 5)
+        assert field.manager is not None
+        field.manager.cancel(mission_id)
+
+    record, field, lines = await fly(FLY + "move(d, forward=200*m)\n", world_with(), during=cancel_in_flight)
+    assert cause(record) == ("cancelled", "user")
+    assert "drone01: hold at mission end" in lines
+
+
+@pytest.mark.parametrize(("fault", "expected"), [
+    (Fault(at_s=15, fault="rc_takeover"), ("cancelled", "manual")),
+    (Fault(at_s=15, fault="health_failure", value="gyrometer"), ("failed", "drone_error")),
+    (Fault(at_s=15, fault="low_battery", value=0.08), ("cancelled", "return")),
+])
+async def test_drone_events_end_the_mission(fault: Fault, expected: tuple[str, str]) -> None:
+    record, _, _ = await fly(FLY + "move(d, forward=200*m)\nsleep(100)\n", world_with([fault]))
+    assert cause(record) == expected, record.message
+
+
+async def test_critical_battery_fails_and_sends_the_drone_home() -> None:
+    world = world_with([Fault(at_s=15, fault="low_battery", value=0.03)])
+    record, field, lines = await fly(FLY + "sleep(100)\n", world)
+    assert cause(record) in (("failed", "drone_error"), ("cancelled", "return"))
+    assert field.vehicles["drone01"].mode in ("return_to_launch", "land") or field.vehicles["drone01"].rel_alt < 0.5
+
+
+async def test_timeout_when_the_agent_dies() -> None:
+    async def kill(field: SimField, mission_id: str) -> None:
+        await field.until(lambda: field.vehicles["drone01"].rel_alt > 5)
+        field.kill_agent("drone01")
+
+    record, _, _ = await fly(FLY + "sleep(100)\n", world_with(), during=kill)
+    assert cause(record) == ("failed", "timeout")
+
+
+async def test_unexpected(monkeypatch: pytest.MonkeyPatch) -> None:
+    async def broken_station(field: SimField, mission_id: str) -> None:
+        async def boom(*args: Any, **kwargs: Any) -> None:
+            raise RuntimeError("station bug")
+
+        monkeypatch.setattr(field.station, "command", boom)
+
+    record, _, _ = await fly("sleep(5)\nd = assign()\narm(d)\n", world_with(), during=broken_station)
+    assert cause(record) == ("failed", "unexpected")
+    assert "station bug" in (record.message or "")
+
+
+# ---- runtime behaviour -----------------------------------------------------------------
+
+
+async def test_two_hundred_subroutines_channels_and_stop() -> None:
+    script = (
+        "hs = [run(lambda i=i: sleep(1 + i % 7)) for i in range(200)]\n"
+        "def producer():\n    sleep(3)\n    channel.ready = 42\n"
+        "def consumer():\n    return channel.ready + 1\n"
+        "c = run(consumer)\nrun(producer)\n"
+        "spinner = run(lambda: [None for _ in iter(int, 1)])\n"
+        "wait(*hs)\nwait(c)\n"
+        "assert c.finished and c.result == 43\n"
+        "assert spinner.running\n"
+        "stop(spinner)\nwait(spinner)\n"
+        "assert spinner.finished and not spinner.running\n"
+    )
+    record, _, _ = await fly(script)
+    assert cause(record) == ("finished", "success"), record.message
+
+
+async def test_wait_for_telemetry_and_the_drone_wrapper() -> None:
+    script = FLY + (
+        "seqs = []\n"
+        "for _ in range(3):\n    wait(d)\n    seqs.append(d.position.lat)\n"
+        "assert d.state == 'hold' and d.armed and d.battery > 0.5, (d.state, d.battery)\n"
+        "assert abs(d.rel_alt - 10) < 0.6 and d.home is not None and d.cmd is None\n"
+        "p = d.forward(10*m).right(10*m)\n"
+        "assert abs(distance(d, p) - 14.14) < 0.2 and abs(bearing(d, p) - 45) < 1, (distance(d, p), bearing(d, p))\n"
+        "turn(d, to=p)\nassert abs(d.heading - 45) < 3, d.heading\n"
+        "move(d, to=p, speed=2*m/s)\nassert d.distance(p) < 1.0\n"
+        "land(d)\n"
+    )
+    record, _, _ = await fly(script)
+    assert cause(record) == ("finished", "success"), record.message
