@@ -1,0 +1,186 @@
+"""Missions on a real ground: `fleet ground` and four `fleet agent --fc sim` over real
+Zenoh, missions submitted over HTTP and with the CLI (issue 5).
+
+The thesis's scripts 5.3 and 5.4 fly at the same time as a third mission spins in
+`while True: pass`; DELETE ends the spinning one within a second while the ground
+keeps handling telemetry and the flights finish.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import time
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from tests.harness import AgentProcess, GroundProcess, fleet_command, wait_state
+from tests.helpers import until
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+DRONES = ("drone01", "drone02", "drone03", "drone04")
+
+
+class Fleet:
+    def __init__(self, tmp: Path) -> None:
+        self.ground = GroundProcess(tmp)
+        self.agents = [
+            AgentProcess(
+                d, self.ground.endpoint, tmp, fc=f"sim://?lat=40.6334{i}&lon=-8.66081{i}&alt=8.2",
+                telemetry_rate_ms=200, takeoff_altitude=5.0,
+            )
+            for i, d in enumerate(DRONES)
+        ]
+
+    def stop(self) -> None:
+        for agent in self.agents:
+            agent.stop()
+        self.ground.stop()
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
+    fleet = Fleet(tmp_path_factory.mktemp("missions"))
+    yield fleet
+    fleet.stop()
+
+
+@pytest.fixture
+async def http(fleet: Fleet) -> AsyncIterator[httpx.AsyncClient]:
+    await fleet.ground.ready()
+    async with httpx.AsyncClient(base_url=fleet.ground.url, timeout=10) as client:
+        for drone_id in DRONES:
+            await wait_state(client, drone_id, "ready", 30)
+        yield client
+
+
+async def submit(http: httpx.AsyncClient, source: str, name: str = "") -> str:
+    response = await http.post("/mission", content=source.encode(), params={"name": name})
+    assert response.status_code == 201, response.text
+    return str(response.json()["mission_id"])
+
+
+async def record(http: httpx.AsyncClient, mission_id: str) -> dict[str, Any]:
+    response = await http.get(f"/mission/{mission_id}")
+    assert response.status_code == 200, response.text
+    return dict(response.json())
+
+
+async def ended(http: httpx.AsyncClient, mission_id: str, timeout_s: float) -> dict[str, Any]:
+    async def done() -> dict[str, Any] | None:
+        r = await record(http, mission_id)
+        return r if r["end"] is not None else None
+
+    return dict(await until(done, timeout_s, f"mission {mission_id} to end"))
+
+
+async def telemetry_seq(http: httpx.AsyncClient, drone_id: str) -> int:
+    response = await http.get(f"/drone/{drone_id}", params={"data": "telem"})
+    return int(response.json()["telem"]["seq"])
+
+
+async def test_examples_fly_while_a_spinning_mission_is_cancelled_within_a_second(http: httpx.AsyncClient) -> None:
+    sync = await submit(http, (EXAMPLES / "synchronisation.py").read_text(), "5.4")
+    two = await submit(http, (EXAMPLES / "two_drones.py").read_text(), "5.3")
+    spin = await submit(http, "x = 0\nwhile True:\n    pass\n", "spin")
+    await until(lambda: _status(http, spin, "running"), 10, "the spinning mission to run")
+
+    # While it spins, the ground still takes telemetry in and answers HTTP.
+    seq = await telemetry_seq(http, "drone01")
+    await until(lambda: _seq_above(http, "drone01", seq + 5), 5, "telemetry to keep flowing during the spin")
+
+    started = time.monotonic()
+    response = await http.delete(f"/mission/{spin}")
+    assert response.status_code == 200, response.text
+    final = await ended(http, spin, 1.0)
+    assert time.monotonic() - started <= 1.0
+    assert (final["status"], final["cause"]) == ("cancelled", "user")
+    assert (await http.delete(f"/mission/{spin}")).status_code == 409
+
+    for mission_id in (sync, two):
+        final = await ended(http, mission_id, 150)
+        assert (final["status"], final["cause"]) == ("finished", "success"), final
+    sync_record = await record(http, sync)
+    assert sync_record["used_drones"] == ["drone01", "drone02"] and sync_record["active_drones"] == []
+    assert sorted((await record(http, two))["used_drones"]) == ["drone03", "drone04"]
+    messages = [line["message"] for line in sync_record["log"]]
+    assert messages[0] == "Mission started" and messages[-1] == "Mission finished: success"
+    listed = {r["mission_id"]: r for r in (await http.get("/mission")).json()}
+    assert {sync, two, spin} <= set(listed)
+    for drone_id in DRONES:
+        info = (await http.get(f"/drone/{drone_id}", params={"data": "info"})).json()["info"]
+        assert info["mission"] is None
+
+
+async def _status(http: httpx.AsyncClient, mission_id: str, status: str) -> bool:
+    return (await record(http, mission_id))["status"] == status
+
+
+async def _seq_above(http: httpx.AsyncClient, drone_id: str, seq: int) -> bool:
+    return await telemetry_seq(http, drone_id) > seq
+
+
+async def test_scripts_that_do_not_compile_get_400_with_line_and_column(http: httpx.AsyncClient) -> None:
+    bad = await http.post("/mission", content=b"d = assign()\nif d\n    arm(d)\n")
+    assert bad.status_code == 400
+    assert bad.json()["detail"] == {"kind": "syntax", "line": 2, "column": 5, "message": "expected ':'"}
+    escape = await http.post("/mission", content=b"x = 1\nimport os\n")
+    assert escape.status_code == 400
+    assert (escape.json()["detail"]["kind"], escape.json()["detail"]["line"], escape.json()["detail"]["column"]) == ("security", 2, 1)
+    assert "not allowed" in escape.json()["error"]
+    not_utf8 = await http.post("/mission", content=b"\xff\xfe")
+    assert not_utf8.status_code == 400
+    assert (await http.get("/mission/m999")).status_code == 404
+    assert (await http.delete("/mission/m999")).status_code == 404
+
+
+async def test_drones_of_a_mission_refuse_other_commands(http: httpx.AsyncClient) -> None:
+    mission_id = await submit(http, 'd = assign("drone03")\nsleep(60)\n')
+    await until(lambda: _assigned(http, "drone03", mission_id), 10, "drone03 assigned")
+    refused = await http.post("/drone/drone03/cmd", json={"cmd": "arm"})
+    assert refused.status_code == 409 and mission_id in refused.json()["error"]
+    assert (await http.delete(f"/mission/{mission_id}")).status_code == 200
+    await ended(http, mission_id, 5)
+    await until(lambda: _assigned(http, "drone03", None), 5, "drone03 released")
+
+
+async def _assigned(http: httpx.AsyncClient, drone_id: str, mission_id: str | None) -> bool:
+    info = (await http.get(f"/drone/{drone_id}", params={"data": "info"})).json()["info"]
+    return bool(info["mission"] == mission_id)
+
+
+def test_cli_submit_watch_check_list_show(fleet: Fleet, http: httpx.AsyncClient, tmp_path: Path) -> None:
+    url = ["--url", fleet.ground.url]
+    good = tmp_path / "arm.py"
+    good.write_text('d = assign("drone04")\narm(d)\ndisarm(d)\nprint("armed and disarmed", d.id)\n')
+    done = subprocess.run(fleet_command("mission", "submit", *url, "--watch", str(good)), capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "armed and disarmed drone04" in done.stdout
+    assert "finished: success" in done.stdout
+    mission_id = done.stdout.split()[1]
+
+    failing = tmp_path / "missing.py"
+    failing.write_text('assign("drone09")\n')
+    done = subprocess.run(fleet_command("mission", "submit", *url, "-w", str(failing)), capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1
+    assert "failed: requirements" in done.stdout
+
+    listed = subprocess.run(fleet_command("mission", "list", *url), capture_output=True, text=True, timeout=30)
+    assert listed.returncode == 0 and mission_id in listed.stdout and "arm.py" in listed.stdout
+    shown = subprocess.run(fleet_command("mission", "show", *url, mission_id), capture_output=True, text=True, timeout=30)
+    assert shown.returncode == 0 and "Assigned drone04" in shown.stdout
+    cancel = subprocess.run(fleet_command("mission", "cancel", *url, mission_id), capture_output=True, text=True, timeout=30)
+    assert cancel.returncode == 1 and "409" in cancel.stderr
+
+    bad = tmp_path / "bad.py"
+    bad.write_text("x = 1\nopen('f')\n")
+    checked = subprocess.run(fleet_command("mission", "check", str(bad)), capture_output=True, text=True, timeout=30)
+    assert checked.returncode == 1 and f"{bad}:2:1:" in checked.stderr
+    checked = subprocess.run(fleet_command("mission", "check", str(EXAMPLES / "mapping.py")), capture_output=True, text=True, timeout=30)
+    assert checked.returncode == 0
+    rejected = subprocess.run(fleet_command("mission", "submit", *url, str(bad)), capture_output=True, text=True, timeout=30)
+    assert rejected.returncode == 1 and "400" in rejected.stderr and "line 2, column 1" in rejected.stderr
