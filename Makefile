@@ -24,6 +24,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/agent_mavsdk.py
 	$(BIN)/python bench/ground_fanin.py
 	$(BIN)/python bench/ground_command.py
+	$(BIN)/python bench/mission_sim.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -396,8 +396,9 @@ class Mission:
             try:
                 status = await fut
             except asyncio.CancelledError:
-                if not self.ending:  # the subroutine was stopped: so is its command
-                    asyncio.get_running_loop().create_task(self._cancel_quietly(drone_id))
+                if not self.ending:  # the subroutine was stopped: so is its command,
+                    # before whoever waits on the subroutine sends the next one
+                    await asyncio.shield(self._cancel_quietly(drone_id))
                 raise
         except InvalidMessage as exc:
             raise self.fail("cmd_parse", f"{name} {drone_id}: {exc}") from None
