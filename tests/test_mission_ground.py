@@ -184,3 +184,34 @@ def test_cli_submit_watch_check_list_show(fleet: Fleet, http: httpx.AsyncClient,
     assert checked.returncode == 0
     rejected = subprocess.run(fleet_command("mission", "submit", *url, str(bad)), capture_output=True, text=True, timeout=30)
     assert rejected.returncode == 1 and "400" in rejected.stderr and "line 2, column 1" in rejected.stderr
+
+
+@pytest.mark.parametrize("how", ["kill", "term"])
+async def test_missions_survive_a_ground_restart_as_failed_ground_restart(tmp_path: Path, how: str) -> None:
+    ground = GroundProcess(tmp_path)  # started by the constructor
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as client:
+            mission_id = await submit(client, "sleep(600)\n", "long")
+            done_id = await submit(client, "print('quick')\n", "quick")
+            await until(lambda: _status(client, mission_id, "running"), 10, "the mission to run")
+            await ended(client, done_id, 10)
+        if how == "kill":
+            ground.kill()
+        else:
+            assert ground.stop() == 0
+    finally:
+        ground.stop()
+    again = GroundProcess(tmp_path, data_dir=ground.data_dir)
+    try:
+        await again.ready()
+        async with httpx.AsyncClient(base_url=again.url, timeout=10) as client:
+            long_record = await record(client, mission_id)
+            assert (long_record["status"], long_record["cause"]) == ("failed", "ground_restart")
+            assert long_record["end"] is not None
+            quick = await record(client, done_id)
+            assert (quick["status"], quick["cause"]) == ("finished", "success")
+            assert "quick" in [line["message"] for line in quick["log"]]
+            assert await submit(client, "pass\n") == "m3"  # ids go on after the old ones
+    finally:
+        again.stop()
