@@ -3,11 +3,12 @@ and an Operator that commands them over real Zenoh and watches what they publish
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
-from collections.abc import Sequence
+from collections.abc import AsyncIterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -193,6 +194,31 @@ class GroundProcess(ChildProcess):
                     return False
 
             await until(answers, timeout_s, "the ground's HTTP API")
+
+
+class GroundFleet:
+    """A `fleet ground` and `fleet agent --fc sim` children, one per (drone id, fc url)."""
+
+    def __init__(self, tmp: Path, fcs: dict[str, str], agent_config: dict[str, Any] | None = None, **ground_config: Any) -> None:
+        self.tmp = tmp
+        self.ground = GroundProcess(tmp, **ground_config)
+        self.agents = {
+            d: AgentProcess(d, self.ground.endpoint, tmp, fc=fc, **(agent_config or {})) for d, fc in fcs.items()
+        }
+
+    def stop(self) -> None:
+        for agent in self.agents.values():
+            agent.stop()
+        self.ground.stop()
+
+    @contextlib.asynccontextmanager
+    async def client(self, drones_ready: bool = True) -> AsyncIterator[httpx.AsyncClient]:
+        """An HTTP client to the ground once it answers (and, if asked, every drone is `ready`)."""
+        await self.ground.ready()
+        async with httpx.AsyncClient(base_url=self.ground.url, timeout=10) as http:
+            for drone_id in self.agents if drones_ready else ():
+                await wait_state(http, drone_id, "ready", 30)
+            yield http
 
 
 async def drone_state(http: httpx.AsyncClient, drone_id: str) -> str | None:

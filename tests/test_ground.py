@@ -19,31 +19,19 @@ from bus.zenoh_bus import ZenohBus
 from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.telemetry import SensorReading
-from tests.harness import AgentProcess, GroundProcess, fleet_command, wait_state
+from tests.harness import GroundFleet, fleet_command, wait_state
 from tests.helpers import Collector, free_udp_base, until
 
 DRONES = ("drone01", "drone02", "drone03")
 SPAWNS = {"drone01": (40.633490, -8.660815), "drone02": (40.633590, -8.660815), "drone03": (40.633690, -8.660815)}
 
 
-class Fleet:
+class Fleet(GroundFleet):
     def __init__(self, tmp: Path) -> None:
-        self.tmp = tmp
-        self.ground = GroundProcess(tmp, sensor_timeout_ms={"temperature": 0})
         self.control_port = free_udp_base(1)
-        self.agents = {d: self._agent(d) for d in DRONES}
-
-    def _agent(self, drone_id: str) -> AgentProcess:
-        lat, lon = SPAWNS[drone_id]
-        fc = f"sim://?lat={lat}&lon={lon}&alt=8.2"
-        if drone_id == "drone03":
-            fc += f"&control={self.control_port}"
-        return AgentProcess(drone_id, self.ground.endpoint, self.tmp, fc=fc)
-
-    def stop(self) -> None:
-        for agent in self.agents.values():
-            agent.stop()
-        self.ground.stop()
+        fcs = {d: f"sim://?lat={lat}&lon={lon}&alt=8.2" for d, (lat, lon) in SPAWNS.items()}
+        fcs["drone03"] += f"&control={self.control_port}"
+        super().__init__(tmp, fcs, sensor_timeout_ms={"temperature": 0})
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +43,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
 
 @pytest.fixture
 async def http(fleet: Fleet) -> AsyncIterator[httpx.AsyncClient]:
-    await fleet.ground.ready()
-    async with httpx.AsyncClient(base_url=fleet.ground.url, timeout=10) as client:
+    async with fleet.client(drones_ready=False) as client:
         yield client
 
 

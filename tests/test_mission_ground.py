@@ -17,7 +17,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.harness import AgentProcess, GroundProcess, fleet_command, wait_state
+from tests.harness import GroundFleet, GroundProcess, fleet_command
 from tests.helpers import until
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -25,36 +25,17 @@ EXAMPLES = ROOT / "examples"
 DRONES = ("drone01", "drone02", "drone03", "drone04")
 
 
-class Fleet:
-    def __init__(self, tmp: Path) -> None:
-        self.ground = GroundProcess(tmp)
-        self.agents = [
-            AgentProcess(
-                d, self.ground.endpoint, tmp, fc=f"sim://?lat=40.6334{i}&lon=-8.66081{i}&alt=8.2",
-                telemetry_rate_ms=200, takeoff_altitude=5.0,
-            )
-            for i, d in enumerate(DRONES)
-        ]
-
-    def stop(self) -> None:
-        for agent in self.agents:
-            agent.stop()
-        self.ground.stop()
-
-
 @pytest.fixture(scope="module")
-def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
-    fleet = Fleet(tmp_path_factory.mktemp("missions"))
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
+    fcs = {d: f"sim://?lat=40.6334{i}&lon=-8.66081{i}&alt=8.2" for i, d in enumerate(DRONES)}
+    fleet = GroundFleet(tmp_path_factory.mktemp("missions"), fcs, {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0})
     yield fleet
     fleet.stop()
 
 
 @pytest.fixture
-async def http(fleet: Fleet) -> AsyncIterator[httpx.AsyncClient]:
-    await fleet.ground.ready()
-    async with httpx.AsyncClient(base_url=fleet.ground.url, timeout=10) as client:
-        for drone_id in DRONES:
-            await wait_state(client, drone_id, "ready", 30)
+async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
+    async with fleet.client() as client:
         yield client
 
 
@@ -153,7 +134,7 @@ async def _assigned(http: httpx.AsyncClient, drone_id: str, mission_id: str | No
     return bool(info["mission"] == mission_id)
 
 
-def test_cli_submit_watch_check_list_show(fleet: Fleet, http: httpx.AsyncClient, tmp_path: Path) -> None:
+def test_cli_submit_watch_check_list_show(fleet: GroundFleet, http: httpx.AsyncClient, tmp_path: Path) -> None:
     url = ["--url", fleet.ground.url]
     good = tmp_path / "arm.py"
     good.write_text('d = assign("drone04")\narm(d)\ndisarm(d)\nprint("armed and disarmed", d.id)\n')

@@ -120,60 +120,28 @@ def test_mapping_visits_the_thesis_waypoints_and_replays_identically(tmp_path: P
 # ---- causes --------------------------------------------------------------------------
 
 
-async def test_requirements() -> None:
-    record, _, _ = await fly('assign("drone09")')
-    assert cause(record) == ("failed", "requirements")
-    assert "drone09" in (record.message or "")
+SCRIPTED_CAUSES = [
+    ("requirements", 'assign("drone09")', "failed", "drone09"),
+    ("cmd_exec", "d = assign()\ntakeoff(d)", "failed", "disarmed"),  # the agent refuses
+    ("cmd_parse", "d = assign()\narm(d)\ntakeoff(d, -5*m)", "failed", "alt"),
+    ("script", "d = assign()\nx = 1\ny = x / 0\n", "failed", "line 3: ZeroDivisionError"),
+    ("script", "d = assign()\narm(d)\nh = 10*m + 2*s\n", "failed", "line 3: UnitError"),
+    ("script", "def bad():\n    sleep(1)\n    raise ValueError('nope')\nh = run(bad)\nsleep(100)\n", "failed", "line 3: ValueError: nope"),
+    ("revoked", "d = assign()\nrevoke(d)\narm(d)", "failed", "not assigned"),
+    ("revoked", "d = assign()\nrevoke(d)\nprint(d.battery)", "failed", "not assigned"),
+    ("irreplaceable", 'd = assign("drone01")\nreplace(d)', "failed", "drone01"),
+    ("plugin_missing", 'enable("relay", target_dist=50*m)', "failed", "relay"),
+]
 
 
-async def test_cmd_exec_from_the_agent_refusal() -> None:
-    record, _, _ = await fly("d = assign()\ntakeoff(d)")
-    assert cause(record) == ("failed", "cmd_exec")
-    assert "disarmed" in (record.message or "")
-
-
-async def test_cmd_parse() -> None:
-    record, _, _ = await fly("d = assign()\narm(d)\ntakeoff(d, -5*m)")
-    assert cause(record) == ("failed", "cmd_parse")
-    assert "alt" in (record.message or "")
-
-
-async def test_script_error_names_the_line() -> None:
-    record, _, _ = await fly("d = assign()\nx = 1\ny = x / 0\n")
-    assert cause(record) == ("failed", "script")
-    assert "line 3" in (record.message or "") and "ZeroDivisionError" in (record.message or "")
-
-
-async def test_unit_error_at_the_offending_line() -> None:
-    record, _, _ = await fly("d = assign()\narm(d)\nh = 10*m + 2*s\n")
-    assert cause(record) == ("failed", "script")
-    assert "line 3" in (record.message or "") and "UnitError" in (record.message or "")
-
-
-async def test_failing_subroutine_fails_the_mission() -> None:
-    record, _, _ = await fly("def bad():\n    sleep(1)\n    raise ValueError('nope')\nh = run(bad)\nsleep(100)\n")
-    assert cause(record) == ("failed", "script")
-    assert "nope" in (record.message or "") and "line 3" in (record.message or "")
-
-
-async def test_revoked() -> None:
-    record, _, _ = await fly("d = assign()\nrevoke(d)\narm(d)")
-    assert cause(record) == ("failed", "revoked")
-
-
-async def test_revoked_wrapper_cannot_be_read() -> None:
-    record, _, _ = await fly("d = assign()\nrevoke(d)\nprint(d.battery)")
-    assert cause(record) == ("failed", "revoked")
-
-
-async def test_irreplaceable() -> None:
-    record, _, _ = await fly('d = assign("drone01")\nreplace(d)')
-    assert cause(record) == ("failed", "irreplaceable")
-
-
-async def test_plugin_missing() -> None:
-    record, _, _ = await fly('enable("relay", target_dist=50*m)')
-    assert cause(record) == ("failed", "plugin_missing")
+@pytest.mark.parametrize(
+    ("expected", "script", "status", "fragment"), SCRIPTED_CAUSES,
+    ids=[f"{c}-{i}" for i, (c, *_) in enumerate(SCRIPTED_CAUSES)],
+)
+async def test_scripted_causes(expected: str, script: str, status: str, fragment: str) -> None:
+    record, _, _ = await fly(script)
+    assert cause(record) == (status, expected), record.message
+    assert fragment in (record.message or ""), record.message
 
 
 async def test_user_cancel_leaves_the_drone_holding_and_released() -> None:
