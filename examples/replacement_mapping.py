@@ -1,7 +1,12 @@
 """Thesis script 5.2: mapping with a lazy drone replacement.
 
-Before every leg the battery is checked; below 40 % the drone is sent home, revoked,
-and a fresh drone is summoned to the spot where the first one stopped, to finish.
+Before every leg the battery is checked; below 40 % the drone is sent home and a
+fresh drone takes its place at the spot where the first one stopped, to finish.
+The thesis wrote the swap out by hand (`run {home drone}; revoke drone;
+summon_drone()`); `replace(drone)` does exactly that — return without waiting,
+release, assign the nearest free drone — keeping the same `drone` wrapper.
+
+    fleet mission simulate examples/replacement_mapping.py --world examples/worlds/replacement.yml
 """
 
 LOW_BATTERY = 0.4
@@ -15,14 +20,12 @@ def summon_drone():
 
 
 def move_or_replace(**movement):
-    global drone
     if drone.battery < LOW_BATTERY:
         here = drone.position
         heading = drone.heading
-        leaving = drone
-        run(home, leaving)
-        revoke(leaving)
-        drone = summon_drone()
+        replace(drone)
+        arm(drone)
+        takeoff(drone)
         move(drone, to=here)
         turn(drone, to=heading * deg)
     move(drone, **movement)

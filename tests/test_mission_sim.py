@@ -227,3 +227,15 @@ async def test_wait_for_telemetry_and_the_drone_wrapper() -> None:
     )
     record, _, _ = await fly(script)
     assert cause(record) == ("finished", "success"), record.message
+
+
+async def test_replacement_mapping_swaps_drones_half_way() -> None:
+    from sim.world import load_world
+
+    world = load_world(EXAMPLES / "worlds" / "replacement.yml")
+    record, field, lines = await fly((EXAMPLES / "replacement_mapping.py").read_text(), world)
+    assert cause(record) == ("finished", "success"), record.message
+    assert record.used_drones == ["drone01", "drone02"]
+    assert "Replaced drone01 with drone02" in lines
+    first = field.vehicles["drone01"]
+    assert first.rel_alt < 0.5 and first.position().lat == pytest.approx(first.home.lat, abs=1e-5)
