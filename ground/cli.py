@@ -68,7 +68,12 @@ def drone_table(views: list[dict[str, Any]]) -> list[str]:
             _cell(current.get("description")), _cell(info.get("mission")),
             _cell("; ".join((info.get("errors") or []) + (info.get("warns") or []))),
         ))
-    widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
+    return aligned(rows)
+
+
+def aligned(rows: list[tuple[str, ...]]) -> list[str]:
+    """Rows of cells as lines with every column padded to its widest cell."""
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in rows]
 
 

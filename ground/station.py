@@ -115,8 +115,8 @@ class GroundStation:
             self._watchers.discard(watcher)
 
     def listen(self, listener: Callable[[WatchEvent], None]) -> Callable[[], None]:
-        """Call `listener` synchronously with every event, telemetry unthrottled
-        (missions); returns the function that stops it."""
+        """Call `listener` synchronously with every telemetry (unthrottled), status and
+        drone change (missions); returns the function that stops it."""
         self._listeners.append(listener)
         return lambda: self._listeners.remove(listener) if listener in self._listeners else None
 
@@ -190,15 +190,15 @@ class GroundStation:
         status = self._decode(decode_status, sample)
         if status is None:
             return
-        self.broadcast(WatchEvent("status", status))
+        event = WatchEvent("status", status)
+        self.broadcast(event)
         self._emit(self.registry.on_status(status, self.clock.time_ms()))
-        self._tell(WatchEvent("status", status))
+        self._tell(event)  # after the registry: missions see the drone as it now is
 
     def _on_sensor(self, sample: Sample) -> None:
         reading: SensorReading | None = self._from_drone(decode_sensor, sample)
         if reading is not None:
             self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
-            self._tell(WatchEvent("sensor", reading))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         parsed = self.keys.parse(key)
@@ -236,8 +236,9 @@ class GroundStation:
                 log.log(_LOG_LEVELS[event.level], "%s - %s", event.drone_id or "ground", event.message)
                 self.broadcast(WatchEvent("log", event, row))
             elif isinstance(event, InfoChanged):
-                self.broadcast(WatchEvent("drone", event.info))
-                self._tell(WatchEvent("drone", event.info))
+                changed = WatchEvent("drone", event.info)
+                self.broadcast(changed)
+                self._tell(changed)
 
     def end_watches(self) -> None:
         """Tell every watcher the ground is stopping (event streams then close)."""

@@ -16,7 +16,7 @@ from typing import Any
 import click
 import httpx
 
-from ground.cli import _fail, _request, url_option
+from ground.cli import _cell, _fail, _request, aligned, url_option
 
 EXIT_CODES = {"finished": 0, "failed": 1, "cancelled": 3}
 ENDED = frozenset(EXIT_CODES)
@@ -111,11 +111,10 @@ def list_missions(url: str, as_json: bool) -> None:
         return
     rows = [("MISSION", "NAME", "STATUS", "CAUSE", "START", "END", "DRONES")]
     for r in records:
-        rows.append((r["mission_id"], r.get("name") or "-", r["status"], r.get("cause") or "-",
-                     _stamp(r.get("start")), _stamp(r.get("end")), ",".join(r.get("used_drones") or []) or "-"))
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    for row in rows:
-        click.echo("  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip())
+        rows.append((r["mission_id"], _cell(r.get("name")), r["status"], _cell(r.get("cause")),
+                     _stamp(r.get("start")), _stamp(r.get("end")), _cell(",".join(r.get("used_drones") or []))))
+    for line in aligned(rows):
+        click.echo(line)
 
 
 @mission.command()

@@ -11,6 +11,7 @@ describes instead of accumulating each stop's acceptance-radius error.
 
 from __future__ import annotations
 
+import asyncio
 import math
 from collections.abc import Callable
 from typing import Any
@@ -100,11 +101,10 @@ class Drone:
         self.sensor = SensorView(self)
 
     def _live(self) -> str:
-        if self._id not in self._m.requests:
-            try:
-                self._m.check_assigned(self._id)
-            except MissionOver:
-                raise Stopped() from None
+        try:
+            self._m.check_assigned(self._id)
+        except MissionOver:
+            raise Stopped() from None
         return self._id
 
     def _telem(self) -> Any:
@@ -246,8 +246,6 @@ class Channel:
         values: dict[str, Any] = object.__getattribute__(self, "_values")
         if name in values:
             return values[name]
-        import asyncio
-
         fut = asyncio.get_running_loop().create_future()
         object.__getattribute__(self, "_waiters").setdefault(name, []).append(fut)
         return _call(object.__getattribute__(self, "_m"), fut)
@@ -257,7 +255,6 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     """The globals one mission script runs with."""
     m = mission
     clock = mission.clock
-    wrappers: dict[int, Drone] = {}
 
     def drone_id(d: Any) -> str:
         if not isinstance(d, Drone):
@@ -292,13 +289,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             requests.append(a.ByKind(kind))
         if not requests:
             requests = [a.AnyDrone()]
-        try:
-            ids = m.assign(requests)
-        except MissionOver:
-            raise Stopped() from None
-        drones = [Drone(m, i) for i in ids]
-        for d in drones:
-            wrappers[id(d)] = d
+        drones = [Drone(m, i) for i in m.assign(requests)]
         return drones[0] if len(drones) == 1 else tuple(drones)
 
     def with_sensors(*kinds: str) -> a.BySensors:
@@ -312,18 +303,12 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         return a.ByKind(kind)
 
     def revoke(d: Drone) -> None:
-        try:
-            m.revoke(drone_id(d))
-        except MissionOver:
-            raise Stopped() from None
+        m.revoke(drone_id(d))
 
     def replace(d: Drone) -> Drone:
         """Send `d` home and put the closest free drone in its place (same wrapper)."""
         old = drone_id(d)
-        try:
-            new = m.replacement_for(old)
-        except MissionOver:
-            raise Stopped() from None
+        new = m.replacement_for(old)
         request = m.requests[old]
         send(d, {"cmd": "return"}, wait=False)
         m.revoke(old)
@@ -426,8 +411,6 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         return m.scheduler.spawn(fn, *args)
 
     def wait(*things: Any) -> None:
-        import asyncio
-
         for thing in things:
             if isinstance(thing, Drone):
                 _call(m, m.next_telemetry(drone_id(thing)))

@@ -187,10 +187,6 @@ class MissionManager:
             raise UnknownMission(mission_id)
         return record
 
-    def mission(self, mission_id: str) -> Mission | None:
-        entry = self._running.get(mission_id)
-        return entry[0] if entry else None
-
     def list(self) -> list[MissionRecord]:
         return [self.get(r.mission_id) if r.mission_id in self._running else r for r in self.store.all()]
 

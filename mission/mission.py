@@ -30,7 +30,6 @@ from ground.station import CommandRejected, GroundStation, WatchEvent
 from mission import assignment as a
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
-from mission.units import UnitError
 from schemas.errors import InvalidMessage
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
@@ -130,7 +129,7 @@ class Mission:
         self.scheduler: Scheduler | None = None
         self.requests: dict[str, a.Request] = {}  # drone id → how it was assigned
         self.commands: list[CommandResult] = []
-        self._pending: dict[str, tuple[asyncio.Future[CommandStatus], str]] = {}
+        self._pending: dict[str, asyncio.Future[CommandStatus]] = {}  # command id → its terminal status
         self._pulses: dict[str, list[asyncio.Future[None]]] = {}
         self._ended = asyncio.Event()
         self._stop_listening: Callable[[], None] | None = None
@@ -218,7 +217,7 @@ class Mission:
             self.log("error", "a subroutine did not stop within 1 s")
         if self._stop_listening is not None:
             self._stop_listening()
-        for fut, _ in self._pending.values():
+        for fut in self._pending.values():
             if not fut.done():
                 fut.cancel()
         for drone_id in sorted(self.requests):
@@ -257,7 +256,7 @@ class Mission:
         prefix = f"line {where}: " if where else ""
         if isinstance(exc, SecurityViolation):
             self.end("security", f"{prefix}{exc}")
-        elif isinstance(exc, (UnitError, Exception)):
+        elif isinstance(exc, Exception):  # UnitError, NameError, ZeroDivisionError, …
             self.end("script", f"{prefix}{type(exc).__name__}: {exc}" + ("" if sub.name == "main" else f" (in subroutine {sub.name})"))
         else:
             self.end("unexpected", f"{prefix}{type(exc).__name__}: {exc}")
@@ -283,9 +282,9 @@ class Mission:
                 fut.set_result(None)
 
     def _on_command_status(self, status: CommandStatus) -> None:
-        entry = self._pending.get(status.command_id)
-        if entry is not None and status.state in TERMINAL_COMMAND_STATES and not entry[0].done():
-            entry[0].set_result(status)
+        fut = self._pending.get(status.command_id)
+        if fut is not None and status.state in TERMINAL_COMMAND_STATES and not fut.done():
+            fut.set_result(status)
 
     def _on_system_status(self, status: SystemStatus) -> None:
         if status.state == "return":
@@ -387,7 +386,7 @@ class Mission:
         command_id = new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
-            self._pending[command_id] = (fut, drone_id)
+            self._pending[command_id] = fut
         sent = self.clock.time_ms()
         try:
             await self.station.command(drone_id, json.dumps({**body, "command_id": command_id}).encode(), self.id)

@@ -177,10 +177,6 @@ class Scheduler:
         self._slice_start = time.perf_counter()
 
 
-def current_subroutine() -> Subroutine | None:
-    return getattr(getcurrent(), "sub", None)
-
-
 def await_(awaitable: Awaitable[T]) -> T:
     """Block the calling script greenlet until `awaitable` is done on the loop."""
     current = getcurrent()

@@ -241,31 +241,32 @@ class _Rewriter(ast.NodeTransformer):
         return ast.copy_location(ast.Assign(targets=[node.target], value=value), node)
 
 
-def compile_mission(source: str, filename: str = "<mission>") -> types.CodeType:
-    """Check and rewrite a mission script; raise ScriptError for the first problem."""
+def _parse_and_check(source: str, filename: str) -> tuple[ast.Module | None, list[ScriptError]]:
+    """The parsed script (None if it does not parse) and its static problems, first first."""
     try:
         tree = ast.parse(source, filename=filename)
     except SyntaxError as exc:
-        raise ScriptError(exc.msg, exc.lineno, exc.offset, "syntax") from None
+        return None, [ScriptError(exc.msg, exc.lineno, exc.offset, "syntax")]
     except ValueError as exc:  # e.g. NUL bytes in the source
-        raise ScriptError(str(exc), None, None, "syntax") from None
+        return None, [ScriptError(str(exc), None, None, "syntax")]
     checker = _Checker()
     checker.visit(tree)
-    if checker.problems:
-        raise min(checker.problems, key=lambda p: (p.line or 0, p.column or 0))
-    tree = ast.fix_missing_locations(_Rewriter().visit(tree))
-    return compile(tree, filename, "exec", dont_inherit=True)
+    return tree, sorted(checker.problems, key=lambda p: (p.line or 0, p.column or 0))
 
 
 def check_mission(source: str, filename: str = "<mission>") -> list[ScriptError]:
     """Every static problem of a script (`fleet mission check`), first one first."""
-    try:
-        tree = ast.parse(source, filename=filename)
-    except SyntaxError as exc:
-        return [ScriptError(exc.msg, exc.lineno, exc.offset, "syntax")]
-    checker = _Checker()
-    checker.visit(tree)
-    return sorted(checker.problems, key=lambda p: (p.line or 0, p.column or 0))
+    return _parse_and_check(source, filename)[1]
+
+
+def compile_mission(source: str, filename: str = "<mission>") -> types.CodeType:
+    """Check and rewrite a mission script; raise ScriptError for the first problem."""
+    tree, problems = _parse_and_check(source, filename)
+    if problems:
+        raise problems[0]
+    assert tree is not None
+    tree = ast.fix_missing_locations(_Rewriter().visit(tree))
+    return compile(tree, filename, "exec", dont_inherit=True)
 
 
 # ---- run-time guards -----------------------------------------------------------------

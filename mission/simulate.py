@@ -43,7 +43,6 @@ DEFAULT_MAX_S = 3600.0
 @dataclass
 class Track:
     samples: list[dict[str, Any]] = field(default_factory=list)
-    sensors: dict[str, Any] = field(default_factory=dict)  # latest reading per type
 
 
 class SimField:
@@ -139,19 +138,17 @@ class SimField:
             track = self.tracks.get(t.drone_id)
             if track is None or t.position is None:
                 return
-            info = self.station.registry.info(t.drone_id)
+            registry = self.station.registry
+            info = registry.info(t.drone_id)
+            sensors = {r.type: r.value for r in registry.sensor_readings(t.drone_id)}
             track.samples.append({
                 "t_s": round(self.clock.monotonic(), 3),
                 "lat": round(t.position.lat, 8), "lon": round(t.position.lon, 8),
                 "alt": round(t.position.alt, 3), "rel_alt": round(t.position.rel_alt, 3),
                 "heading": round(t.heading, 2), "speed": round(t.speed, 3),
                 "battery": round(t.battery.remaining_percent, 5) if t.battery else None,
-                "state": info.state, "armed": t.armed, "sensors": dict(track.sensors),
+                "state": info.state, "armed": t.armed, "sensors": sensors,
             })
-        elif event.kind == "sensor":
-            r: SensorReading = event.data
-            if r.drone_id in self.tracks:
-                self.tracks[r.drone_id].sensors[r.type] = r.value
 
     async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S) -> MissionRecord:
         assert self.manager is not None
@@ -198,15 +195,11 @@ class SimField:
             "drones": {
                 drone_id: {
                     "samples": track.samples,
-                    "commands": [msgspec.to_builtins(c) for c in self._commands if c.drone_id == drone_id],
+                    "commands": [msgspec.to_builtins(c) for c in self.manager.commands if c.drone_id == drone_id],
                 }
                 for drone_id, track in sorted(self.tracks.items())
             },
         }
-
-    @property
-    def _commands(self) -> list[Any]:
-        return self.manager.commands if self.manager is not None else []
 
     async def close(self) -> None:
         for task in self._tasks:
