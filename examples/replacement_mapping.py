@@ -3,8 +3,10 @@
 Before every leg the battery is checked; below 40 % the drone is sent home and a
 fresh drone takes its place at the spot where the first one stopped, to finish.
 The thesis wrote the swap out by hand (`run {home drone}; revoke drone;
-summon_drone()`); `replace(drone)` does exactly that — return without waiting,
-release, assign the nearest free drone — keeping the same `drone` wrapper.
+summon_drone()`, then arm, take off, move to where the first one stopped);
+`replace(drone)` does all of that — sends the drone home without waiting, releases
+it, assigns the nearest free drone, which arms, takes off and flies to the spot,
+facing the same way — keeping the same `drone` wrapper.
 
     fleet mission simulate examples/replacement_mapping.py --world examples/worlds/replacement.yml
 """
@@ -21,13 +23,7 @@ def summon_drone():
 
 def move_or_replace(**movement):
     if drone.battery < LOW_BATTERY:
-        here = drone.position
-        heading = drone.heading
         replace(drone)
-        arm(drone)
-        takeoff(drone)
-        move(drone, to=here)
-        turn(drone, to=heading * deg)
     move(drone, **movement)
 
 

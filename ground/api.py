@@ -32,6 +32,7 @@ from ground.registry import DroneInfo, DroneState
 from ground.station import CommandRejected, GroundStation, WatchEvent
 from mission.manager import MissionEnded, MissionManager, UnknownMission
 from mission.mission import MissionLogLine, MissionRecord
+from mission.plugins import PluginListing
 from mission.sandbox import ScriptError
 from schemas.commands import Command, CommandReply
 from schemas.errors import InvalidMessage
@@ -289,10 +290,15 @@ def _message(event: WatchEvent) -> ServerSentEventMessage:
     )
 
 
+@get("/plugin", sync_to_thread=False, summary="Loaded plugins with their inputs, and plugin files that failed to load")
+def list_plugins(missions: MissionManager) -> PluginListing:
+    return missions.plugins.describe() if missions.plugins is not None else PluginListing(plugins=[], errors=[])
+
+
 @get("/", sync_to_thread=False, include_in_schema=False)
 def index() -> dict[str, str]:
     return {
-        "name": "fleet ground", "openapi": "/openapi.json", "drones": "/drone", "missions": "/mission",
+        "name": "fleet ground", "openapi": "/openapi.json", "drones": "/drone", "missions": "/mission", "plugins": "/plugin",
         "events": "/events", "logs": "/drone/logs",
     }
 
@@ -339,7 +345,7 @@ def _add_command_components(app: Litestar) -> None:
 def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     return Litestar(
         [
-            list_drones, drone_logs, show_drone, send_command, submit_mission, list_missions, show_mission,
+            list_drones, drone_logs, show_drone, send_command, submit_mission, list_missions, show_mission, list_plugins,
             cancel_mission, events, index, openapi_json,
         ],
         dependencies={

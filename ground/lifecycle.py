@@ -24,6 +24,7 @@ from ground.config import GroundConfig
 from ground.eventlog import EventLog
 from ground.station import GroundStation
 from mission.manager import MissionManager, MissionStore
+from mission.plugins import PluginLibrary, plugin_summary
 from schemas.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -68,11 +69,13 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     sock = _bind(config.http_host, config.http_port)
     events = EventLog(data_dir / "events.db")
     store = MissionStore(data_dir / "missions.db")
+    plugins = PluginLibrary.default(config.plugins_path.expanduser())
+    out(plugin_summary(plugins))
     try:
         bus = await ZenohBus.open("router", listen=config.listen)
         try:
             station = GroundStation(config, bus, events)
-            missions = MissionManager(station, store, station.clock)
+            missions = MissionManager(station, store, station.clock, plugins=plugins)
             server = _EmbeddedServer(uvicorn.Config(
                 create_app(station, missions), log_level="warning", lifespan="on",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,

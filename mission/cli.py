@@ -165,9 +165,12 @@ def check(script: Path) -> None:
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), help="Write result.json and plots here.")
 @click.option("--max-time", "max_s", type=click.FloatRange(1, 86_400), default=3600, show_default=True,
               help="Cancel the mission after this much simulated time (s).")
-@click.option("--enable", "plugins", multiple=True, help="PLUGIN key=value… (the plugin system is not loaded yet).")
+@click.option("--enable", "plugins", multiple=True, metavar="'PLUGIN key=value…'",
+              help="Enable a plugin before the script's first line, e.g. --enable 'replacement drainage=0.0015' (repeatable).")
+@click.option("--plugins-dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Also load the plugin scripts in this directory (besides the bundled ones).")
 def simulate(script: Path, world: Path | None, n: int | None, seed: int, out_dir: Path | None, max_s: float,
-             plugins: tuple[str, ...]) -> None:
+             plugins: tuple[str, ...], plugins_dir: Path | None) -> None:
     """Run SCRIPT against simulated drones in fast time; exit with its outcome."""
     import logging
 
@@ -175,8 +178,20 @@ def simulate(script: Path, world: Path | None, n: int | None, seed: int, out_dir
     from mission.simulate import simulate as run
     from sim.world import load_world
 
-    if plugins:
-        _fail("--enable: no plugins are loaded in this version")
+    from mission.plugins import PluginLibrary, parse_enable, plugin_summary
+
+    library = PluginLibrary.default(plugins_dir)
+    if library.failures:
+        click.echo(plugin_summary(library).replace("fleet ground: ", ""), err=True)
+    enable: dict[str, dict[str, object]] = {}
+    for text in plugins:
+        try:
+            plugin_id, inputs = parse_enable(text)
+        except ValueError as exc:
+            _fail(str(exc))
+        if library.get(plugin_id) is None:
+            _fail(f"--enable: no plugin {plugin_id!r} (loaded: {', '.join(sorted(library.plugins)) or 'none'})")
+        enable[plugin_id] = inputs
     source = _read_script(script)
     try:
         compile_mission(source, filename=str(script))
@@ -189,7 +204,7 @@ def simulate(script: Path, world: Path | None, n: int | None, seed: int, out_dir
     try:
         result = asyncio.run(run(
             source, load_world(world), n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,
-            echo=lambda t, message: click.echo(f"[{t:8.1f} s] {message}"),
+            echo=lambda t, message: click.echo(f"[{t:8.1f} s] {message}"), plugins=library, enable=enable,
         ))
     except ScriptError as exc:
         _fail(f"{script}:{exc.line}:{exc.column}: {exc.message}")

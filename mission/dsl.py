@@ -20,10 +20,14 @@ from mission import assignment as a
 from mission import geo, units
 from mission.geo import Position, as_position
 from mission.mission import Mission, MissionOver
+from greenlet import getcurrent
+
 from mission.runtime import Stopped, Subroutine, await_
 from mission.sandbox import Guards
 from schemas.geo import angle_diff_deg, normalize_deg
 
+COMPLETED = frozenset({"success", "finish"})
+MIN_HANDOVER_HEIGHT_M = 2.0
 # An idle drone this close to its last target (by telemetry up to a period old, at
 # cruise speed) plans from that target.
 ANCHOR_RADIUS_M = 10.0
@@ -92,15 +96,22 @@ class SensorView:
 class Drone:
     """The drone wrapper (thesis table 5.4). It keeps its identity across `replace`."""
 
-    __slots__ = ("_anchor", "_id", "_m", "sensor")
+    __slots__ = ("_anchor", "_gen", "_handover", "_handover_owner", "_id", "_m", "sensor")
 
     def __init__(self, mission: Mission, drone_id: str) -> None:
         self._m = mission
         self._id = drone_id
         self._anchor: Position | None = None
+        self._gen = 0  # bumped by every replacement: a verb that spans one redoes its command
+        self._handover: asyncio.Future[None] | None = None  # set while `replace` brings the new drone in
+        self._handover_owner: Any = None
         self.sensor = SensorView(self)
 
     def _live(self) -> str:
+        """The drone behind the wrapper now; waits while a replacement is handing over."""
+        handover = self._handover
+        if handover is not None and getcurrent() is not self._handover_owner:
+            _call(self._m, asyncio.shield(handover))
         try:
             self._m.check_assigned(self._id)
         except MissionOver:
@@ -210,14 +221,21 @@ class Drone:
         heading) — exact, unlike telemetry up to one period old. Otherwise the next
         fresh telemetry sample, so a heading caught mid-turn is never used.
         """
+        anchored = self._anchored()
+        if anchored is not None:
+            return anchored
+        _call(self._m, self._m.next_telemetry(self._live()))
+        return self.position
+
+    def _anchored(self) -> Position | None:
+        """The last verb's target, if the drone idles there."""
         anchor = self._anchor
         if anchor is not None and self._m.station.registry.info(self._live()).current_command is None:
             here = self.position
             if here.distance(anchor) <= ANCHOR_RADIUS_M:
                 alt = anchor.alt if anchor.alt is not None else here.alt
                 return Position(anchor.lat, anchor.lon, alt, anchor.heading)
-        _call(self._m, self._m.next_telemetry(self._live()))
-        return self.position
+        return None
 
 
 class Channel:
@@ -262,7 +280,14 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         return d._live()
 
     def send(d: Drone, body: dict[str, Any], wait: bool = True) -> Any:
-        status = _call(m, m.execute(drone_id(d), body, wait=wait))
+        target, generation = drone_id(d), d._gen
+        status = _call(m, m.execute(target, body, wait=wait))
+        if wait and d._gen != generation and status.state not in COMPLETED:
+            # `replace` swapped the drone while it ran this command (the return home
+            # superseded it): the new drone, once in place, does it instead.
+            target = drone_id(d)
+            m.log("info", f"{target} takes over the interrupted {body['cmd']}")
+            status = _call(m, m.execute(target, body, wait=True))
         if wait:  # the wrapper then shows the effect (telemetry after completion)
             _call(m, m.next_telemetry(d._live()))
         return status
@@ -284,39 +309,61 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         if sensor is not None or sensors is not None:
             requests.append(a.BySensors(frozenset(([sensor] if sensor else []) + list(sensors or []))))
         if near is not None:
-            requests.append(nearby(near))
+            requests.append(near_place(near))
         if kind is not None:
             requests.append(a.ByKind(kind))
         if not requests:
             requests = [a.AnyDrone()]
         drones = [Drone(m, i) for i in m.assign(requests)]
+        for wrapper in drones:
+            m.add_wrapper(wrapper)
         return drones[0] if len(drones) == 1 else tuple(drones)
-
-    def with_sensors(*kinds: str) -> a.BySensors:
-        return a.BySensors(frozenset(kinds))
-
-    def nearby(place: Any) -> a.Near:
-        p = as_position(place)
-        return a.Near(p.lat, p.lon)
-
-    def of_kind(kind: str) -> a.ByKind:
-        return a.ByKind(kind)
 
     def revoke(d: Drone) -> None:
         m.revoke(drone_id(d))
+        m.drop_wrapper(d)
 
     def replace(d: Drone) -> Drone:
-        """Send `d` home and put the closest free drone in its place (same wrapper)."""
+        """Send `d` home and put the closest free drone in its place, same wrapper.
+
+        A flying drone is handed over: the new one arms, takes off to the old one's
+        height and flies to where it stopped (its last waypoint if it idled there),
+        facing the same way; `replace` returns then. Meanwhile every other use of the
+        wrapper waits, and a command the old drone was running when it was sent home
+        is done again by the new one — so a survey continues where it was cut.
+        """
         old = drone_id(d)
         new = m.replacement_for(old)
         request = m.requests[old]
-        send(d, {"cmd": "return"}, wait=False)
-        m.revoke(old)
-        m.take(new, request)
-        m.log("info", f"Replaced {old} with {new}")
-        d._id = new
-        d._anchor = None
-        return d
+        t = m.station.registry.telemetry(old)
+        flying = t.armed and t.landed_state != "on_ground"
+        stop_at = d._anchored() or d.position
+        height = d.rel_alt
+        d._gen += 1
+        d._handover = asyncio.get_running_loop().create_future()
+        d._handover_owner = getcurrent()
+        try:
+            send(d, {"cmd": "return"}, wait=False)
+            m.revoke(old)
+            m.take(new, request)
+            d._id = new
+            d._anchor = None
+            if not flying:
+                m.log("info", f"Replaced {old} with {new}")
+                return d
+            m.log("info", f"Replaced {old} with {new}: {new} takes over at {stop_at.lat:.6f}, {stop_at.lon:.6f}")
+            arm(d)
+            takeoff(d, max(height, MIN_HANDOVER_HEIGHT_M))
+            body: dict[str, Any] = {"cmd": "goto", "lat": stop_at.lat, "lon": stop_at.lon, "alt": stop_at.alt}
+            if stop_at.heading is not None:
+                body["yaw"] = stop_at.heading
+            send(d, body)
+            d._anchor = stop_at
+            return d
+        finally:
+            handover, d._handover, d._handover_owner = d._handover, None, None
+            if not handover.done():
+                handover.set_result(None)
 
     # ---- commands ------------------------------------------------------------------
 
@@ -429,13 +476,14 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
                 raise TypeError(f"stop: expected a subroutine (from run), got {sub!r}")
             m.scheduler.stop(sub)
 
-    # ---- plugins (loaded by the plugin system; none are loaded yet) --------------
+    # ---- plugins (mission/plugins.py) ----------------------------------------------
 
     def enable(plugin_id: str, **inputs: Any) -> None:
-        raise m.fail("plugin_missing", f"plugin {plugin_id!r} is not loaded")
+        """Enable a loaded plugin for this mission with its inputs (typed, defaults apply)."""
+        m.plugins.enable(plugin_id, inputs, base, namespace)
 
     def disable(plugin_id: str) -> None:
-        raise m.fail("plugin_missing", f"plugin {plugin_id!r} is not loaded")
+        m.plugins.disable(plugin_id, namespace)
 
     def guarded(fn: Callable[..., Any]) -> Callable[..., Any]:
         def verb(*args: Any, **kwargs: Any) -> Any:
@@ -454,16 +502,29 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             sleep, run, wait, stop, enable, disable,
         )
     }
+    base = common_names(guards)  # what a plugin enabled by this mission sees
+    base.update(verbs)
+    base.update(channel=Channel(m), mission_id=m.id)
+    namespace = dict(base)  # the script's globals
+    return namespace
+
+
+VERB_NAMES = (
+    "assign", "revoke", "replace", "arm", "disarm", "takeoff", "land", "home", "cancel", "turn",
+    "move", "sleep", "run", "wait", "stop", "enable", "disable", "channel", "mission_id",
+)
+
+
+def common_names(guards: Guards) -> dict[str, Any]:
+    """What every script sees besides the verbs: builtins, units, geo, directions."""
     namespace: dict[str, Any] = {
         "__builtins__": guards.builtins(),
         "__name__": "mission",
         **guards.hooks(),
-        **verbs,
         "any_drone": any_drone,
-        "with_sensors": with_sensors,
-        "near": nearby,
-        "of_kind": of_kind,
-        "channel": Channel(m),
+        "with_sensors": lambda *kinds: a.BySensors(frozenset(kinds)),
+        "near": near_place,
+        "of_kind": a.ByKind,
         "position": geo.position,
         "distance": geo.distance,
         "bearing": geo.bearing,
@@ -472,8 +533,13 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         "east": 90 * units.deg,
         "south": 180 * units.deg,
         "west": 270 * units.deg,
-        "mission_id": m.id,
         "pi": math.pi,
     }
     namespace.update(units.UNITS)
     return namespace
+
+
+def near_place(place: Any) -> a.Near:
+    """`assign(near(coords))`: the free drone closest to a place."""
+    p = as_position(place)
+    return a.Near(p.lat, p.lon)

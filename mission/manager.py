@@ -15,6 +15,7 @@ import json
 import logging
 import sqlite3
 from collections.abc import Callable
+from typing import Any
 from pathlib import Path
 
 import msgspec
@@ -22,6 +23,7 @@ import msgspec
 from bus.clock import Clock
 from ground.station import GroundStation, WatchEvent
 from mission.mission import CommandResult, Mission, MissionLogLine, MissionRecord
+from mission.plugins import PluginLibrary
 from mission.sandbox import compile_mission
 
 log = logging.getLogger(__name__)
@@ -115,8 +117,10 @@ class MissionManager:
         *,
         deterministic: bool = False,
         seed: int | None = None,
+        plugins: PluginLibrary | None = None,
     ) -> None:
         self.station = station
+        self.plugins = plugins
         self.store = store
         self.clock = clock
         self.deterministic = deterministic
@@ -141,8 +145,11 @@ class MissionManager:
 
     # ---- operations ----------------------------------------------------------------
 
-    def submit(self, source: str, name: str = "") -> MissionRecord:
-        """Compile (ScriptError → 400 with line/column), record as pending, start."""
+    def submit(self, source: str, name: str = "", enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
+        """Compile (ScriptError → 400 with line/column), record as pending, start.
+
+        `enable` maps plugin ids to inputs, enabled before the script's first line
+        (`fleet mission simulate --enable`)."""
         mission_id = self.store.next_id()
         code = compile_mission(source, filename=f"<mission {mission_id}>")
         record = MissionRecord(mission_id=mission_id, name=name)
@@ -150,7 +157,7 @@ class MissionManager:
         mission = Mission(
             record, code, self.station, self.clock,
             deterministic=self.deterministic, seed=next(self._seeds) if self.seed is not None else None,
-            on_change=self._on_change, on_log=self._on_log,
+            on_change=self._on_change, on_log=self._on_log, plugins=self.plugins, enable=enable,
         )
         mission.commands = self.commands
         self.station.log_ground("info", f"Mission {mission_id} submitted" + (f" ({name})" if name else ""))

@@ -17,7 +17,7 @@ import json
 import logging
 import traceback
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import msgspec
 
@@ -28,11 +28,15 @@ from ground.config import GroundConfig
 from ground.registry import CRITICAL_BATTERY, DroneInfo
 from ground.station import CommandRejected, GroundStation, WatchEvent
 from mission import assignment as a
+from mission.plugins import MissionPlugins, PluginLibrary
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
 from schemas.errors import InvalidMessage
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
+
+if TYPE_CHECKING:
+    from mission.dsl import Drone
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +120,8 @@ class Mission:
         seed: int | None = None,
         on_change: Callable[[Mission], None] = lambda m: None,
         on_log: Callable[[Mission, MissionLogLine], None] = lambda m, line: None,
+        plugins: PluginLibrary | None = None,
+        enable: dict[str, dict[str, Any]] | None = None,
     ) -> None:
         self.record = record
         self.code = code
@@ -134,6 +140,9 @@ class Mission:
         self._ended = asyncio.Event()
         self._stop_listening: Callable[[], None] | None = None
         self._critical: set[str] = set()
+        self._wrappers: list[Drone] = []
+        self.plugins = MissionPlugins(self, plugins)
+        self._enable_first = enable or {}
 
     @property
     def id(self) -> str:
@@ -148,7 +157,7 @@ class Mission:
     def log(self, level: Literal["info", "warn", "error"], message: str) -> None:
         self._on_log(self, MissionLogLine(timestamp=self.clock.time_ms(), level=level, message=message))
 
-    def _changed(self) -> None:
+    def changed(self) -> None:
         self.record.active_drones = sorted(self.requests)
         self._on_change(self)
 
@@ -160,14 +169,14 @@ class Mission:
 
         self.record.status = "running"
         self.record.start = self.clock.time_ms()
-        self._changed()
+        self.changed()
         self.log("info", "Mission started")
         self._stop_listening = self.station.listen(self._on_event)
         self.scheduler = Scheduler(self._on_error, deterministic=self.deterministic)
         guards = Guards(self.scheduler.tick, lambda text: self.log("info", text), self.seed)
         namespace = build_namespace(self, guards)
         try:
-            self.scheduler.spawn(exec, self.code, namespace, name="main")
+            self.scheduler.spawn(self._main, namespace, name="main")
             idle = asyncio.ensure_future(self.scheduler.wait_idle())
             ended = asyncio.ensure_future(self._ended.wait())
             try:
@@ -189,6 +198,11 @@ class Mission:
                 self.end("unexpected", f"{type(exc).__name__}: {exc}")
             await self._wind_down()
         return self.record
+
+    def _main(self, namespace: dict[str, Any]) -> None:
+        for plugin_id, inputs in self._enable_first.items():
+            namespace["enable"](plugin_id, **inputs)
+        exec(self.code, namespace)  # noqa: S102 - compiled by the sandbox
 
     def end(self, cause: str, message: str | None = None) -> bool:
         """Conclude the mission with `cause` (the first call wins); True if this one did."""
@@ -224,7 +238,7 @@ class Mission:
             await self._leave(drone_id)
         self.requests.clear()
         self.record.end = self.clock.time_ms()
-        self._changed()
+        self.changed()
 
     async def _leave(self, drone_id: str) -> None:
         """Hold a flying drone (or send it home) and release it."""
@@ -252,10 +266,13 @@ class Mission:
     def _on_error(self, sub: Subroutine, exc: BaseException) -> None:
         if isinstance(exc, MissionOver):
             return
-        where = _script_line(exc)
-        prefix = f"line {where}: " if where else ""
+        filename, where = script_frame(exc)
+        in_plugin = filename.startswith("<plugin") or sub.name.startswith("plugin ")
+        prefix = (f"{filename.strip('<>')} " if in_plugin else "") + (f"line {where}: " if where else "")
         if isinstance(exc, SecurityViolation):
             self.end("security", f"{prefix}{exc}")
+        elif isinstance(exc, Exception) and in_plugin:
+            self.end("plugin_error", f"{prefix}{type(exc).__name__}: {exc} (in {sub.name})")
         elif isinstance(exc, Exception):  # UnitError, NameError, ZeroDivisionError, …
             self.end("script", f"{prefix}{type(exc).__name__}: {exc}" + ("" if sub.name == "main" else f" (in subroutine {sub.name})"))
         else:
@@ -348,14 +365,28 @@ class Mission:
         if drone_id not in self.record.used_drones:
             self.record.used_drones.append(drone_id)
         self.log("info", f"Assigned {drone_id} ({a.describe(request)})")
-        self._changed()
+        self.changed()
+
+    def add_wrapper(self, wrapper: Drone) -> None:
+        """A drone newly assigned by the script: plugins start monitoring it."""
+        self._wrappers.append(wrapper)
+        self.plugins.drone_added(wrapper)
+
+    def drop_wrapper(self, wrapper: Drone) -> None:
+        """A drone the script revoked: its monitors stop."""
+        if wrapper in self._wrappers:
+            self._wrappers.remove(wrapper)
+        self.plugins.drone_removed(wrapper)
+
+    def wrappers(self) -> list[Drone]:
+        return [w for w in self._wrappers if w.id in self.requests]
 
     def revoke(self, drone_id: str) -> None:
         self.check_assigned(drone_id)
         del self.requests[drone_id]
         self.station.release(drone_id)
         self.log("info", f"Revoked {drone_id}")
-        self._changed()
+        self.changed()
 
     def replacement_for(self, drone_id: str) -> str:
         self.check_assigned(drone_id)
@@ -427,13 +458,17 @@ class Mission:
             self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
 
 
-def _script_line(exc: BaseException) -> int | None:
-    """The line of the mission script where `exc` was raised (innermost script frame)."""
-    line = None
+def script_frame(exc: BaseException) -> tuple[str, int | None]:
+    """The file (`<mission m3>`, `<plugin x.py>`) and line of the innermost script frame."""
+    found: tuple[str, int | None] = ("", None)
     for frame in traceback.extract_tb(exc.__traceback__):
-        if frame.filename.startswith("<mission"):
-            line = frame.lineno
-    return line
+        if frame.filename.startswith(("<mission", "<plugin")):
+            found = (frame.filename, frame.lineno)
+    return found
+
+
+def script_line(exc: BaseException) -> int | None:
+    return script_frame(exc)[1]
 
 
 __all__ = ["CAUSES", "Mission", "MissionLogLine", "MissionRecord", "MissionStatus", "Stopped"]

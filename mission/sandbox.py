@@ -155,7 +155,9 @@ class _Checker(ast.NodeVisitor):
         self.name(node, node.arg, "argument")
 
     def visit_keyword(self, node: ast.keyword) -> None:
-        self.name(node, node.arg, "keyword")
+        # a keyword argument is a label, not a lookup: `plugin(id=…, type=…)` is fine
+        if node.arg is not None and node.arg.startswith("_"):
+            self.name(node, node.arg, "keyword")
         self.generic_visit(node)
 
     def visit_ExceptHandler(self, node: ast.ExceptHandler) -> None:

@@ -30,6 +30,7 @@ from ground.eventlog import EventLog
 from ground.station import GroundStation, WatchEvent
 from mission.manager import MissionManager, MissionStore
 from mission.mission import MissionRecord
+from mission.plugins import PluginLibrary
 from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.telemetry import SensorReading, Telemetry
@@ -57,6 +58,7 @@ class SimField:
         telemetry_rate_ms: int = 1000,
         ground_config: GroundConfig | None = None,
         data_dir: Path | None = None,
+        plugins: PluginLibrary | None = None,
     ) -> None:
         self.world = world
         self.specs = world.spawn(n)
@@ -76,6 +78,7 @@ class SimField:
         self.events = EventLog(self.data_dir / "events.db")
         self.station = GroundStation(self.config, self._bus(), self.events, self.clock)
         self.manager: MissionManager | None = None
+        self.plugins = plugins if plugins is not None else PluginLibrary.default(None)
 
     def _bus(self) -> MemoryBus:
         bus = MemoryBus(self.network)
@@ -102,7 +105,9 @@ class SimField:
             if spec.sensors:
                 self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensors, vehicle)))
         store = MissionStore(self.data_dir / "missions.db")
-        self.manager = MissionManager(self.station, store, self.clock, deterministic=True, seed=self.seed)
+        self.manager = MissionManager(
+            self.station, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins,
+        )
         if echo is not None:
             self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
         # Let every drone register (first telemetry) before the mission starts.
@@ -150,9 +155,10 @@ class SimField:
                 "state": info.state, "armed": t.armed, "sensors": sensors,
             })
 
-    async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S) -> MissionRecord:
+    async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S,
+                          enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
         assert self.manager is not None
-        record = self.manager.submit(source, name)
+        record = self.manager.submit(source, name, enable)
         return await self.run_mission_started(record.mission_id, max_s=max_s)
 
     async def run_mission_started(self, mission_id: str, *, max_s: float = DEFAULT_MAX_S) -> MissionRecord:
@@ -239,12 +245,14 @@ async def simulate(
     max_s: float = DEFAULT_MAX_S,
     echo: Callable[[float, str], None] | None = None,
     plots: bool = True,
+    plugins: PluginLibrary | None = None,
+    enable: dict[str, dict[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Run one script to its end under virtual time; write result.json and plots to out_dir."""
-    sim = SimField(world, n, seed=seed)
+    sim = SimField(world, n, seed=seed, plugins=plugins)
     try:
         await sim.start(echo)
-        record = await sim.run_mission(source, name=name, max_s=max_s)
+        record = await sim.run_mission(source, name=name, max_s=max_s, enable=enable)
         result = sim.result(record)
     finally:
         await sim.close()

@@ -236,6 +236,6 @@ async def test_replacement_mapping_swaps_drones_half_way() -> None:
     record, field, lines = await fly((EXAMPLES / "replacement_mapping.py").read_text(), world)
     assert cause(record) == ("finished", "success"), record.message
     assert record.used_drones == ["drone01", "drone02"]
-    assert "Replaced drone01 with drone02" in lines
+    assert any(line.startswith("Replaced drone01 with drone02: drone02 takes over at") for line in lines), lines
     first = field.vehicles["drone01"]
     assert first.rel_alt < 0.5 and first.position().lat == pytest.approx(first.home.lat, abs=1e-5)
