@@ -40,11 +40,12 @@ class _ScriptGreenlet(greenlet):  # type: ignore[misc]
 class Subroutine:
     """The handle `run()` returns: `.running`, `.finished`, `.result`."""
 
-    __slots__ = ("_error", "_result", "_stopping", "_task", "_done", "name", "owner")
+    __slots__ = ("_error", "_result", "_stopping", "_task", "_done", "daemon", "name", "owner")
 
-    def __init__(self, owner: Scheduler, name: str) -> None:
+    def __init__(self, owner: Scheduler, name: str, daemon: bool = False) -> None:
         self.owner = owner
         self.name = name
+        self.daemon = daemon  # a plugin's monitor: the mission does not wait for it
         self._task: asyncio.Task[Any] | None = None
         self._stopping = False
         self._result: Any = None
@@ -85,8 +86,8 @@ class Scheduler:
 
     # ---- starting and stopping ----------------------------------------------------
 
-    def spawn(self, fn: Callable[..., Any], *args: Any, name: str | None = None) -> Subroutine:
-        sub = Subroutine(self, name or f"sub{next(self._names)}")
+    def spawn(self, fn: Callable[..., Any], *args: Any, name: str | None = None, daemon: bool = False) -> Subroutine:
+        sub = Subroutine(self, name or f"sub{next(self._names)}", daemon)
         self.subroutines.append(sub)
         sub._task = asyncio.get_running_loop().create_task(self._drive(sub, fn, args), name=sub.name)
         if self.stopping:
@@ -118,9 +119,10 @@ class Scheduler:
             await asyncio.wait(pending, timeout=remaining)
 
     async def wait_idle(self) -> None:
-        """Wait until no subroutine runs (the script and everything it started)."""
+        """Wait until no subroutine runs (the script and everything it started),
+        plugin monitors aside."""
         while True:
-            pending = [s._done for s in self.subroutines if s.running]
+            pending = [s._done for s in self.subroutines if s.running and not s.daemon]
             if not pending:
                 return
             await asyncio.wait(pending)

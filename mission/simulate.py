@@ -34,6 +34,7 @@ from mission.plugins import PluginLibrary
 from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.telemetry import SensorReading, Telemetry
+from sim.sensors import TemperatureSensor
 from sim.vehicle import Vehicle
 from sim.world import World
 
@@ -103,15 +104,25 @@ class SimField:
             for fault in spec.faults:
                 self._tasks.append(loop.create_task(self._fault_at(vehicle, fault.at_s, fault.fault, fault.value)))
             if spec.sensors:
-                self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensors, vehicle)))
+                self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensors)))
         store = MissionStore(self.data_dir / "missions.db")
         self.manager = MissionManager(
             self.station, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins,
         )
         if echo is not None:
             self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
-        # Let every drone register (first telemetry) before the mission starts.
+        # Let every drone register (first telemetry) with its sensors before the mission starts.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000 + 0.1)
+        for _ in range(100):
+            if all(set(spec.sensors) <= set(self._sensors_of(spec.id)) for spec in self.specs):
+                break
+            await self.clock.advance(0.1)
+        else:
+            raise RuntimeError("simulated drones did not register with their sensors within 10 s")
+
+    def _sensors_of(self, drone_id: str) -> list[str]:
+        registry = self.station.registry
+        return registry.info(drone_id).sensors if drone_id in registry else []
 
     def kill_agent(self, drone_id: str) -> None:
         """The agent process dies: its liveliness token and telemetry vanish."""
@@ -123,19 +134,30 @@ class SimField:
         await self.clock.sleep(at_s)
         apply_fault(vehicle, fault, value)  # type: ignore[arg-type]
 
-    async def _sensors(self, drone_id: str, kinds: list[str], vehicle: Vehicle) -> None:
-        """Simulated on-board sensors: temperature from the world's heat field."""
+    async def _sensors(self, drone_id: str, kinds: list[str]) -> None:
+        """Simulated on-board sensors: temperature from the world's heat field (the
+        `fleet sensor temperature` code, following the drone's telemetry); any other
+        kind is announced with readings of value None, so missions can assign by it."""
         keys = Keys(self.config.namespace)
         bus = self._bus()
-        period = self.agent_config.telemetry_rate_ms / 1000
+        tasks = []
+        for kind in kinds:
+            if kind == "temperature":
+                sensor = TemperatureSensor(bus, drone_id, self.world.heat_config(), clock=self.clock, keys=keys)
+                tasks.append(asyncio.ensure_future(sensor.run()))
+            else:
+                tasks.append(asyncio.ensure_future(self._presence(bus, keys, drone_id, kind)))
+        try:
+            await asyncio.gather(*tasks)
+        finally:
+            for task in tasks:
+                task.cancel()
+
+    async def _presence(self, bus: MemoryBus, keys: Keys, drone_id: str, kind: str) -> None:
         while True:
-            for kind in kinds:
-                if kind == "temperature":
-                    value = heat_at(self.world, *vehicle.frame.to_global(vehicle.north, vehicle.east))
-                    reading = SensorReading(drone_id=drone_id, timestamp=self.clock.time_ms(), type=kind,
-                                            value=round(value, 3), unit="degC")
-                    bus.publish(keys.sensor(drone_id, kind), encode(reading))
-            await self.clock.sleep(period)
+            reading = SensorReading(drone_id=drone_id, timestamp=self.clock.time_ms(), type=kind, value=None)
+            bus.publish(keys.sensor(drone_id, kind), encode(reading))
+            await self.clock.sleep(self.world.sensor_rate_ms / 1000)
 
     def _record(self, event: WatchEvent) -> None:
         if event.kind == "telemetry":
@@ -197,6 +219,7 @@ class SimField:
             "mission": msgspec.to_builtins(record),
             "log": [msgspec.to_builtins(line) for line in mission],
             "seed": self.seed,
+            "t0_ms": self.clock.time_ms() - round(self.clock.monotonic() * 1000),  # wall time of t_s = 0
             "ground_station": {"lat": gs.lat, "lon": gs.lon},
             "drones": {
                 drone_id: {
@@ -220,18 +243,6 @@ class SimField:
         self.events.close()
         if self._tmp is not None:
             self._tmp.cleanup()
-
-
-def heat_at(world: World, lat: float, lon: float) -> float:
-    """Thesis example 21: linear fall-off from each source's centre, maximum over sources."""
-    from schemas.geo import distance_m
-
-    best = world.environment_temp
-    for src in world.heat_sources:
-        d = distance_m(lat, lon, src.lat, src.lon)
-        if d < src.radius:
-            best = max(best, src.temp - (src.temp - world.environment_temp) * d / src.radius)
-    return best
 
 
 async def simulate(

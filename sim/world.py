@@ -5,13 +5,16 @@ is an error naming it."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import msgspec
 from msgspec import Meta
 
 from schemas.geo import destination
 from sim.vehicle import VehicleParams
+
+if TYPE_CHECKING:
+    from sim.sensors import HeatConfig
 
 Lat = Annotated[float, Meta(ge=-90, le=90)]
 Lon = Annotated[float, Meta(ge=-180, le=180)]
@@ -66,7 +69,13 @@ class World(_Strict):
     count: Annotated[int, Meta(ge=1, le=100)] | None = None
     environment_temp: float = 20.0
     heat_sources: list[HeatSource] = []
+    sensor_rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200  # simulated sensors publish this often
     battery: BatteryModel = BatteryModel()
+
+    def heat_config(self) -> HeatConfig:
+        from sim.sensors import HeatConfig
+
+        return HeatConfig(rate_ms=self.sensor_rate_ms, environment_temp=self.environment_temp, heat_sources=self.heat_sources)
 
     def params(self) -> VehicleParams:
         return VehicleParams(battery_drain_per_s=self.battery.drain_per_s, battery_floor=self.battery.floor)

@@ -1,0 +1,125 @@
+"""Simulated sensors: the temperature sensor of thesis example 21.
+
+A heat field is an environment temperature plus heat sources, each a centre, a
+radius and a centre temperature: inside a source the temperature falls linearly from
+the centre's to the environment's at the radius; with several sources the hottest
+wins. The sensor follows a drone's live telemetry (`drone/<id>/telem`) and publishes
+the temperature where the drone is on `drone/<id>/sensor/temperature` every `rate_ms`.
+
+The same code runs as `fleet sensor temperature --drone ID --config heat.yml` next to
+a real or simulated drone, and inside `fleet demo` and fast-time simulation, where the
+field comes from the world file (SPEC §7).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from typing import Annotated
+
+import msgspec
+from msgspec import Meta
+
+from bus.clock import Clock, SystemClock
+from bus.port import Bus, Sample
+from schemas.codec import decode_telemetry, encode
+from schemas.geo import distance_m
+from schemas.keys import Keys
+from schemas.telemetry import SensorReading, Telemetry
+from sim.world import HeatSource
+
+log = logging.getLogger(__name__)
+
+
+class HeatConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """`fleet sensor temperature --config heat.yml` (example 21 in snake_case)."""
+
+    drone_id: str | None = None  # or --drone
+    rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200
+    environment_temp: float = 20.0
+    heat_sources: list[HeatSource] = []
+
+
+def temperature_at(environment_temp: float, sources: list[HeatSource], lat: float, lon: float) -> float:
+    """Linear fall-off from each source's centre to its radius; the maximum over sources."""
+    best = environment_temp
+    for src in sources:
+        d = distance_m(lat, lon, src.lat, src.lon)
+        if d < src.radius:
+            best = max(best, src.temp - (src.temp - environment_temp) * d / src.radius)
+    return best
+
+
+class TemperatureSensor:
+    """Publishes the heat field's temperature where the drone's telemetry says it is."""
+
+    def __init__(self, bus: Bus, drone_id: str, config: HeatConfig, *, clock: Clock | None = None,
+                 keys: Keys | None = None, on_reading: Callable[[SensorReading], None] | None = None) -> None:
+        self.bus = bus
+        self.drone_id = drone_id
+        self.config = config
+        self.clock = clock or SystemClock()
+        self.keys = keys or Keys()
+        self.on_reading = on_reading
+        self.telemetry: Telemetry | None = None
+        self.published = 0
+        self.has_telemetry = asyncio.Event()
+
+    def _on_telem(self, sample: Sample) -> None:
+        try:
+            self.telemetry = decode_telemetry(sample.payload)
+        except Exception as exc:  # noqa: BLE001 - a bad sample is skipped, the sensor goes on
+            log.warning("%s: undecodable telemetry skipped: %s", self.drone_id, exc)
+            return
+        self.has_telemetry.set()
+
+    def reading(self) -> SensorReading | None:
+        t = self.telemetry
+        if t is None or t.position is None:
+            return None
+        value = temperature_at(self.config.environment_temp, self.config.heat_sources, t.position.lat, t.position.lon)
+        return SensorReading(drone_id=self.drone_id, timestamp=self.clock.time_ms(), type="temperature",
+                             value=round(value, 3), unit="degC")
+
+    async def run(self) -> None:
+        sub = self.bus.subscribe(self.keys.telem(self.drone_id), self._on_telem, latest_only=True)
+        key = self.keys.sensor(self.drone_id, "temperature")
+        try:
+            while True:
+                reading = self.reading()
+                if reading is not None:
+                    self.bus.publish(key, encode(reading))
+                    self.published += 1
+                    if self.on_reading is not None:
+                        self.on_reading(reading)
+                await self.clock.sleep(self.config.rate_ms / 1000)
+        finally:
+            sub.close()
+
+
+async def run_temperature_sensor(drone_id: str, config: HeatConfig, connect: list[str],
+                                 out: Callable[[str], None], count: int | None = None) -> None:
+    """`fleet sensor temperature`: a Zenoh client next to the drone's agent."""
+    from bus.zenoh_bus import ZenohBus
+
+    bus = await ZenohBus.open("client", connect=connect)
+    done = asyncio.Event()
+
+    def show(reading: SensorReading) -> None:
+        out(f"{reading.drone_id} temperature {reading.value:.2f} °C")
+        if count is not None and sensor.published >= count:
+            done.set()
+
+    sensor = TemperatureSensor(bus, drone_id, config, on_reading=show)
+    out(f"fleet sensor: temperature of {drone_id} every {config.rate_ms} ms, "
+        f"{len(config.heat_sources)} heat source(s), {config.environment_temp:g} °C around; waiting for its telemetry")
+    task = asyncio.get_running_loop().create_task(sensor.run(), name="temperature sensor")
+    try:
+        await asyncio.wait([task, asyncio.ensure_future(done.wait())], return_when=asyncio.FIRST_COMPLETED)
+        if task.done():
+            task.result()
+    finally:
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await bus.close()
