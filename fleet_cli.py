@@ -165,6 +165,35 @@ def fault(drone: str, kind: str, value: str | None, control: str) -> None:
         click.echo(line)
 
 
+@main.group()
+def sensor() -> None:
+    """Simulated sensors that publish next to a drone's agent."""
+
+
+@sensor.command("temperature")
+@click.option("--drone", "drone_id", help="The drone whose telemetry gives the position (or drone_id in the config).")
+@click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Heat field YAML: rate_ms, environment_temp, heat_sources [{lat, lon, radius, temp}].")
+@click.option("--connect", multiple=True, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
+@click.option("--rate-ms", type=int, help="Publish period in milliseconds (default 200).")
+@click.option("--count", type=click.IntRange(1), help="Exit after publishing this many readings.")
+def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: tuple[str, ...], rate_ms: int | None, count: int | None) -> None:
+    """Thesis example 21: the temperature where DRONE is, from a heat field, on drone/<id>/sensor/temperature."""
+    from schemas.config import load_config
+    from schemas.keys import check_id
+    from sim.sensors import HeatConfig, run_temperature_sensor
+
+    try:
+        config = load_config(HeatConfig, config_path, {"drone_id": drone_id, "rate_ms": rate_ms})
+        if config.drone_id is None:
+            raise ConfigError("give --drone ID (or drone_id in the config)")
+        check_id(config.drone_id)
+        run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count))
+    except ConfigError as exc:
+        fail(str(exc), 2)
+    except FleetError as exc:
+        fail(str(exc))
+
+
 @main.command()
 @click.option("--port", type=int, default=7447, show_default=True, help="Port of the demo ground's Zenoh router.")
 @click.option("--http-port", type=int, default=8001, show_default=True, help="Port of the demo ground's HTTP API.")
