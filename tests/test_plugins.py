@@ -1,0 +1,212 @@
+"""Mission plugins (thesis §5.3): loading and validation, every plugin failure cause,
+monitors that follow drones assigned later and stop on revoke, namespaces per
+(mission, plugin) pair, and `GET /plugin` on a real ground."""
+
+from __future__ import annotations
+
+import subprocess
+import textwrap
+from pathlib import Path
+
+import httpx
+import pytest
+
+from mission.mission import MissionRecord
+from mission.plugins import BUNDLED_DIR, PluginLibrary
+from mission.simulate import SimField
+from sim.world import World
+from tests.harness import GroundProcess, fleet_command
+
+COUNTER = '''
+def main(drone):
+    global count
+    count = count + 1
+    print(f"{label} saw {drone.id} ({count})")
+
+plugin(id="counter", type=monitoring, input={"label": (str, "counter")}, vars={"count": 0}, callback=main)
+'''
+NEEDS_INPUT = '''
+def main(drone):
+    pass
+
+plugin(id="needs", type=monitoring, input={"level": float}, callback=main)
+'''
+FAULTY = '''
+def main(drone):
+    return 1 / 0
+
+plugin(id="faulty", type=monitoring, callback=main)
+'''
+
+
+def library(tmp_path: Path, **plugins: str) -> PluginLibrary:
+    directory = tmp_path / "plugins"
+    directory.mkdir(exist_ok=True)
+    for name, source in plugins.items():
+        (directory / f"{name}.py").write_text(textwrap.dedent(source))
+    return PluginLibrary.default(directory)
+
+
+# ---- loading -------------------------------------------------------------------------
+
+BROKEN = {
+    "syntax": ("def main(drone)\n    pass\n", "expected ':'", 1),
+    "sandbox": ("import os\n", "import of 'os' is not allowed", 1),
+    "undeclared": ("def main(drone):\n    pass\n", "exactly once (it called it 0 times)", None),
+    "twice": ('def f(d):\n    pass\nplugin(id="a", type=monitoring, callback=f)\nplugin(id="b", type=monitoring, callback=f)\n', "exactly once", None),
+    "bad_type": ('def f(d):\n    pass\nplugin(id="t", type="watching", callback=f)\n', "type must be monitoring or verbs", None),
+    "bad_id": ('def f(d):\n    pass\nplugin(id="no spaces", type=monitoring, callback=f)\n', "id must be", None),
+    "no_callback": ('plugin(id="c", type=monitoring)\n', "needs callback=", None),
+    "bad_input_type": ('def f(d):\n    pass\nplugin(id="i", type=monitoring, input={"x": set}, callback=f)\n', "type must be one of", None),
+    "bad_default": ('def f(d):\n    pass\nplugin(id="i", type=monitoring, input={"x": (int, "five")}, callback=f)\n', "default of input 'x' must be int", None),
+    "shadows_verb": ('def f(d):\n    pass\nplugin(id="v", type=monitoring, vars={"move": 1}, callback=f)\n', "already a mission verb", None),
+    "verb_at_load": ('arm(None)\n', "arm() cannot run while the plugin loads", None),
+    "fails_at_load": ('x = 1 / 0\n', "ZeroDivisionError", 1),
+    "spins_at_load": ('while True:\n    pass\n', "computes too long at load", None),
+    "verbs_without_list": ('def f(d):\n    pass\nplugin(id="w", type=verbs)\n', "needs verbs=", None),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BROKEN))
+def test_a_broken_plugin_is_listed_with_its_error_and_not_loaded(tmp_path: Path, name: str) -> None:
+    source, message, line = BROKEN[name]
+    lib = library(tmp_path, good=COUNTER, **{name: source})
+    assert sorted(lib.plugins) == ["counter", "mapping", "replacement"]  # the rest still load
+    (failure,) = lib.failures
+    assert failure.path.endswith(f"{name}.py")
+    assert message in failure.error
+    if line is not None:
+        assert failure.line == line
+
+
+def test_listing_describes_inputs_and_a_user_plugin_overrides_a_bundled_one(tmp_path: Path) -> None:
+    override = (BUNDLED_DIR / "replacement.py").read_text().replace('(float, 0.25)', '(float, 0.4)')
+    lib = library(tmp_path, counter=COUNTER, replacement=override)
+    listing = {p.id: p for p in lib.describe().plugins}
+    assert listing["replacement"].path.endswith("plugins/replacement.py")
+    inputs = {i.name: i for i in listing["replacement"].inputs}
+    assert inputs["min_battery"].default == 0.4 and inputs["drainage"].default == 0.0002
+    assert listing["counter"].vars == ["count"] and listing["mapping"].verbs == ["map_area"]
+    assert [(i.name, i.type, i.required) for i in listing["counter"].inputs] == [("label", "str", False)]
+
+
+# ---- in missions (fast time) ---------------------------------------------------------
+
+
+async def run(lib: PluginLibrary, *scripts: str, n: int = 3) -> list[tuple[MissionRecord, list[str]]]:
+    """Run the scripts as concurrent missions; each record with its log."""
+    field = SimField(World(), n, plugins=lib)
+    await field.start()
+    try:
+        assert field.manager is not None
+        ids = [field.manager.submit(textwrap.dedent(s)).mission_id for s in scripts]
+        records = [await field.run_mission_started(i, max_s=300) for i in ids]
+        return [(r, [line.message for line in field.mission_log(r.mission_id)]) for r in records]
+    finally:
+        await field.close()
+
+
+CAUSES = {
+    "missing": ('enable("nope")\n', "plugin_missing", "'nope' is not loaded"),
+    "disable_missing": ('disable("nope")\n', "plugin_missing", "'nope' is not loaded"),
+    "disabled": ('disable("counter")\n', "plugin_disabled", "not enabled"),
+    "verb_after_disable": (
+        'enable("mapping")\nsurvey = map_area\ndisable("mapping")\nsurvey(None, 1, 1, 1, 1)\n',
+        "plugin_disabled", "map_area: plugin 'mapping' was disabled",
+    ),
+    "unknown_input": ('enable("counter", lable="x")\n', "plugin_param", "no input 'lable'"),
+    "wrong_type": ('enable("replacement", drainage="lots")\n', "plugin_param", "'drainage' must be float"),
+    "missing_input": ('enable("needs")\n', "plugin_param", "needs input 'level'"),
+    "twice": ('enable("counter")\nenable("counter")\n', "plugin_param", "already enabled"),
+    "callback_fails": ('enable("faulty")\nd = assign()\nsleep(5)\n', "plugin_error", "ZeroDivisionError"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(CAUSES))
+async def test_plugin_failure_causes(tmp_path: Path, name: str) -> None:
+    script, expected, message = CAUSES[name]
+    lib = library(tmp_path, counter=COUNTER, needs=NEEDS_INPUT, faulty=FAULTY)
+    [(record, _)] = await run(lib, script)
+    assert (record.status, record.cause) == ("failed", expected), record.message
+    assert message in (record.message or "")
+    if expected == "plugin_error":
+        assert "faulty.py line 3" in (record.message or "")  # where in the plugin
+
+
+async def test_a_monitor_follows_drones_assigned_later_and_stops_on_revoke(tmp_path: Path) -> None:
+    script = '''
+        enable("counter")
+        a = assign()
+        wait(a)
+        wait(a)
+        b = assign()
+        wait(b)
+        wait(b)
+        revoke(b)
+        print("revoked b")
+        wait(a)
+        wait(a)
+        wait(a)
+    '''
+    [(record, log)] = await run(library(tmp_path, counter=COUNTER), script)
+    assert (record.status, record.cause) == ("finished", "success"), record.message
+    assert record.plugins == ["counter"]
+    revoked = log.index("revoked b")
+    assert any(line.startswith("counter saw drone02") for line in log[:revoked])
+    assert not any(line.startswith("counter saw drone02") for line in log[revoked:])
+    assert sum(line.startswith("counter saw drone01") for line in log[revoked:]) >= 2
+
+
+async def test_each_mission_has_its_own_plugin_namespace(tmp_path: Path) -> None:
+    first = 'enable("counter", label="first")\nd = assign()\nwait(d)\nwait(d)\nwait(d)\n'
+    second = 'enable("counter", label="second")\nd = assign()\nwait(d)\n'
+    (r1, log1), (r2, log2) = await run(library(tmp_path, counter=COUNTER), first, second)
+    assert r1.status == r2.status == "finished"
+    # each mission's count starts at 0 and its label is its own
+    assert [line for line in log1 if "saw" in line][0].endswith("(1)") and all(line.startswith("first") for line in log1 if "saw" in line)
+    assert [line for line in log2 if "saw" in line][0].endswith("(1)") and all(line.startswith("second") for line in log2 if "saw" in line)
+
+
+# ---- GET /plugin on a real ground ------------------------------------------------------
+
+
+async def test_ground_lists_plugins_and_load_errors(tmp_path: Path) -> None:
+    plugins = tmp_path / "user-plugins"
+    plugins.mkdir()
+    (plugins / "counter.py").write_text(COUNTER)
+    (plugins / "broken.py").write_text("def main(drone)\n    pass\n")
+    ground = GroundProcess(tmp_path, plugins_dir=str(plugins))
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url) as http:
+            reply = await http.get("/plugin")
+        assert reply.status_code == 200
+        body = reply.json()
+        assert [p["id"] for p in body["plugins"]] == ["counter", "mapping", "replacement"]
+        counter = next(p for p in body["plugins"] if p["id"] == "counter")
+        assert counter["inputs"] == [{"name": "label", "type": "str", "required": False, "default": "counter"}]
+        (error,) = body["errors"]
+        assert error["path"].endswith("broken.py") and error["line"] == 1 and "expected ':'" in error["error"]
+    finally:
+        ground.stop()
+    assert "broken.py:1" in ground.output() and "NOT loaded" in ground.output()
+
+
+def test_simulate_cli_enables_plugins(tmp_path: Path) -> None:
+    script = tmp_path / "m.py"
+    script.write_text('d = assign()\nwait(d)\nwait(d)\n')
+    plugins = tmp_path / "plugins"
+    plugins.mkdir()
+    (plugins / "counter.py").write_text(COUNTER)
+    def simulate(*extra: str) -> tuple[int, str]:
+        done = subprocess.run([*fleet_command("mission", "simulate", str(script), "--plugins-dir", str(plugins)), *extra],
+                              capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+        return done.returncode, done.stdout + done.stderr
+
+    code, out = simulate("--enable", "counter label=cli")
+    assert code == 0, out
+    assert "cli saw drone01 (1)" in out
+    code, out = simulate("--enable", "nope")
+    assert code != 0 and "no plugin 'nope'" in out
+    code, out = simulate("--enable", "counter label")
+    assert code != 0 and "expected key=value" in out
