@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/fleet demo
+	$(BIN)/fleet demo $(ARGS)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -195,19 +195,36 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
 
 
 @main.command()
-@click.option("--port", type=int, default=7447, show_default=True, help="Port of the demo ground's Zenoh router.")
-@click.option("--http-port", type=int, default=8001, show_default=True, help="Port of the demo ground's HTTP API.")
-def demo(port: int, http_port: int) -> None:
-    """Start a simulated drone and fly a short pattern, printing live telemetry."""
-    from sim.demo import run_demo
+@click.option("--port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="Port of the demo ground's Zenoh router.")
+@click.option("--http-port", type=click.IntRange(1, 65535), default=8001, show_default=True, help="Port of the demo ground's HTTP API.")
+@click.option("--world", type=click.Path(path_type=Path, dir_okay=False, exists=True),
+              help="World file (drones, sensors, heat sources); default examples/worlds/fire.yml.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=Path("demo-out"), show_default=True,
+              help="Where result.json, the plots, the ground's log and the agents' logs go.")
+@click.option("--until-done", is_flag=True, help="Exit when the mission ends: 0 if it finished with success, else 1.")
+@click.option("--max-time", "max_time_s", type=click.FloatRange(1, 86_400), default=600, show_default=True,
+              help="Cancel the mission and exit 1 if it runs longer than this (s).")
+def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float) -> None:
+    """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
+    from sim.demo import DEFAULT_WORLD, Demo, DemoOptions
 
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the demo prints its own progress; -v shows the rest
+        for name in ("ground", "mission", "agent", "bus", "sim", "matplotlib"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    options = DemoOptions(
+        port=port, http_port=http_port, world=world or DEFAULT_WORLD, out_dir=out_dir,
+        until_done=until_done, max_time_s=max_time_s,
+    )
+    run = Demo(options, lambda line: click.echo(line))
     try:
-        ok = run_async(run_demo(port, http_port, lambda line: click.echo(line)))
+        code = run_async(run.run())
     except ConfigError as exc:
         fail(str(exc), 2)
     except FleetError as exc:
         fail(str(exc))
-    sys.exit(0 if ok else 1)
+    if code is None:  # Ctrl-C or SIGTERM: fine once the mission has succeeded
+        code = 0 if run.mission_ok else 130
+    sys.exit(code)
 
 
 def _add_http_clients() -> None:

@@ -1,134 +1,458 @@
-"""`fleet demo`: one simulated drone flown through its agent, live telemetry printed.
+"""`fleet demo` (`make demo`): a ground, three simulated drones and the fire-tracing mission.
 
-Starts a ground station in this process (Zenoh router, registry, event log in a
-temporary directory, HTTP API — its URL is printed), the agent (`fleet agent --fc
-sim`) as a child process, then flies arm → takeoff → a 40 m square → return to
-launch, printing each telemetry sample and status as it arrives, and finally the
-ground's event log. Grows into the full demo (dashboard, missions) in later issues.
+In this process: a ground station (`run_ground`: Zenoh router, registry, event log in
+a temporary directory, mission manager, HTTP API), the simulated on-board sensors of
+the world file (`sim/sensors.py`, on a Zenoh client) and a recorder of every drone's
+telemetry. As child processes: one `fleet agent --fc sim://?lat=…` per drone of the
+world (default `examples/worlds/fire.yml`: drone01 carries a temperature sensor near a
+fire; agents' logs go to OUT/logs/). Once the API answers and every drone is `ready`
+with its sensors, `examples/fire_tracing.py` is submitted over HTTP and followed by
+polling `GET /mission/{id}`: each mission log line is printed as it appears, with a
+one-line status of the sensor drone every few seconds. When the mission ends, the
+recorded time series go to OUT/result.json (the shape of `fleet mission simulate`'s)
+with its four plots, and the ground's event log to OUT/ground.log.
+
+Then, with `--until-done`, the demo stops and exits 0 if the mission finished with
+success, 1 otherwise; without it the ground and drones stay up until Ctrl-C. A mission
+running longer than `--max-time` is cancelled (DELETE /mission/{id}) and the demo
+exits 1. Ctrl-C or SIGTERM at any point stops the agents, the sensors, the Zenoh
+client and the ground. Every wait has a deadline, and a ground, agent or sensor that
+stops on its own ends the demo with its error (a port in use, for instance).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
+import logging
+import math
 import subprocess
 import sys
 import tempfile
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Coroutine
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
 
 import httpx
 
-from agent.remote import send_command
-from bus.port import Bus, Sample, Unreachable
+from bus.port import Bus, Sample
 from bus.zenoh_bus import ZenohBus
 from ground.config import GroundConfig
 from ground.lifecycle import run_ground
-from schemas.codec import decode_status, decode_telemetry
-from schemas.geo import destination
+from schemas.codec import decode_sensor, decode_telemetry, encode
+from schemas.errors import ConfigError, FleetError
 from schemas.keys import Keys
-from schemas.status import CommandStatus, SystemStatus
-from schemas.telemetry import Telemetry
+from schemas.telemetry import SensorReading, Telemetry
+from sim.projection import LocalFrame
+from sim.sensors import TemperatureSensor
+from sim.world import DroneSpec, World, load_world
 
-DRONE = "drone01"
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_WORLD = REPO / "examples" / "worlds" / "fire.yml"
+SCRIPT = REPO / "examples" / "fire_tracing.py"
 
-
-class _Watch:
-    def __init__(self, out: Callable[[str], None]) -> None:
-        self.out = out
-        self.telem: Telemetry | None = None
-        self.statuses: list[CommandStatus | SystemStatus] = []
-        self.changed = asyncio.Event()
-
-    def on_telem(self, sample: Sample) -> None:
-        t = self.telem = decode_telemetry(sample.payload)
-        if t.position and t.battery:
-            self.out(
-                f"  telem #{t.seq:<4} {t.flight_mode:<16} {t.landed_state:<10} armed={str(t.armed):<5} "
-                f"alt={t.position.rel_alt:6.2f} m  lat={t.position.lat:.6f} lon={t.position.lon:.6f} "
-                f"hdg={t.heading:5.1f}  speed={t.speed:4.1f} m/s  battery={t.battery.remaining_percent:.0%}"
-            )
-        self.changed.set()
-
-    def on_status(self, sample: Sample) -> None:
-        s = decode_status(sample.payload)
-        self.statuses.append(s)
-        what = f"{s.command} {s.state}" if isinstance(s, CommandStatus) else f"system {s.state}"
-        self.out(f"* status: {what}" + (f" ({s.reason})" if s.reason else ""))
-        self.changed.set()
-
-    async def until(self, predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
-        try:
-            async with asyncio.timeout(timeout_s):
-                while not predicate():
-                    self.changed.clear()
-                    await self.changed.wait()
-        except TimeoutError:
-            raise RuntimeError(f"no {what} within {timeout_s:g} s") from None
-
-    def has(self, command_id: str, state: str) -> bool:
-        return any(isinstance(s, CommandStatus) and s.command_id == command_id and s.state == state for s in self.statuses)
+TELEMETRY_RATE_MS = 200  # the agents' telemetry period, also the recorder's sampling period
+POLL_S = 0.5  # mission record and drone states
+STATUS_EVERY_S = 5.0
+HTTP_READY_S = 30.0
+DRONES_READY_S = 120.0  # three Python agents starting on a busy 2-core machine
+END_AFTER_CANCEL_S = 30.0
+STALE_S = 1.0  # telemetry older than this is not recorded as a sample
+AGENT_STOP_S = 10.0
+ENDED = ("finished", "failed", "cancelled")
 
 
-async def _fly(bus: Bus, watch: _Watch, out: Callable[[str], None]) -> bool:
-    async def do(cmd: str, wait_state: str | None, timeout_s: float = 60, **fields: object) -> None:
-        reply = await send_command(bus, DRONE, cmd, **fields)
-        out(f"> {cmd} {fields or ''} -> {'accepted' if reply.accepted else 'refused: ' + str(reply.reason)}")
-        if not reply.accepted:
-            raise RuntimeError(f"{cmd} refused: {reply.reason}")
-        if wait_state:
-            await watch.until(lambda: watch.has(reply.command_id, wait_state) or watch.has(reply.command_id, "failure"), timeout_s, cmd)
-            if watch.has(reply.command_id, "failure"):
-                raise RuntimeError(f"{cmd} failed")
-
-    await do("arm", "success", 10)
-    await do("takeoff", "finish", 30, alt=10)
-    assert watch.telem and watch.telem.position
-    lat0, lon0 = watch.telem.position.lat, watch.telem.position.lon
-    for bearing in (0, 90, 180, 270):
-        lat0, lon0 = destination(lat0, lon0, 40, bearing)
-        await do("goto", "finish", 30, lat=lat0, lon=lon0, yaw=None, speed=8)
-    await do("return", "finish", 90, alt=15)
-    await watch.until(lambda: any(isinstance(s, SystemStatus) and s.state == "disarm" for s in watch.statuses), 10, "auto disarm")
-    return True
+@dataclass
+class DemoOptions:
+    port: int = 7447
+    http_port: int = 8001
+    world: Path = DEFAULT_WORLD
+    out_dir: Path = Path("demo-out")
+    until_done: bool = False
+    max_time_s: float = 600.0
 
 
-async def run_demo(port: int, http_port: int, out: Callable[[str], None]) -> bool:
-    endpoint = f"tcp/127.0.0.1:{port}"
-    keys = Keys()
-    data_dir = tempfile.TemporaryDirectory(prefix="fleet-demo-")
-    config = GroundConfig(listen=[endpoint], http_port=http_port, data_dir=data_dir.name)
-    ground = asyncio.get_running_loop().create_task(run_ground(config, out), name="demo ground")
-    agent = subprocess.Popen(
-        [sys.executable, "-m", "fleet_cli", "agent", "--id", DRONE, "--fc", "sim", "--connect", endpoint, "--telemetry-rate-ms", "500"],
-    )
-    client: ZenohBus | None = None
+@dataclass
+class _Agent:
+    spec: DroneSpec
+    proc: subprocess.Popen[bytes]
+    log_path: Path
+    log_file: IO[bytes]
+
+
+@dataclass
+class _Track:
+    telem: Telemetry | None = None
+    received: float = 0.0  # monotonic time of the latest telemetry
+    sensors: dict[str, Any] = field(default_factory=dict)  # type -> latest value
+    state: str = "unknown"  # the ground's view (GET /drone)
+    samples: list[dict[str, Any]] = field(default_factory=list)
+
+
+def _tail(path: Path, lines: int = 15) -> str:
     try:
-        client = await ZenohBus.open("client", connect=[endpoint], wait=True)
-        out(f"Agent {DRONE} (pid {agent.pid}) on a simulated vehicle; try `fleet drone list --url http://127.0.0.1:{http_port}`.")
-        out(f"Watch the raw traffic in another terminal: fleet sub 'drone/**' --connect {endpoint}")
-        watch = _Watch(out)
-        client.subscribe(keys.telem(DRONE), watch.on_telem, latest_only=True)
-        client.subscribe(keys.status(DRONE), watch.on_status)
-        await watch.until(lambda: watch.telem is not None, 30, "first telemetry")
+        text = path.read_text(errors="replace")
+    except OSError:
+        return ""
+    return "\n".join("    " + line for line in text.splitlines()[-lines:])
+
+
+class Demo:
+    """One run of the demo; `run()` returns the exit code (cancellation: see `mission_ok`)."""
+
+    def __init__(self, options: DemoOptions, out: Callable[[str], None]) -> None:
+        self.options = options
+        self.out = out
+        self.endpoint = f"tcp/127.0.0.1:{options.port}"
+        self.url = f"http://127.0.0.1:{options.http_port}"
+        self.keys = Keys()
+        self.mission_ok: bool | None = None  # set once the mission has ended
+        self.t0 = time.monotonic()
+        self.t0_ms = time.time_ns() // 1_000_000
+        self.tracks: dict[str, _Track] = {}
+        self.agents: list[_Agent] = []
+        self.bus: ZenohBus | None = None
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._broken: asyncio.Future[tuple[str, BaseException | None]] | None = None
+        self._stopping = False
+
+    # ---- the run ----------------------------------------------------------------------
+
+    async def run(self) -> int:
+        world = load_world(self.options.world)
+        specs = world.spawn()
+        if not specs:
+            raise ConfigError(f"{self.options.world}: the world has no drones")
         try:
-            ok = await _fly(client, watch, out)
-        except (RuntimeError, Unreachable) as exc:
-            out(f"demo failed: {exc}")
-            return False
-        out("Demo flight complete: the drone is home and disarmed. The ground's event log:")
-        async with httpx.AsyncClient() as http:
-            log = await http.get(f"http://127.0.0.1:{http_port}/drone/logs")
-        for line in log.text.splitlines():
-            out(f"  {line}")
-        return ok
-    finally:
-        agent.terminate()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            agent.wait(timeout=10)
-        if agent.poll() is None:
-            agent.kill()
-        if client is not None:
-            await client.close()
+            source = SCRIPT.read_text(encoding="utf-8")
+            (self.options.out_dir / "logs").mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f"{exc.filename}: {exc.strerror}") from None
+        self._broken = asyncio.get_running_loop().create_future()
+        self.tracks = {spec.id: _Track() for spec in specs}
+        with tempfile.TemporaryDirectory(prefix="fleet-demo-") as data_dir:
+            config = GroundConfig(listen=[self.endpoint], http_port=self.options.http_port, data_dir=data_dir)
+            self._background(run_ground(config, self.out), "the ground")
+            body: asyncio.Task[int] | None = None
+            try:
+                async with httpx.AsyncClient(base_url=self.url, timeout=10) as http:
+                    body = asyncio.get_running_loop().create_task(self._main(http, world, specs, source), name="demo")
+                    await asyncio.wait([body, self._broken], return_when=asyncio.FIRST_COMPLETED)
+                    if body.done():
+                        return body.result()
+                    name, exc = self._broken.result()
+                    if isinstance(exc, FleetError) and "in use" in str(exc) and not isinstance(exc, ConfigError):
+                        raise FleetError(f"{exc} (choose another port with --port)") from None
+                    if isinstance(exc, FleetError):
+                        raise exc
+                    raise FleetError(f"{name} stopped unexpectedly" + (f": {exc!r}" if exc else ""))
+            finally:
+                cleanup = asyncio.ensure_future(self._stop(body))
+                while not cleanup.done():  # a second SIGTERM must not cut the clean-up short
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await asyncio.shield(cleanup)
+                cleanup.result()
+
+    async def _main(self, http: httpx.AsyncClient, world: World, specs: list[DroneSpec], source: str) -> int:
+        opts = self.options
+        await self._wait_http(http)
+        for spec in specs:
+            self._start_agent(spec)
+        self.bus = bus = await ZenohBus.open("client", connect=[self.endpoint], wait=True)
+        for spec in specs:
+            bus.subscribe(self.keys.telem(spec.id), self._on_telem, latest_only=True)
+            bus.subscribe(self.keys.sensor(spec.id), self._on_sensor)
+            for kind in spec.sensors:
+                self._start_sensor(bus, world, spec.id, kind)
+        sampler = self._background(self._sample(), "the telemetry recorder")
+
+        names = ", ".join(s.id + (f" ({', '.join(s.sensors)})" if s.sensors else "") for s in specs)
+        self.out("")
+        self.out(f"Fleet demo: a ground station and {len(specs)} simulated drones ({names}), world {opts.world}")
+        self.out(f"  API:    {self.url}/   (OpenAPI at {self.url}/openapi.json)")
+        self.out(f"  Try:    fleet drone list --url {self.url}")
+        self.out(f"          fleet mission list --url {self.url}")
+        self.out(f"          fleet sub 'drone/**' --connect {self.endpoint}")
+        self.out(f"  Agents' logs in {opts.out_dir / 'logs'}")
+        self.out("")
+        await self._wait_drones(http, specs)
+
+        watched = next((s.id for s in specs if "temperature" in s.sensors), specs[0].id)
+        gs = world.ground_station or world.origin
+        frame = LocalFrame(gs.lat, gs.lon)
+        mission_id = await self._submit(http, source)
+        record, timed_out = await self._follow(http, mission_id, watched, frame)
+        self.mission_ok = record["status"] == "finished" and record.get("cause") == "success"
+        self.out(f"{self._stamp()} {self._outcome(record)}")
+        sampler.cancel()
+        await asyncio.gather(sampler, return_exceptions=True)
+        await self._write_results(http, record, gs.lat, gs.lon)
+        if timed_out:
+            return 1
+        if opts.until_done:
+            return 0 if self.mission_ok else 1
+        self.out("")
+        self.out(f"Ground still up at {self.url}/ — press Ctrl-C to stop")
+        while True:
+            self._check_agents()
+            await asyncio.sleep(1.0)
+
+    # ---- starting and readiness ---------------------------------------------------------
+
+    async def _wait_http(self, http: httpx.AsyncClient) -> None:
+        deadline = time.monotonic() + HTTP_READY_S
+        while True:
+            with contextlib.suppress(httpx.TransportError):
+                if (await http.get("/")).status_code == 200:
+                    return
+            if time.monotonic() > deadline:
+                raise FleetError(f"the ground's HTTP API at {self.url} did not answer within {HTTP_READY_S:g} s")
+            await asyncio.sleep(0.1)
+
+    def _start_agent(self, spec: DroneSpec) -> None:
+        log_path = self.options.out_dir / "logs" / f"{spec.id}.log"
+        log_file = open(log_path, "wb")  # noqa: SIM115 - closed in _stop, after the process ends
+        fc = f"sim://?lat={spec.lat!r}&lon={spec.lon!r}&alt={spec.alt!r}"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "fleet_cli", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
+             "--telemetry-rate-ms", str(TELEMETRY_RATE_MS)],
+            stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, cwd=REPO,
+        )
+        self.agents.append(_Agent(spec, proc, log_path, log_file))
+
+    def _start_sensor(self, bus: Bus, world: World, drone_id: str, kind: str) -> None:
+        if kind == "temperature":
+            sensor = TemperatureSensor(bus, drone_id, world.heat_config(), keys=self.keys)
+            self._background(sensor.run(), f"the temperature sensor of {drone_id}")
+        else:  # announced with empty readings, so missions can assign by it (as in fast-time simulation)
+            self._background(self._presence(bus, drone_id, kind, world.sensor_rate_ms), f"the {kind} sensor of {drone_id}")
+
+    async def _presence(self, bus: Bus, drone_id: str, kind: str, rate_ms: int) -> None:
+        while True:
+            reading = SensorReading(drone_id=drone_id, timestamp=time.time_ns() // 1_000_000, type=kind, value=None)
+            bus.publish(self.keys.sensor(drone_id, kind), encode(reading))
+            await asyncio.sleep(rate_ms / 1000)
+
+    async def _wait_drones(self, http: httpx.AsyncClient, specs: list[DroneSpec]) -> None:
+        self.out(f"{self._stamp()} waiting for {len(specs)} drones to be ready with their sensors")
+        deadline = time.monotonic() + DRONES_READY_S
+        while True:
+            self._check_agents()
+            infos = await self._poll_states(http)
+            missing = [
+                s.id for s in specs
+                if s.id not in infos or infos[s.id]["state"] != "ready" or not set(s.sensors) <= set(infos[s.id]["sensors"])
+            ]
+            if not missing:
+                self.out(f"{self._stamp()} all drones ready: {', '.join(s.id for s in specs)}")
+                return
+            if time.monotonic() > deadline:
+                detail = "; ".join(
+                    f"{d}: " + (f"{infos[d]['state']}, sensors {infos[d]['sensors']}" if d in infos else "not registered")
+                    for d in missing
+                )
+                raise FleetError(f"drones not ready within {DRONES_READY_S:g} s ({detail}); see {self.options.out_dir / 'logs'}")
+            await asyncio.sleep(0.2)
+
+    async def _poll_states(self, http: httpx.AsyncClient) -> dict[str, dict[str, Any]]:
+        response = await http.get("/drone", params={"data": "info"})
+        response.raise_for_status()
+        infos = {view["info"]["drone_id"]: view["info"] for view in response.json()}
+        for drone_id, info in infos.items():
+            if drone_id in self.tracks:
+                self.tracks[drone_id].state = info["state"]
+        return infos
+
+    def _check_agents(self) -> None:
+        for agent in self.agents:
+            code = agent.proc.poll()
+            if code is not None:
+                raise FleetError(
+                    f"the agent of {agent.spec.id} exited (code {code}); the end of {agent.log_path}:\n{_tail(agent.log_path)}"
+                )
+
+    # ---- the mission ---------------------------------------------------------------------
+
+    async def _submit(self, http: httpx.AsyncClient, source: str) -> str:
+        response = await http.post("/mission", content=source.encode(), params={"name": SCRIPT.name})
+        if response.status_code != 201:
+            raise FleetError(f"the ground refused {SCRIPT.name}: {response.status_code} {response.text}")
+        mission_id = str(response.json()["mission_id"])
+        self.out(f"{self._stamp()} mission {mission_id} submitted: {SCRIPT.relative_to(REPO)}"
+                 f" (follow it: fleet mission show {mission_id} --url {self.url})")
+        return mission_id
+
+    async def _follow(self, http: httpx.AsyncClient, mission_id: str, watched: str,
+                      frame: LocalFrame) -> tuple[dict[str, Any], bool]:
+        """Print the mission's log lines and a status line every few seconds until it ends."""
+        started = time.monotonic()
+        next_status = started + STATUS_EVERY_S
+        cancelled_at: float | None = None
+        seen = 0
+        while True:
+            response = await http.get(f"/mission/{mission_id}")
+            response.raise_for_status()
+            record = response.json()
+            for line in record["log"][seen:]:
+                level = "" if line["level"] == "info" else line["level"].upper() + " "
+                self.out(f"{self._stamp(line['timestamp'])} {level}{line['message']}")
+            seen = len(record["log"])
+            if record["status"] in ENDED and record.get("end") is not None:
+                record.pop("log", None)
+                return record, cancelled_at is not None
+            await self._poll_states(http)
+            now = time.monotonic()
+            if now >= next_status:
+                self.out(self._status_line(watched, frame))
+                next_status += STATUS_EVERY_S * max(1, math.ceil((now - next_status) / STATUS_EVERY_S))
+            if cancelled_at is None and now - started > self.options.max_time_s:
+                self.out(f"{self._stamp()} the mission ran longer than --max-time {self.options.max_time_s:g} s: cancelling it")
+                await http.delete(f"/mission/{mission_id}")
+                cancelled_at = now
+            elif cancelled_at is not None and now - cancelled_at > END_AFTER_CANCEL_S:
+                raise FleetError(f"mission {mission_id} did not end within {END_AFTER_CANCEL_S:g} s of its cancellation")
+            self._check_agents()
+            await asyncio.sleep(POLL_S)
+
+    def _status_line(self, drone_id: str, frame: LocalFrame) -> str:
+        track = self.tracks[drone_id]
+        t = track.telem
+        if t is None or t.position is None or time.monotonic() - track.received > 3 * STALE_S:
+            return f"{self._stamp()} {drone_id}: no telemetry"
+        north, east = frame.to_local(t.position.lat, t.position.lon)
+        temp = track.sensors.get("temperature")
+        parts = [
+            f"{drone_id} {track.state:<6}",
+            f"{abs(north):5.1f} m {'N' if north >= 0 else 'S'} {abs(east):5.1f} m {'E' if east >= 0 else 'W'} of the ground",
+            f"alt {t.position.rel_alt:4.1f} m",
+        ]
+        if isinstance(temp, (int, float)):
+            parts.append(f"{temp:4.1f} °C")
+        if t.battery is not None:
+            parts.append(f"battery {t.battery.remaining_percent:.0%}")
+        return f"{self._stamp()} " + " | ".join(parts)
+
+    @staticmethod
+    def _outcome(record: dict[str, Any]) -> str:
+        text = f"mission {record['mission_id']} {record['status']}"
+        if record.get("cause"):
+            text += f": {record['cause']}"
+        if record.get("message") and record["message"] not in (record.get("cause"), "success"):
+            text += f" - {record['message']}"
+        return text
+
+    # ---- recording -------------------------------------------------------------------------
+
+    def _on_telem(self, sample: Sample) -> None:
+        try:
+            t = decode_telemetry(sample.payload)
+        except Exception:  # noqa: BLE001 - a bad sample is not recorded; the ground logs such things
+            return
+        track = self.tracks.get(t.drone_id)
+        if track is not None:
+            track.telem = t
+            track.received = time.monotonic()
+
+    def _on_sensor(self, sample: Sample) -> None:
+        try:
+            reading = decode_sensor(sample.payload)
+        except Exception:  # noqa: BLE001
+            return
+        track = self.tracks.get(reading.drone_id)
+        if track is not None:
+            track.sensors[reading.type] = reading.value
+
+    async def _sample(self) -> None:
+        """Every drone's latest telemetry at the same instants (so the plots can pair them)."""
+        period = TELEMETRY_RATE_MS / 1000
+        k = 0
+        while True:
+            k = max(k + 1, math.floor((time.monotonic() - self.t0) / period))
+            await asyncio.sleep(max(0.0, self.t0 + k * period - time.monotonic()))
+            now = time.monotonic()
+            for track in self.tracks.values():
+                t = track.telem
+                if t is None or t.position is None or now - track.received > STALE_S:
+                    continue
+                track.samples.append({
+                    "t_s": round(k * period, 3),
+                    "lat": round(t.position.lat, 8), "lon": round(t.position.lon, 8),
+                    "alt": round(t.position.alt, 3), "rel_alt": round(t.position.rel_alt, 3),
+                    "heading": round(t.heading, 2), "speed": round(t.speed, 3),
+                    "battery": round(t.battery.remaining_percent, 5) if t.battery else None,
+                    "state": track.state, "armed": t.armed, "sensors": dict(track.sensors),
+                })
+
+    async def _write_results(self, http: httpx.AsyncClient, record: dict[str, Any], gs_lat: float, gs_lon: float) -> None:
+        from mission.plots import write_plots
+
+        out_dir = self.options.out_dir
+        response = await http.get(f"/mission/{record['mission_id']}")
+        log_lines = response.json().get("log", []) if response.status_code == 200 else []
+        result = {
+            "mission": record,
+            "log": log_lines,
+            "world": str(self.options.world),
+            "t0_ms": self.t0_ms,  # wall time of t_s = 0
+            "ground_station": {"lat": gs_lat, "lon": gs_lon},
+            "drones": {
+                drone_id: {"samples": track.samples, "commands": []} for drone_id, track in sorted(self.tracks.items())
+            },
+        }
+        (out_dir / "result.json").write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+        events = await http.get("/drone/logs")
+        if events.status_code == 200:
+            (out_dir / "ground.log").write_text(events.text)
+        plots = await asyncio.to_thread(write_plots, result, out_dir)  # matplotlib is slow: keep the ground serving
+        self.out(f"{self._stamp()} wrote {out_dir / 'result.json'}, {out_dir / 'ground.log'} and plots "
+                 f"({', '.join(p.name for p in plots)}) in {out_dir}")
+
+    # ---- background tasks and stopping -----------------------------------------------------
+
+    def _background(self, coro: Coroutine[Any, Any, Any], name: str) -> asyncio.Task[Any]:
+        task = asyncio.get_running_loop().create_task(coro, name=name)
+        self._tasks.append(task)
+        task.add_done_callback(self._ended)
+        return task
+
+    def _ended(self, task: asyncio.Task[Any]) -> None:
+        if self._stopping or task.cancelled() or self._broken is None or self._broken.done():
+            return
+        self._broken.set_result((task.get_name(), task.exception()))
+
+    async def _stop(self, body: asyncio.Task[int] | None) -> None:
+        """Agents first told to stop (no await before), then everything in reverse order of start."""
+        self._stopping = True
+        if not logging.getLogger().isEnabledFor(logging.DEBUG):  # drones leaving (and a mission failing) is expected now
+            for name in ("ground", "mission"):
+                logging.getLogger(name).setLevel(logging.CRITICAL)
+        for agent in self.agents:
+            if agent.proc.poll() is None:
+                agent.proc.terminate()
+        if body is not None and not body.done():
+            body.cancel()
+        ground, rest = self._tasks[0], self._tasks[1:]
+        for task in rest:
+            task.cancel()
+        await asyncio.gather(*([body] if body is not None else []), *rest, return_exceptions=True)
+        deadline = time.monotonic() + AGENT_STOP_S
+        while any(a.proc.poll() is None for a in self.agents) and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        for agent in self.agents:
+            if agent.proc.poll() is None:
+                agent.proc.kill()
+                agent.proc.wait()
+            agent.log_file.close()
+        if self.bus is not None:
+            await self.bus.close()
         ground.cancel()
         await asyncio.gather(ground, return_exceptions=True)
-        data_dir.cleanup()
+        if self.agents:
+            self.out(f"{self._stamp()} demo stopped: agents, sensors and ground")
+
+    def _stamp(self, at_ms: int | None = None) -> str:
+        seconds = (at_ms - self.t0_ms) / 1000 if at_ms is not None else time.monotonic() - self.t0
+        return f"[{seconds:6.1f} s]"

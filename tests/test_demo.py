@@ -1,0 +1,116 @@
+"""`fleet demo --until-done`, run as CI runs it (`make demo ARGS=--until-done`): a real
+subprocess with its ground, three agents and the fire-tracing mission over real Zenoh.
+
+The demo runs in its own process group, so whatever happens the test can make sure no
+agent outlives it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import free_port
+
+pytestmark = pytest.mark.integration
+
+REPO = Path(__file__).resolve().parents[1]
+PLOTS = ("paths.png", "altitude.png", "battery.png", "distances.png")
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def run_demo(*args: str, timeout_s: float) -> tuple[int, str, str, float]:
+    """`python -m fleet_cli demo ARGS` with stdin closed: (exit code, stdout, stderr, seconds).
+    Past the timeout it gets SIGTERM (its clean stop), then its whole group SIGKILL."""
+    started = time.monotonic()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fleet_cli", "demo", *args],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=REPO, start_new_session=True,
+    )
+    try:
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                stdout, stderr = proc.communicate(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                stdout, stderr = proc.communicate()
+            pytest.fail(f"fleet demo {' '.join(args)} still running after {timeout_s:g} s:\n{stdout[-4000:]}\n{stderr[-4000:]}")
+        elapsed = time.monotonic() - started
+        # The demo stopped its agents itself: nothing of its process group is left.
+        deadline = time.monotonic() + 5
+        while _group_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _group_alive(proc.pid), "an agent of the demo outlived it"
+        return proc.returncode, stdout, stderr, elapsed
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.timeout(480)
+def test_bounded_demo_traces_the_fire_and_writes_its_plots(tmp_path: Path) -> None:
+    zenoh_port, http_port = free_port(), free_port()
+    out = tmp_path / "demo-out"
+    code, stdout, stderr, elapsed = run_demo(
+        "--until-done", "--port", str(zenoh_port), "--http-port", str(http_port), "--out", str(out), timeout_s=420,
+    )
+    assert code == 0, f"exit {code} after {elapsed:.0f} s:\n{stdout[-4000:]}\n{stderr[-4000:]}"
+    assert f"http://127.0.0.1:{http_port}/" in stdout
+    assert f"fleet sub 'drone/**' --connect tcp/127.0.0.1:{zenoh_port}" in stdout
+    assert "all drones ready: drone01, drone02, drone03" in stdout
+    assert "Assigned drone01 (a drone with temperature)" in stdout
+    assert "tracing the 40 °C perimeter" in stdout
+    assert "mission m1 finished: success" in stdout
+    assert "drone01 active |" in stdout  # the periodic status line
+    for name in (*PLOTS, "result.json", "ground.log", "logs/drone01.log"):
+        assert (out / name).stat().st_size > 0, name
+
+    result = json.loads((out / "result.json").read_text())
+    assert result["mission"]["status"] == "finished" and result["mission"]["cause"] == "success"
+    assert set(result["drones"]) == {"drone01", "drone02", "drone03"}
+    samples = result["drones"]["drone01"]["samples"]
+    temperatures = [s["sensors"]["temperature"] for s in samples if s["sensors"].get("temperature") is not None]
+    assert max(temperatures) > 37
+    assert max(s["rel_alt"] for s in samples) > 2.5  # it flew (takeoff to 3 m)
+    assert samples[-1]["rel_alt"] < 1  # and came home
+    # Every drone is sampled at the same instants, so the plots can pair them.
+    assert {s["t_s"] for s in samples} & {s["t_s"] for s in result["drones"]["drone02"]["samples"]}
+
+
+@pytest.mark.timeout(120)
+def test_demo_with_its_http_port_taken_fails_fast_naming_the_port(tmp_path: Path) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code, stdout, stderr, elapsed = run_demo(
+            "--until-done", "--port", str(free_port()), "--http-port", str(port), "--out", str(tmp_path / "out"),
+            timeout_s=60,
+        )
+    assert code != 0, stdout
+    assert f"cannot serve HTTP on 127.0.0.1:{port}" in stderr and "--http-port" in stderr, stderr
+    assert "Traceback" not in stderr
+    assert elapsed < 30
