@@ -376,7 +376,7 @@ class MissionPlugins:
         namespace.update(values)
         active = Active(plugin, namespace, decl["callback"])
         self.active[plugin_id] = active
-        m.record.plugins = sorted(self.active)
+        m.record.plugins = sorted(set(m.record.plugins) | {plugin_id})  # every plugin the mission used
         m.log("info", f"Plugin {plugin_id} enabled" + (f" with {values}" if values else ""))
         m.changed()
         if plugin.type == MONITORING:
@@ -400,9 +400,7 @@ class MissionPlugins:
         active.monitors.clear()
         for name in active.plugin.verbs:
             mission_names.pop(name, None)
-        m.record.plugins = sorted(self.active)
         m.log("info", f"Plugin {plugin_id} disabled")
-        m.changed()
 
     def drone_added(self, wrapper: Drone) -> None:
         for active in self.active.values():

@@ -64,6 +64,7 @@ def test_generated_requests_never_5xx_and_always_match_the_schema(ground: Ground
     assert {op.label for op in operations} == {
         "GET /drone", "GET /drone/logs", "GET /drone/{drone_id}", "POST /drone/{drone_id}/cmd",
         "POST /mission", "GET /mission", "GET /mission/{mission_id}", "DELETE /mission/{mission_id}",
+        "GET /plugin",
     }
     for op in operations:
         for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):
