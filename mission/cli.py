@@ -159,6 +159,7 @@ def check(script: Path) -> None:
 
 @mission.command()
 @click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("inputs", nargs=-1, metavar="[key=value…]")
 @click.option("--world", type=click.Path(exists=True, dir_okay=False, path_type=Path), help="World file (SPEC §7).")
 @click.option("--drones", "n", type=click.IntRange(1, 100), help="Number of drones (default: the world's, or 1).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the script's `random`.")
@@ -169,9 +170,12 @@ def check(script: Path) -> None:
               help="Enable a plugin before the script's first line, e.g. --enable 'replacement drainage=0.0015' (repeatable).")
 @click.option("--plugins-dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="Also load the plugin scripts in this directory (besides the bundled ones).")
-def simulate(script: Path, world: Path | None, n: int | None, seed: int, out_dir: Path | None, max_s: float,
-             plugins: tuple[str, ...], plugins_dir: Path | None) -> None:
-    """Run SCRIPT against simulated drones in fast time; exit with its outcome."""
+def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int | None, seed: int, out_dir: Path | None,
+             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None) -> None:
+    """Run SCRIPT against simulated drones in fast time; exit with its outcome.
+
+    Plugin inputs go with --enable in one word (--enable 'replacement drainage=0.0015')
+    or, with a single --enable, as key=value words after it (SPEC §5)."""
     import logging
 
     from mission.sandbox import ScriptError, compile_mission
@@ -184,6 +188,10 @@ def simulate(script: Path, world: Path | None, n: int | None, seed: int, out_dir
     if library.failures:
         click.echo(plugin_summary(library).replace("fleet ground: ", ""), err=True)
     enable: dict[str, dict[str, object]] = {}
+    if inputs:
+        if len(plugins) != 1:
+            _fail(f"unexpected arguments {' '.join(inputs)}: key=value inputs after SCRIPT need exactly one --enable")
+        plugins = (" ".join((plugins[0], *inputs)),)
     for text in plugins:
         try:
             plugin_id, inputs = parse_enable(text)

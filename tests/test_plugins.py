@@ -206,6 +206,11 @@ def test_simulate_cli_enables_plugins(tmp_path: Path) -> None:
     code, out = simulate("--enable", "counter label=cli")
     assert code == 0, out
     assert "cli saw drone01 (1)" in out
+    code, out = simulate("--enable", "counter", "label=spec-form")  # SPEC §5: --enable PLUGIN key=value…
+    assert code == 0, out
+    assert "spec-form saw drone01 (1)" in out
+    code, out = simulate("stray=1")
+    assert code != 0 and "need exactly one --enable" in out
     code, out = simulate("--enable", "nope")
     assert code != 0 and "no plugin 'nope'" in out
     code, out = simulate("--enable", "counter label")
