@@ -40,7 +40,7 @@ def _stamp(ms: int | None) -> str:
     return time.strftime("%H:%M:%S", time.localtime(ms / 1000)) + f".{ms % 1000:03d}"
 
 
-def _outcome(record: dict[str, Any]) -> str:
+def outcome(record: dict[str, Any]) -> str:
     text = f"mission {record['mission_id']} {record['status']}"
     if record.get("cause"):
         text += f": {record['cause']}"
@@ -77,7 +77,7 @@ def submit(url: str, script: Path, name: str, watch: bool) -> None:
                 if kind == "mission_log":
                     click.echo(f"{_stamp(data['timestamp'])} {data['level'].upper():5} {data['message']}")
                 elif kind == "mission" and data.get("status") in ENDED and data.get("end") is not None:
-                    click.echo(_outcome(data))
+                    click.echo(outcome(data))
                     raise SystemExit(EXIT_CODES[data["status"]])
     except httpx.TransportError as exc:
         _fail(f"lost the ground at {url}: {exc}")
@@ -127,7 +127,7 @@ def show(url: str, mission_id: str, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(view, indent=2))
         return
-    click.echo(_outcome(view) if view["status"] in ENDED else f"mission {mission_id} {view['status']}")
+    click.echo(outcome(view) if view["status"] in ENDED else f"mission {mission_id} {view['status']}")
     click.echo(f"  start {_stamp(view.get('start'))}  end {_stamp(view.get('end'))}")
     click.echo(f"  active {', '.join(view['active_drones']) or '-'}  used {', '.join(view['used_drones']) or '-'}")
     for line in view.get("log", []):
@@ -219,7 +219,7 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     record = result["mission"]
     duration = ((record.get("end") or 0) - (record.get("start") or 0)) / 1000
     wall = time.perf_counter() - started
-    click.echo(_outcome(record))
+    click.echo(outcome(record))
     click.echo(f"simulated {duration:.1f} s in {wall:.2f} s of wall time ({duration / max(wall, 1e-9):.0f}x)")
     if out_dir is not None:
         click.echo(f"wrote {out_dir / 'result.json'} and plots in {out_dir}")

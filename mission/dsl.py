@@ -43,6 +43,20 @@ class _AnyDrone:
 any_drone = _AnyDrone()
 
 
+def guarded(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """A verb as scripts see it: a mission that ends unwinds the caller (uncatchably)."""
+
+    def verb(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except MissionOver:
+            raise Stopped() from None
+
+    verb.__name__ = fn.__name__
+    verb.__doc__ = fn.__doc__
+    return verb
+
+
 def _call(mission: Mission, awaitable: Any) -> Any:
     """Run a mission coroutine from a script; a mission that ends unwinds the caller."""
     try:
@@ -484,17 +498,6 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
 
     def disable(plugin_id: str) -> None:
         m.plugins.disable(plugin_id, namespace)
-
-    def guarded(fn: Callable[..., Any]) -> Callable[..., Any]:
-        def verb(*args: Any, **kwargs: Any) -> Any:
-            try:
-                return fn(*args, **kwargs)
-            except MissionOver:
-                raise Stopped() from None
-
-        verb.__name__ = fn.__name__
-        verb.__doc__ = fn.__doc__
-        return verb
 
     verbs: dict[str, Any] = {
         f.__name__: guarded(f) for f in (

@@ -430,22 +430,17 @@ class MissionPlugins:
         active.monitors[id(wrapper)] = (wrapper, sub)
 
     def _verb(self, active: Active, fn: Callable[..., Any]) -> Callable[..., Any]:
-        from mission.mission import MissionOver
-        from mission.runtime import Stopped
+        from mission.dsl import guarded
 
         m = self.mission
 
         def verb(*args: Any, **kwargs: Any) -> Any:
             if not active.enabled:
-                m.fail("plugin_disabled", f"{fn.__name__}: plugin {active.plugin.id!r} was disabled")
-                raise Stopped()
-            try:
-                return fn(*args, **kwargs)
-            except MissionOver:
-                raise Stopped() from None
+                raise m.fail("plugin_disabled", f"{fn.__name__}: plugin {active.plugin.id!r} was disabled")
+            return fn(*args, **kwargs)
 
         verb.__name__ = fn.__name__
-        return verb
+        return guarded(verb)
 
 
 def plugin_summary(library: PluginLibrary) -> str:

@@ -31,10 +31,9 @@ from ground.station import GroundStation, WatchEvent
 from mission.manager import MissionManager, MissionStore
 from mission.mission import MissionRecord
 from mission.plugins import PluginLibrary
-from schemas.codec import encode
 from schemas.keys import Keys
-from schemas.telemetry import SensorReading, Telemetry
-from sim.sensors import TemperatureSensor
+from schemas.telemetry import Telemetry
+from sim.sensors import simulated_sensor
 from sim.vehicle import Vehicle
 from sim.world import World
 
@@ -135,29 +134,16 @@ class SimField:
         apply_fault(vehicle, fault, value)  # type: ignore[arg-type]
 
     async def _sensors(self, drone_id: str, kinds: list[str]) -> None:
-        """Simulated on-board sensors: temperature from the world's heat field (the
-        `fleet sensor temperature` code, following the drone's telemetry); any other
-        kind is announced with readings of value None, so missions can assign by it."""
-        keys = Keys(self.config.namespace)
+        """Simulated on-board sensors (sim/sensors.py), following the drone's telemetry."""
         bus = self._bus()
-        tasks = []
-        for kind in kinds:
-            if kind == "temperature":
-                sensor = TemperatureSensor(bus, drone_id, self.world.heat_config(), clock=self.clock, keys=keys)
-                tasks.append(asyncio.ensure_future(sensor.run()))
-            else:
-                tasks.append(asyncio.ensure_future(self._presence(bus, keys, drone_id, kind)))
+        keys = Keys(self.config.namespace)
+        tasks = [asyncio.ensure_future(simulated_sensor(bus, drone_id, kind, self.world, clock=self.clock, keys=keys))
+                 for kind in kinds]
         try:
             await asyncio.gather(*tasks)
         finally:
             for task in tasks:
                 task.cancel()
-
-    async def _presence(self, bus: MemoryBus, keys: Keys, drone_id: str, kind: str) -> None:
-        while True:
-            reading = SensorReading(drone_id=drone_id, timestamp=self.clock.time_ms(), type=kind, value=None)
-            bus.publish(keys.sensor(drone_id, kind), encode(reading))
-            await self.clock.sleep(self.world.sensor_rate_ms / 1000)
 
     def _record(self, event: WatchEvent) -> None:
         if event.kind == "telemetry":
@@ -168,14 +154,7 @@ class SimField:
             registry = self.station.registry
             info = registry.info(t.drone_id)
             sensors = {r.type: r.value for r in registry.sensor_readings(t.drone_id)}
-            track.samples.append({
-                "t_s": round(self.clock.monotonic(), 3),
-                "lat": round(t.position.lat, 8), "lon": round(t.position.lon, 8),
-                "alt": round(t.position.alt, 3), "rel_alt": round(t.position.rel_alt, 3),
-                "heading": round(t.heading, 2), "speed": round(t.speed, 3),
-                "battery": round(t.battery.remaining_percent, 5) if t.battery else None,
-                "state": info.state, "armed": t.armed, "sensors": sensors,
-            })
+            track.samples.append(telemetry_sample(t, self.clock.monotonic(), info.state, sensors))
 
     async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S,
                           enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
@@ -243,6 +222,19 @@ class SimField:
         self.events.close()
         if self._tmp is not None:
             self._tmp.cleanup()
+
+
+def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, Any]) -> dict[str, Any]:
+    """One row of a drone's time series in result.json (SPEC §5)."""
+    assert t.position is not None
+    return {
+        "t_s": round(t_s, 3),
+        "lat": round(t.position.lat, 8), "lon": round(t.position.lon, 8),
+        "alt": round(t.position.alt, 3), "rel_alt": round(t.position.rel_alt, 3),
+        "heading": round(t.heading, 2), "speed": round(t.speed, 3),
+        "battery": round(t.battery.remaining_percent, 5) if t.battery else None,
+        "state": state, "armed": t.armed, "sensors": sensors,
+    }
 
 
 async def simulate(

@@ -42,12 +42,14 @@ from bus.port import Bus, Sample
 from bus.zenoh_bus import ZenohBus
 from ground.config import GroundConfig
 from ground.lifecycle import run_ground
-from schemas.codec import decode_sensor, decode_telemetry, encode
+from mission.cli import outcome
+from mission.simulate import telemetry_sample
+from schemas.codec import decode_sensor, decode_telemetry
 from schemas.errors import ConfigError, FleetError
 from schemas.keys import Keys
-from schemas.telemetry import SensorReading, Telemetry
+from schemas.telemetry import Telemetry
 from sim.projection import LocalFrame
-from sim.sensors import TemperatureSensor
+from sim.sensors import simulated_sensor
 from sim.world import DroneSpec, World, load_world
 
 REPO = Path(__file__).resolve().parents[1]
@@ -186,7 +188,7 @@ class Demo:
         mission_id = await self._submit(http, source)
         record, timed_out = await self._follow(http, mission_id, watched, frame)
         self.mission_ok = record["status"] == "finished" and record.get("cause") == "success"
-        self.out(f"{self._stamp()} {self._outcome(record)}")
+        self.out(f"{self._stamp()} {outcome(record)}")
         sampler.cancel()
         await asyncio.gather(sampler, return_exceptions=True)
         await self._write_results(http, record, gs.lat, gs.lon)
@@ -224,17 +226,7 @@ class Demo:
         self.agents.append(_Agent(spec, proc, log_path, log_file))
 
     def _start_sensor(self, bus: Bus, world: World, drone_id: str, kind: str) -> None:
-        if kind == "temperature":
-            sensor = TemperatureSensor(bus, drone_id, world.heat_config(), keys=self.keys)
-            self._background(sensor.run(), f"the temperature sensor of {drone_id}")
-        else:  # announced with empty readings, so missions can assign by it (as in fast-time simulation)
-            self._background(self._presence(bus, drone_id, kind, world.sensor_rate_ms), f"the {kind} sensor of {drone_id}")
-
-    async def _presence(self, bus: Bus, drone_id: str, kind: str, rate_ms: int) -> None:
-        while True:
-            reading = SensorReading(drone_id=drone_id, timestamp=time.time_ns() // 1_000_000, type=kind, value=None)
-            bus.publish(self.keys.sensor(drone_id, kind), encode(reading))
-            await asyncio.sleep(rate_ms / 1000)
+        self._background(simulated_sensor(bus, drone_id, kind, world, keys=self.keys), f"the {kind} sensor of {drone_id}")
 
     async def _wait_drones(self, http: httpx.AsyncClient, specs: list[DroneSpec]) -> None:
         self.out(f"{self._stamp()} waiting for {len(specs)} drones to be ready with their sensors")
@@ -335,15 +327,6 @@ class Demo:
             parts.append(f"battery {t.battery.remaining_percent:.0%}")
         return f"{self._stamp()} " + " | ".join(parts)
 
-    @staticmethod
-    def _outcome(record: dict[str, Any]) -> str:
-        text = f"mission {record['mission_id']} {record['status']}"
-        if record.get("cause"):
-            text += f": {record['cause']}"
-        if record.get("message") and record["message"] not in (record.get("cause"), "success"):
-            text += f" - {record['message']}"
-        return text
-
     # ---- recording -------------------------------------------------------------------------
 
     def _on_telem(self, sample: Sample) -> None:
@@ -377,14 +360,7 @@ class Demo:
                 t = track.telem
                 if t is None or t.position is None or now - track.received > STALE_S:
                     continue
-                track.samples.append({
-                    "t_s": round(k * period, 3),
-                    "lat": round(t.position.lat, 8), "lon": round(t.position.lon, 8),
-                    "alt": round(t.position.alt, 3), "rel_alt": round(t.position.rel_alt, 3),
-                    "heading": round(t.heading, 2), "speed": round(t.speed, 3),
-                    "battery": round(t.battery.remaining_percent, 5) if t.battery else None,
-                    "state": track.state, "armed": t.armed, "sensors": dict(track.sensors),
-                })
+                track.samples.append(telemetry_sample(t, k * period, track.state, dict(track.sensors)))
 
     async def _write_results(self, http: httpx.AsyncClient, record: dict[str, Any], gs_lat: float, gs_lon: float) -> None:
         from mission.plots import write_plots

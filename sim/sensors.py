@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
-from typing import Annotated
+from collections.abc import Callable, Coroutine
+from typing import TYPE_CHECKING, Annotated, Any
 
 import msgspec
 from msgspec import Meta
@@ -28,6 +28,9 @@ from schemas.geo import distance_m
 from schemas.keys import Keys
 from schemas.telemetry import SensorReading, Telemetry
 from sim.world import HeatSource
+
+if TYPE_CHECKING:
+    from sim.world import World
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +99,22 @@ class TemperatureSensor:
                 await self.clock.sleep(self.config.rate_ms / 1000)
         finally:
             sub.close()
+
+
+def simulated_sensor(bus: Bus, drone_id: str, kind: str, world: World, *, clock: Clock | None = None,
+                     keys: Keys | None = None) -> Coroutine[Any, Any, None]:
+    """The world's simulated sensor `kind` on a drone: temperature from the heat field;
+    any other kind is announced with readings of value None, so missions can assign by it."""
+    if kind == "temperature":
+        return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys).run()
+    return _announce(bus, drone_id, kind, world.sensor_rate_ms, clock or SystemClock(), keys or Keys())
+
+
+async def _announce(bus: Bus, drone_id: str, kind: str, rate_ms: int, clock: Clock, keys: Keys) -> None:
+    while True:
+        reading = SensorReading(drone_id=drone_id, timestamp=clock.time_ms(), type=kind, value=None)
+        bus.publish(keys.sensor(drone_id, kind), encode(reading))
+        await clock.sleep(rate_ms / 1000)
 
 
 async def run_temperature_sensor(drone_id: str, config: HeatConfig, connect: list[str],

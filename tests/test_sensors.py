@@ -24,7 +24,7 @@ from schemas.keys import Keys
 from schemas.telemetry import SensorReading
 from sim.sensors import temperature_at
 from sim.world import HeatSource, World
-from tests.harness import AgentProcess, Operator, fleet_command
+from tests.harness import Operator, fleet_command
 from tests.helpers import Collector
 
 LAT, LON = 40.633490, -8.660815
