@@ -56,8 +56,11 @@ def main(verbose: int) -> None:
 @click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Agent YAML config.")
 @click.option("--fc", help="Flight controller URL: sim, udp://:14540, serial:///dev/ttyACM0[:baud], tcp://host:port.")
 @click.option("--connect", multiple=True, help="Zenoh endpoint of the ground router (repeatable), e.g. tcp/192.168.1.10:7447.")
+@click.option("--listen", multiple=True, help="Zenoh endpoint of this agent's own router (repeatable; default tcp/0.0.0.0:7448): on-board programs and neighbouring drones connect here.")
+@click.option("--mesh-interface", help="Radio interface on which to find neighbouring drones (multicast scouting), e.g. wlan0.")
 @click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
-def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], telemetry_rate_ms: int | None) -> None:
+def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
+          mesh_interface: str | None, telemetry_rate_ms: int | None) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
     from agent.config import AgentConfig
     from schemas.config import load_config
@@ -68,7 +71,8 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
         check_id(drone_id)
         config = load_config(
             AgentConfig, config_path,
-            {"fc": fc, "connect": list(connect) or None, "telemetry_rate_ms": telemetry_rate_ms},
+            {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
+             "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms},
         )
     except FleetError as exc:
         fail(str(exc), 2)
@@ -124,7 +128,10 @@ def sub(keyexpr: str, connect: tuple[str, ...], count: int | None) -> None:
 @click.option("--agent-config", type=click.Path(path_type=Path, dir_okay=False, exists=True), help="Config file passed to each agent.")
 @click.option("--base-port", type=click.IntRange(1025, 65000), default=14540, show_default=True, help="Vehicle i sends MAVLink to 127.0.0.1:BASE+i; fault control listens on BASE-1.")
 @click.option("--output", "outputs", multiple=True, help="Extra MAVLink output HOST:PORT for every vehicle (e.g. a GCS on 14550).")
-def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int, outputs: tuple[str, ...]) -> None:
+@click.option("--radio", is_flag=True, help="Emulated radio: each drone in its own network namespace, loss following the distances (needs root).")
+@click.option("--ground-port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="With --radio: the port of `fleet ground` the agents connect to at the laptop's radio address.")
+def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int,
+        outputs: tuple[str, ...], radio: bool, ground_port: int) -> None:
     """Run PX4-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
     from sim.fleet_sim import run_sim
     from sim.world import load_world
@@ -136,13 +143,23 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
         fail("--output takes HOST:PORT", 2)
     except FleetError as exc:
         fail(str(exc), 2)
+    if radio:
+        from sim.radio_net import RadioUnavailable, require_net_admin
+
+        try:
+            require_net_admin()
+        except RadioUnavailable as exc:
+            fail(str(exc), 2)
     try:
         run_async(run_sim(
             loaded, count, base_port=base_port, agents=agents, connect=list(connect),
-            agent_config=agent_config, extra_outputs=extra, out=lambda line: click.echo(line),
+            agent_config=agent_config, extra_outputs=extra, radio=radio, ground_port=ground_port,
+            out=lambda line: click.echo(line),
         ))
     except OSError as exc:
         fail(f"cannot bind the simulator's ports: {exc}")
+    except FleetError as exc:
+        fail(str(exc))
 
 
 @main.command()

@@ -12,10 +12,21 @@ from typing import Annotated
 import msgspec
 from msgspec import Meta
 
+from agent.link import LostLinkPolicy
+
+AGENT_PORT = 7448  # the agent's own router: on-board programs and neighbours connect here
+
 
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     fc: str = "udp://:14540"
     connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    # The agent is a router of the mesh (ADR 0003): on-board programs connect to it on
+    # 127.0.0.1, neighbouring drones on its radio address.
+    listen: list[str] = msgspec.field(default_factory=lambda: [f"tcp/0.0.0.0:{AGENT_PORT}"])
+    mesh_interface: str | None = None  # radio interface on which to find neighbours (multicast scouting)
+    lost_link: LostLinkPolicy = msgspec.field(default_factory=LostLinkPolicy)
+    probe_period_ms: Annotated[int, Meta(ge=100, le=60_000)] = 1000  # link probes to the ground and neighbours
+    probe_window: Annotated[int, Meta(ge=2, le=600)] = 10  # probes per peer that loss, RTT and jitter cover
     telemetry_rate_ms: Annotated[int, Meta(ge=20, le=60_000)] = 1000
     acceptance_radius: Annotated[float, Meta(gt=0.0, le=100.0)] = 0.5
     takeoff_altitude: Annotated[float, Meta(gt=0.0, le=1000.0)] = 15.0

@@ -1,8 +1,10 @@
 """The running agent: a flight controller, the command handler and the bus, wired.
 
-Start order: flight controller (exit fast if it is unreachable), then the Zenoh
-session (waits for the ground router), then the liveliness token, the command
-queryable and the publishing loops. Shutdown runs in reverse, in `finally`.
+Start order: flight controller (exit fast if it is unreachable), then the agent's
+own Zenoh router (ADR 0003: it joins the mesh, reaches the ground directly or through
+neighbours, and serves on-board programs even while the ground is gone), then the
+liveliness token, the command and ping queryables, the publishing loops, the link
+probe and the lost-link watch. Shutdown runs in reverse, in `finally`.
 """
 
 from __future__ import annotations
@@ -19,17 +21,22 @@ from agent.config import AgentConfig
 from agent.fc_port import FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
+from agent.link import LostLink, LostLinkAction
+from agent.prober import LinkProber
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
 from bus.port import Bus
 from schemas.codec import encode
-from schemas.commands import CommandReply, decode_command
+from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from schemas.errors import InvalidMessage
 from schemas.keys import Keys, check_id
 from schemas.status import CommandStatus, SystemStatus
 
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
+LOST_LINK_TICK_S = 0.2
+JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
+FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 
 
 def make_flight_controller(url: str, clock: Clock) -> FlightController:
@@ -59,6 +66,44 @@ class Agent:
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
         self._seq = 0
+        self.lost_link = LostLink(config.lost_link, clock.monotonic())
+        self.prober = LinkProber(
+            self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
+            on_ground_contact=self._on_ground_contact, window=config.probe_window,
+        )
+
+    def _system(self, state: str, reason: str | None = None) -> None:
+        self._publish_status(SystemStatus(
+            drone_id=self.drone_id, timestamp=self.clock.time_ms(), component="system",
+            state=state, reason=reason,  # type: ignore[arg-type]
+        ))
+
+    def _on_ground_contact(self, now: float) -> None:
+        for decision, summary in self.lost_link.contact(now):
+            log.warning("%s: ground reachable again, %s", self.drone_id, summary)
+            self._system(decision, summary)
+
+    async def _lost_link_loop(self) -> None:
+        while True:
+            state = self.fc.state()
+            flying = state.armed and state.landed_state not in ("on_ground", "unknown")
+            for decision, action in self.lost_link.tick(self.clock.monotonic(), flying):
+                if decision == "failsafe":
+                    self._failsafe(action)  # type: ignore[arg-type]
+                else:
+                    log.warning("%s: no answer from the ground for %g s", self.drone_id, self.config.lost_link.timeout_s)
+                    self._system(decision, f"no answer from the ground for {self.config.lost_link.timeout_s:g} s")
+            await self.clock.sleep(LOST_LINK_TICK_S)
+
+    def _failsafe(self, action: LostLinkAction) -> None:
+        """Act alone: the same handler and priority rules as a command from the ground."""
+        command = FAILSAFE_COMMANDS[action](
+            drone_id=self.drone_id, command_id=f"failsafe-{uuid.uuid4()}", timestamp=self.clock.time_ms(),
+        )
+        reply = self.handler.submit(command)
+        log.warning("%s: lost link failsafe: %s (%s)", self.drone_id, action,
+                    "accepted" if reply.accepted else f"refused: {reply.reason}")
+        self._system("failsafe", action)
 
     def _publish_status(self, status: CommandStatus | SystemStatus) -> None:
         self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
@@ -93,15 +138,38 @@ class Agent:
         """Serve until cancelled. The caller owns (and closes) fc and bus."""
         # Queryable first: once the liveliness token is visible, commands are served.
         queryable = self.bus.serve(self.keys.cmd(self.drone_id), self._on_command)
+        ping = self.bus.serve(self.keys.ping(self.drone_id), _echo)
         token = self.bus.announce(self.keys.alive(self.drone_id))
         log.info("%s: serving commands on %s", self.drone_id, self.keys.cmd(self.drone_id))
         try:
             async with asyncio.TaskGroup() as tg:
                 tg.create_task(self.handler.run(), name=f"{self.drone_id} handler")
                 tg.create_task(self._telemetry_loop(), name=f"{self.drone_id} telemetry")
+                tg.create_task(self.prober.run(), name=f"{self.drone_id} link probe")
+                tg.create_task(self._lost_link_loop(), name=f"{self.drone_id} lost link")
         finally:
-            queryable.close()
             token.close()
+            ping.close()
+            queryable.close()
+
+
+async def _join(bus: Bus, keys: Keys, drone_id: str) -> None:
+    """A router connects in the background (measured: the first put right after open
+    is lost). Give the ground JOIN_WAIT_S to appear so the agent's first statuses are
+    heard; without it the agent serves its on-board programs all the same."""
+    seen = asyncio.Event()
+    watch = bus.watch_liveliness(keys.ground_alive(), lambda key, alive: seen.set() if alive else None)
+    try:
+        async with asyncio.timeout(JOIN_WAIT_S):
+            await seen.wait()
+    except TimeoutError:
+        log.warning("%s: the ground is not reachable yet; serving without it", drone_id)
+    finally:
+        watch.close()
+
+
+async def _echo(key: str, payload: bytes) -> bytes:
+    return payload
 
 
 def _peek_command_id(payload: bytes) -> str:
@@ -128,9 +196,11 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
         await fc.close()
         raise FcUnavailable(f"no flight controller answered on {config.fc} within {FC_CONNECT_TIMEOUT_S:g} s") from None
     try:
-        log.info("%s: flight controller %s connected; joining the mesh via %s", drone_id, config.fc, ", ".join(config.connect))
-        bus = await ZenohBus.open("client", config.connect, wait=True)
+        log.info("%s: flight controller %s connected; router on %s joins the mesh via %s",
+                 drone_id, config.fc, ", ".join(config.listen) or "(no listener)", ", ".join(config.connect))
+        bus = await ZenohBus.open("router", config.connect, config.listen, mesh_interface=config.mesh_interface)
         try:
+            await _join(bus, Keys(config.namespace), drone_id)
             await Agent(drone_id, config, fc, bus, clock).run()
         finally:
             await bus.close()

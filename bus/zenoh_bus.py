@@ -1,9 +1,13 @@
 """The Bus on a real Eclipse Zenoh session (eclipse-zenoh 1.10).
 
-Configuration follows what was measured on these machines (SPEC §2): clients and
-peers announce a 2 s lease so a silent drone's liveliness vanishes in ≈ 2 s;
-multicast scouting is off; peers do not gossip (so traffic goes through the router
-and its access rules); a router opens with no scouting delay. Telemetry goes out
+Configuration follows what was measured on these machines (SPEC §2, ADR 0003): every
+node announces a 2 s lease so a silent drone's liveliness vanishes in ≈ 2 s;
+multicast scouting is off unless a mesh interface is named; peers do not gossip (so
+traffic goes through the routers and their access rules); a router opens with no
+scouting delay. A router that also connects out (a drone's agent, a mesh node) never
+waits for the ground at open, retries it every second, and connects to the routers
+it learns of by gossip (and by multicast scouting on `mesh_interface`), so the
+routers form a link-state mesh that carries a drone's traffic through a neighbour. Telemetry goes out
 with congestion control DROP, everything else with BLOCK. Callbacks run on Zenoh
 threads: they only hand off into bounded inboxes or the loop and return.
 """
@@ -41,6 +45,7 @@ def zenoh_config(
     listen: Sequence[str] = (),
     *,
     lease_ms: int = DEFAULT_LEASE_MS,
+    mesh_interface: str | None = None,
     extra: dict[str, Any] | None = None,
 ) -> zenoh.Config:
     conf = zenoh.Config()
@@ -54,10 +59,21 @@ def zenoh_config(
         put("connect/endpoints", list(connect))
     if listen:
         put("listen/endpoints", list(listen))
+    put("transport/link/tx/lease", lease_ms)
     if mode == "router":
         put("scouting/delay", 0)
-    else:
-        put("transport/link/tx/lease", lease_ms)
+        put("scouting/gossip/autoconnect", {"router": ["router"], "peer": ["router", "peer"]})
+        if connect:
+            # Measured (zenoh 1.10.2): 0 never retries an endpoint that was down at
+            # open; 1 ms returns at once and retries every period, for ever.
+            put("connect/timeout_ms", 1)
+            put("connect/exit_on_failure", False)
+            put("connect/retry", {"period_init_ms": 500, "period_max_ms": 1000, "period_increase_factor": 2})
+        if mesh_interface:
+            put("scouting/multicast/enabled", True)
+            put("scouting/multicast/interface", mesh_interface)
+            put("scouting/multicast/listen", True)
+            put("scouting/multicast/autoconnect", {"router": ["router"], "peer": ["router", "peer"]})
     if mode == "peer":
         put("scouting/gossip/enabled", False)
     for path, value in (extra or {}).items():
@@ -103,6 +119,7 @@ class ZenohBus:
         wait: bool = False,
         retry_s: float = 1.0,
         lease_ms: int = DEFAULT_LEASE_MS,
+        mesh_interface: str | None = None,
         extra: dict[str, Any] | None = None,
     ) -> ZenohBus:
         """Open a session. With `wait`, a client retries until a router answers
@@ -113,14 +130,14 @@ class ZenohBus:
             attempt += 1
             try:
                 session = await asyncio.to_thread(
-                    zenoh.open, zenoh_config(*conf_args, lease_ms=lease_ms, extra=extra)
+                    zenoh.open, zenoh_config(*conf_args, lease_ms=lease_ms, mesh_interface=mesh_interface, extra=extra)
                 )
                 return cls(session, asyncio.get_running_loop())
             except zenoh.ZError as exc:
                 if not wait:
                     raise BusError(f"cannot open Zenoh {mode} session ({', '.join(connect or listen)}): {exc}") from None
                 if attempt == 1 or attempt % 10 == 0:
-                    log.warning("waiting for the ground router at %s: %s", ", ".join(connect), exc)
+                    log.warning("waiting for a Zenoh router at %s: %s", ", ".join(connect), exc)
                 await asyncio.sleep(retry_s)
 
     def publish(self, key: str, payload: bytes, *, reliable: bool = True) -> None:

@@ -32,6 +32,7 @@ class BatteryLevels(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
 class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     return_on_critical_battery: bool = True  # a mission drone at critical battery is sent home
     end_action: Literal["hold", "return"] = "hold"  # what flying drones do when their mission ends
+    link_grace_s: Annotated[float, Meta(ge=0, le=3600)] = 30.0  # how long a mission waits for a drone whose link is lost
 
 
 class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -47,6 +48,7 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     mission: MissionSettings = msgspec.field(default_factory=MissionSettings)
     event_telemetry_ms: Annotated[int, Meta(ge=0, le=60_000)] = 500  # /events: one telemetry per drone per period
     command_timeout_ms: Annotated[int, Meta(ge=100, le=60_000)] = 3000  # waiting for an agent's reply
+    link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
 
     def __post_init__(self) -> None:
         if self.battery.critical > self.battery.low:

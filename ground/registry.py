@@ -18,7 +18,7 @@ import msgspec
 from ground.config import GroundConfig
 from ground.describe import Described, Level, describe_start, status_line, system_line
 from schemas.status import CommandStatus, Coords, SystemStatus
-from schemas.telemetry import MANUAL_MODES, SensorReading, Telemetry
+from schemas.telemetry import MANUAL_MODES, LinkQuality, SensorReading, Telemetry
 
 DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
 DRONE_STATES: tuple[str, ...] = get_args(DroneState)
@@ -27,6 +27,9 @@ CRITICAL_BATTERY = "Critical battery level"
 LOW_BATTERY = "Low battery level"
 FC_DISCONNECTED = "Flight controller disconnected"
 HEALTH_PREFIX = "Failed health check"
+LINK_DEGRADED = "Link degraded"
+LINK_LOST = "Link lost"
+LINK_RESTORED = "Link restored"
 
 
 class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):
@@ -46,6 +49,7 @@ class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
     mission: str | None
     errors: list[str]
     warns: list[str]
+    link: LinkQuality | None = None  # the drone's measured link to the ground
 
 
 class LogLine(msgspec.Struct, frozen=True, kw_only=True):
@@ -85,6 +89,7 @@ class _Drone:
     described: dict[str, Described] = field(default_factory=dict)  # command_id → how to name it
     sensors: dict[str, _Sensor] = field(default_factory=dict)
     mission: str | None = None
+    link: LinkQuality | None = None
     info: DroneInfo | None = None
 
 
@@ -152,23 +157,24 @@ class Registry:
             out.append(self._line(now_ms, "info", d, "Registered"))
             before_errors: list[str] = []
             before_warns: list[str] = []
-            reconnected = True
+            reconnected = first = True
         else:
             assert d.info is not None
             before_errors, before_warns = d.info.errors, d.info.warns
             if d.alive is False:
                 return out  # late samples of a session whose token is gone
-            reconnected = d.unknown
+            reconnected, first = d.unknown, False
             d.telem, d.last_telem_ms, d.unknown = telem, now_ms, False
         info = self._derive(d)
         for message in info.errors:
             if message not in before_errors:
                 out.append(self._line(now_ms, "error", d, message))
         for message in info.warns:
-            if message not in before_warns and message != FC_DISCONNECTED:
+            if message not in before_warns and message not in (FC_DISCONNECTED, LINK_DEGRADED):
                 out.append(self._line(now_ms, "warn", d, message))
         if reconnected:
-            out.append(self._line(now_ms, "info", d, "Established connection with ground station"))
+            message = "Established connection with ground station"
+            out.append(self._line(now_ms, "info", d, message if first else f"{LINK_RESTORED}: {message[0].lower()}{message[1:]}"))
         if before_errors and not info.errors:
             out.append(self._line(now_ms, "info", d, "Errors cleared"))
         return out + self._publish(d, info)
@@ -210,6 +216,21 @@ class Registry:
             return []
         return [self._line(now_ms, "info", d, f"Detected {reading.type} sensor"), *self._publish(d, self._derive(d))]
 
+    def on_link(self, quality: LinkQuality, now_ms: int) -> list[Event]:
+        """The drone's measured link to the ground (its `peer: ground` reports)."""
+        d = self._drones.get(quality.drone_id)
+        if d is None or quality.peer != "ground":
+            return []
+        assert d.info is not None
+        before = d.info.warns
+        d.link = quality
+        info = self._derive(d)
+        out: list[Event] = []
+        if LINK_DEGRADED in info.warns and LINK_DEGRADED not in before:
+            out.append(self._line(now_ms, "warn", d, f"{LINK_DEGRADED}: quality {quality.quality:.2f}, loss {quality.loss:.0%}"
+                                  + (f", rtt {quality.rtt_ms:.0f} ms" if quality.rtt_ms is not None else "")))
+        return out + self._publish(d, info)
+
     def on_liveliness(self, drone_id: str, alive: bool, now_ms: int) -> list[Event]:
         d = self._drones.get(drone_id)
         if d is None:
@@ -217,14 +238,14 @@ class Registry:
         d.alive = alive
         if alive or d.unknown:
             return []
-        return self._lose(d, now_ms, "Stopped receiving messages from drone (liveliness token lost)")
+        return self._lose(d, now_ms, f"{LINK_LOST}: stopped receiving messages from drone (liveliness token lost)")
 
     def tick(self, now_ms: int) -> list[Event]:
         """Time passing: drone and sensor timeouts (the thesis's scheduled monitors)."""
         out: list[Event] = []
         for d in self._drones.values():
             if not d.unknown and now_ms - d.last_telem_ms > self.config.drone_timeout_ms:
-                out += self._lose(d, now_ms, "Stopped receiving messages from drone")
+                out += self._lose(d, now_ms, f"{LINK_LOST}: stopped receiving messages from drone")
             for kind, sensor in list(d.sensors.items()):
                 limit = self.config.sensor_timeout_ms.get(kind, 0)
                 if limit and now_ms - sensor.received_ms > limit:
@@ -266,6 +287,8 @@ class Registry:
             errors.append(f"{HEALTH_PREFIX}: {', '.join(t.health_failures)}")
         if d.fc_disconnected:
             warns.append(FC_DISCONNECTED)
+        if d.link is not None and not d.unknown and d.link.quality < self.config.link_degraded_below:
+            warns.append(LINK_DEGRADED)
         state: DroneState
         if d.unknown:
             state = "unknown"
@@ -281,7 +304,7 @@ class Registry:
             state = "ready"
         return DroneInfo(
             drone_id=d.drone_id, state=state, current_command=d.current, sensors=sorted(d.sensors),
-            mission=d.mission, errors=errors, warns=warns,
+            mission=d.mission, errors=errors, warns=warns, link=d.link,
         )
 
     def _publish(self, d: _Drone, info: DroneInfo) -> list[Event]:

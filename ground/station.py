@@ -25,11 +25,11 @@ from bus.port import Bus, Declaration, Sample
 from ground.config import GroundConfig
 from ground.eventlog import EventLog
 from ground.registry import Event, InfoChanged, LogLine, Registry
-from schemas.codec import decode_sensor, decode_status, decode_telemetry, encode
+from schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command
 from schemas.errors import FleetError, InvalidMessage
 from schemas.keys import Keys
-from schemas.telemetry import SensorReading, Telemetry
+from schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
 TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late
@@ -87,6 +87,7 @@ class GroundStation:
             self.bus.subscribe(k.telem(), self._on_telemetry, latest_only=True, maxsize=8192),
             self.bus.subscribe(k.status(), self._on_status, maxsize=65_536),
             self.bus.subscribe(k.sensor(), self._on_sensor, latest_only=True, maxsize=8192),
+            self.bus.subscribe(k.link(), self._on_link, latest_only=True, maxsize=8192),
             self.bus.watch_liveliness(k.alive(), self._on_liveliness),
             self.bus.serve(k.ground_ping(), self._on_ping),
             self.bus.announce(k.ground_alive()),
@@ -199,6 +200,11 @@ class GroundStation:
         reading: SensorReading | None = self._from_drone(decode_sensor, sample)
         if reading is not None:
             self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
+
+    def _on_link(self, sample: Sample) -> None:
+        quality: LinkQuality | None = self._from_drone(decode_link, sample)
+        if quality is not None:
+            self._emit(self.registry.on_link(quality, self.clock.time_ms()))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         parsed = self.keys.parse(key)

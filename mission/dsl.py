@@ -24,6 +24,7 @@ from greenlet import getcurrent
 
 from mission.runtime import Stopped, Subroutine, await_
 from mission.sandbox import Guards
+from schemas.telemetry import LinkQuality
 from schemas.geo import angle_diff_deg, normalize_deg
 
 COMPLETED = frozenset({"success", "finish"})
@@ -194,8 +195,10 @@ class Drone:
         return CommandView(c, current.description, target)
 
     @property
-    def link(self) -> None:
-        return None  # link quality arrives with the link-probe work (SPEC §2 LinkQuality)
+    def link(self) -> LinkQuality | None:
+        """The drone's measured link to the ground (`.quality`, `.rtt_ms`, `.jitter_ms`,
+        `.loss`), or None before its first probe report."""
+        return self._m.station.registry.info(self._live()).link
 
     def as_position(self) -> Position:
         return self.position

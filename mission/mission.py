@@ -140,6 +140,7 @@ class Mission:
         self._ended = asyncio.Event()
         self._stop_listening: Callable[[], None] | None = None
         self._critical: set[str] = set()
+        self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
         self._wrappers: list[Drone] = []
         self.plugins = MissionPlugins(self, plugins)
         self._enable_first = enable or {}
@@ -231,6 +232,9 @@ class Mission:
             self.log("error", "a subroutine did not stop within 1 s")
         if self._stop_listening is not None:
             self._stop_listening()
+        for wait in self._link_waits.values():
+            wait.cancel()
+        self._link_waits.clear()
         for fut in self._pending.values():
             if not fut.done():
                 fut.cancel()
@@ -310,10 +314,12 @@ class Mission:
             self.end("manual", f"{status.drone_id} is under manual control")
 
     def _on_drone(self, info: DroneInfo) -> None:
+        if info.state == "unknown":
+            self._link_lost(info.drone_id)
+            return
+        self._link_back(info.drone_id)
         if info.state == "manual":
             self.end("manual", f"{info.drone_id} is under manual control")
-        elif info.state == "unknown":
-            self.end("timeout", f"{info.drone_id} stopped sending telemetry")
         elif info.state == "error":
             if CRITICAL_BATTERY in info.errors:
                 self._critical.add(info.drone_id)
@@ -324,6 +330,28 @@ class Mission:
                 missing = sorted(request.sensors - set(info.sensors))
                 if missing:
                     self.end("sensor", f"{info.drone_id} lost its {', '.join(missing)} sensor")
+
+    def _link_lost(self, drone_id: str) -> None:
+        """A drone out of reach is not yet a failure: it may be flying back into range
+        (or finishing work alone). Wait `mission.link_grace_s` for it."""
+        if drone_id in self._link_waits or self.ending:
+            return
+        grace = self.config.mission.link_grace_s
+        self.log("warn", f"{drone_id}: link lost; waiting up to {grace:g} s for it to come back")
+        self._link_waits[drone_id] = asyncio.get_running_loop().create_task(
+            self._link_grace(drone_id, grace), name=f"mission {self.id} link grace {drone_id}",
+        )
+
+    async def _link_grace(self, drone_id: str, grace_s: float) -> None:
+        await self.clock.sleep(grace_s)
+        self._link_waits.pop(drone_id, None)
+        self.end("link_lost", f"{drone_id} unreachable for {grace_s:g} s (mission.link_grace_s)")
+
+    def _link_back(self, drone_id: str) -> None:
+        wait = self._link_waits.pop(drone_id, None)
+        if wait is not None:
+            wait.cancel()
+            self.log("info", f"{drone_id}: link restored, the mission goes on")
 
     # ---- what verbs call (on the loop) ----------------------------------------------
 

@@ -28,7 +28,7 @@ def check_id(value: str, what: str = "drone id") -> str:
 
 class DroneKey(msgspec.Struct, frozen=True):
     drone_id: str
-    kind: str  # telem | status | cmd | bundle | link | alive | sensor
+    kind: str  # telem | status | cmd | bundle | link | ping | alive | sensor
     rest: str = ""  # sensor type for `sensor/<type>`
 
 
@@ -52,6 +52,9 @@ class Keys(msgspec.Struct, frozen=True):
 
     def link(self, drone_id: str = "*") -> str:
         return self._k("drone", drone_id, "link")
+
+    def ping(self, drone_id: str) -> str:
+        return self._k("drone", drone_id, "ping")
 
     def alive(self, drone_id: str = "*") -> str:
         return self._k("drone", drone_id, "alive")

@@ -90,9 +90,13 @@ class SensorReading(_Msg, frozen=True, kw_only=True):
 
 
 class LinkQuality(_Msg, frozen=True, kw_only=True):
+    """Measured by the agent's probes on the real transport (SPEC §2, §8), never from distance."""
+
     drone_id: str
     timestamp: int
-    rtt_ms: float | None
-    jitter_ms: float | None
-    loss: float  # 0..1 over the last window
-    quality: float  # 0..1
+    peer: str = "ground"  # "ground" or another drone's id
+    rtt_ms: float | None = None  # mean over the answered probes of the window
+    jitter_ms: float | None = None  # mean change between consecutive RTTs
+    loss: float = 0.0  # 0..1: probes unanswered over the last window
+    quality: float = 0.0  # 0..1 score from loss and rtt
+    hops: int | None = None  # mesh hops to the peer when known

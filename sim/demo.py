@@ -220,7 +220,8 @@ class Demo:
         fc = f"sim://?lat={spec.lat!r}&lon={spec.lon!r}&alt={spec.alt!r}"
         proc = subprocess.Popen(
             [sys.executable, "-m", "fleet_cli", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
-             "--telemetry-rate-ms", str(TELEMETRY_RATE_MS)],
+             # three agents share this host: each router on its own ephemeral loopback port
+             "--listen", "tcp/127.0.0.1:0", "--telemetry-rate-ms", str(TELEMETRY_RATE_MS)],
             stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, cwd=REPO,
         )
         self.agents.append(_Agent(spec, proc, log_path, log_file))

@@ -6,6 +6,11 @@ state or link changes. Faults come from the world file (`faults: [{at_s, fault}]
 or the control channel: JSON datagrams on 127.0.0.1:(base-1), e.g.
 `{"drone": "drone01", "fault": "rc_takeover"}` (see `fleet fault`). Everything
 started here stops on Ctrl-C/SIGTERM.
+
+With `radio`, each drone lives in its own network namespace on the emulated radio
+(sim/radio_field.py): its MAVLink socket is made there (the link between autopilot
+and companion computer stays on the drone), its agent and sensor programs run
+there, and the loss between every pair of nodes follows the simulated distances.
 """
 
 from __future__ import annotations
@@ -14,12 +19,16 @@ import asyncio
 import logging
 import subprocess
 import sys
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from sim.faults import FaultChannel, apply_fault, open_fault_channel
 from sim.mavlink_endpoint import MavlinkVehicle
+from sim.radio import Spot3
+from sim.radio_field import RadioField
+from sim.radio_net import die_with_parent, socket_in_netns
 from sim.vehicle import Vehicle
 from sim.world import DroneSpec, World
 
@@ -59,6 +68,8 @@ async def run_sim(
     connect: list[str] | None = None,
     agent_config: Path | None = None,
     extra_outputs: list[tuple[str, int]] | None = None,
+    radio: bool = False,
+    ground_port: int = 7447,
     out: Callable[[str], None] = print,
 ) -> None:
     specs = world.spawn(n)
@@ -67,17 +78,24 @@ async def run_sim(
     children: list[subprocess.Popen[bytes]] = []
     control_transport: asyncio.BaseTransport | None = None
     loop = asyncio.get_running_loop()
+    field = RadioField(world, [s.id for s in specs], ground_port).up() if radio else None
+    scratch = tempfile.TemporaryDirectory(prefix="fleet-sim-")
     try:
+        if field is not None:
+            for line in field.describe():
+                out(line)
         for i, spec in enumerate(specs):
             assert spec.lat is not None and spec.lon is not None and spec.alt is not None
             vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params())
-            port = base_port + i
+            # On the radio every drone has its own 127.0.0.1: PX4's first ports serve all.
+            port = base_port + (0 if field else i)
             endpoint = MavlinkVehicle(
                 vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])],
                 on_change=lambda ep, sv_id=spec.id: out(status_line(vehicles[sv_id])) if sv_id in vehicles else None,
             )
-            local = PX4_SITL_LOCAL + i if base_port == PX4_SITL_BASE else 0
-            await endpoint.start(("127.0.0.1", local))
+            local = PX4_SITL_LOCAL + (0 if field else i) if base_port == PX4_SITL_BASE else 0
+            sock = socket_in_netns(field.net.netns(spec.id)) if field else None
+            await endpoint.start(("127.0.0.1", local), sock)
             vehicles[spec.id] = SimVehicle(spec, endpoint, port)
             tasks.append(loop.create_task(endpoint.run(), name=f"sim {spec.id}"))
             for fault in spec.faults:
@@ -89,15 +107,31 @@ async def run_sim(
         out(f"{len(vehicles)} simulated vehicle(s); fault control on udp 127.0.0.1:{base_port - 1}")
         for v in vehicles.values():
             out(status_line(v))
+        if field is not None:
+            def where() -> dict[str, Spot3]:
+                return {k: Spot3(p.lat, p.lon, p.alt) for k, v in vehicles.items() if (p := v.endpoint.vehicle.position())}
+
+            field.update(where())
+            tasks.append(loop.create_task(field.follow(where), name="radio"))
         if agents:
             for v in vehicles.values():
-                args = [sys.executable, "-m", "fleet_cli", "agent", "--id", v.spec.id, "--fc", f"udpin://127.0.0.1:{v.port}"]
-                for ep in connect or []:
-                    args += ["--connect", ep]
-                if agent_config is not None:
-                    args += ["--config", str(agent_config)]
-                children.append(subprocess.Popen(args))
+                fc = f"udpin://127.0.0.1:{v.port}"
+                if field is not None:
+                    args = field.agent_args(v.spec.id, fc, agent_config)
+                else:
+                    args = [sys.executable, "-m", "fleet_cli", "agent", "--id", v.spec.id, "--fc", fc,
+                            "--listen", "tcp/127.0.0.1:0"]
+                    for ep in connect or []:
+                        args += ["--connect", ep]
+                    if agent_config is not None:
+                        args += ["--config", str(agent_config)]
+                children.append(subprocess.Popen(args, preexec_fn=die_with_parent))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
+                for kind in v.spec.sensors if field is not None else []:
+                    sensor_args = field.sensor_args(v.spec.id, kind, Path(scratch.name))
+                    if sensor_args is not None:
+                        children.append(subprocess.Popen(sensor_args, preexec_fn=die_with_parent))
+                        out(f"{kind} sensor of {v.spec.id} started (pid {children[-1].pid})")
         await asyncio.gather(*tasks)
     finally:
         for child in children:
@@ -115,3 +149,6 @@ async def run_sim(
             v.endpoint.close()
         if control_transport is not None:
             control_transport.close()
+        if field is not None:
+            field.close()
+        scratch.cleanup()

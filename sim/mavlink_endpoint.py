@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import socket
 import struct
 import time
 from collections.abc import Callable
@@ -117,9 +118,15 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
 
     # ----- lifecycle -----------------------------------------------------------------
 
-    async def start(self, bind: tuple[str, int]) -> None:
+    async def start(self, bind: tuple[str, int], sock: socket.socket | None = None) -> None:
+        """Listen on `bind`; or on `sock` bound there (a socket made in a drone's
+        network namespace, so the MAVLink link stays on the drone)."""
         loop = asyncio.get_running_loop()
-        await loop.create_datagram_endpoint(lambda: self, local_addr=bind)
+        if sock is None:
+            await loop.create_datagram_endpoint(lambda: self, local_addr=bind)
+        else:
+            sock.bind(bind)
+            await loop.create_datagram_endpoint(lambda: self, sock=sock)
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport  # type: ignore[assignment]

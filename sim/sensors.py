@@ -122,7 +122,7 @@ async def run_temperature_sensor(drone_id: str, config: HeatConfig, connect: lis
     """`fleet sensor temperature`: a Zenoh client next to the drone's agent."""
     from bus.zenoh_bus import ZenohBus
 
-    bus = await ZenohBus.open("client", connect=connect)
+    bus = await ZenohBus.open("client", connect=connect, wait=True)  # the agent may start later
     done = asyncio.Event()
 
     def show(reading: SensorReading) -> None:

@@ -11,6 +11,7 @@ import msgspec
 from msgspec import Meta
 
 from schemas.geo import destination
+from sim.radio import RadioModel
 from sim.vehicle import VehicleParams
 
 if TYPE_CHECKING:
@@ -71,6 +72,12 @@ class World(_Strict):
     heat_sources: list[HeatSource] = []
     sensor_rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200  # simulated sensors publish this often
     battery: BatteryModel = BatteryModel()
+    radio: RadioModel = RadioModel()  # distance → loss between any two nodes (SPEC §8)
+
+    def ground_spot(self) -> Spot:
+        """Where the field laptop stands: `ground_station`, else the origin, at field level."""
+        spot = self.ground_station or self.origin
+        return Spot(lat=spot.lat, lon=spot.lon, alt=spot.alt or self.origin.alt)
 
     def heat_config(self) -> HeatConfig:
         from sim.sensors import HeatConfig

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from bus.zenoh_bus import ZenohBus
-from tests.harness import AgentProcess, Operator
+from tests.harness import AgentProcess, Operator, open_ground_router
 from tests.helpers import free_port
 
 
@@ -21,7 +21,7 @@ def endpoint() -> str:
 
 @pytest.fixture
 async def router(endpoint: str) -> AsyncIterator[ZenohBus]:
-    bus = await ZenohBus.open("router", listen=[endpoint])
+    bus = await open_ground_router(endpoint)
     yield bus
     await bus.close()
 

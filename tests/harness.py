@@ -34,6 +34,20 @@ def fleet_command(*args: str) -> list[str]:
     return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet_cli", *args]
 
 
+async def _echo(key: str, payload: bytes) -> bytes:
+    return payload
+
+
+async def open_ground_router(endpoint: str) -> ZenohBus:
+    """A bare router playing the ground as `fleet ground` does: it announces
+    `ground/alive` (agents wait for it at start) and answers their link probes on
+    `ground/ping`, so they do not fall into lost-link."""
+    bus = await ZenohBus.open("router", listen=[endpoint])
+    bus.serve(Keys().ground_ping(), _echo)
+    bus.announce(Keys().ground_alive())
+    return bus
+
+
 class ChildProcess:
     """A `fleet …` child process logging to a file; always stopped by whoever made it."""
 
@@ -75,7 +89,8 @@ class AgentProcess(ChildProcess):
     def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
         self.drone_id = self.name = drone_id
         cfg = tmp / f"{drone_id}.yml"
-        cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, **config}))
+        # Each agent's own router on an ephemeral loopback port: several share this host.
+        cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, "listen": ["tcp/127.0.0.1:0"], **config}))
         super().__init__(
             fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args),
             tmp / f"{drone_id}.log",
@@ -167,10 +182,13 @@ class GroundProcess(ChildProcess):
 
     name = "fleet ground"
 
-    def __init__(self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), **config: Any) -> None:
+    def __init__(
+        self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), *,
+        zenoh_host: str = "127.0.0.1", **config: Any,
+    ) -> None:
         self.zenoh_port = free_port()
         self.http_port = free_port()
-        self.endpoint = f"tcp/127.0.0.1:{self.zenoh_port}"
+        self.endpoint = f"tcp/{zenoh_host}:{self.zenoh_port}"
         self.url = f"http://127.0.0.1:{self.http_port}"
         self.data_dir = data_dir or tmp / "ground-data"
         cfg = tmp / f"ground-{self.http_port}.yml"

@@ -14,7 +14,7 @@ import pytest
 from bus.zenoh_bus import ZenohBus
 from schemas.commands import CommandReply
 from schemas.keys import Keys
-from tests.harness import AgentProcess, Operator, fleet_command
+from tests.harness import AgentProcess, Operator, fleet_command, open_ground_router
 from tests.helpers import free_port
 
 pytestmark = pytest.mark.integration
@@ -78,7 +78,7 @@ async def test_agent_refuses_bad_commands_and_keeps_running(
 
 async def test_agent_reconnects_after_the_router_restarts(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = await ZenohBus.open("router", listen=[endpoint])
+    router = await open_ground_router(endpoint)
     agent = AgentProcess("drone03", endpoint, tmp_path)
     client = await ZenohBus.open("client", connect=[endpoint])
     try:
@@ -89,7 +89,7 @@ async def test_agent_reconnects_after_the_router_restarts(tmp_path: Path) -> Non
         # The outage itself (not a settling wait): a second with no router, during
         # which the agent's ten telemetry samples have nowhere to go.
         await asyncio.sleep(OUTAGE_S)
-        router = await ZenohBus.open("router", listen=[endpoint])
+        router = await open_ground_router(endpoint)
         first = await op.next_telemetry(timeout_s=30, what="telemetry after the router restart")
         # Samples published while no router ran were lost, not buffered: a gap proves
         # the link really went down and came back.

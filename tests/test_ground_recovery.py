@@ -35,7 +35,7 @@ async def test_killed_agent_is_unknown_within_3_s_and_ready_again_after_restart(
         agent.kill()
         await wait_state(http, "drone01", "unknown", 3.0)  # the agent's 2 s liveliness lease
         log = (await http.get("/drone/logs", params={"drone_id": "drone01", "loglevel": "warn"})).text
-        assert "WARN drone01 - Stopped receiving messages from drone" in log
+        assert "WARN drone01 - Link lost: stopped receiving messages from drone" in log
         refused = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})
         assert refused.status_code == 409 and "unknown" in refused.json()["error"]
         # `return` always goes through the ground; nobody answers it: 504.
@@ -46,8 +46,8 @@ async def test_killed_agent_is_unknown_within_3_s_and_ready_again_after_restart(
         agent.start()
         await wait_state(http, "drone01", "ready", 30)
         lines = (await http.get("/drone/logs", params={"drone_id": "drone01"})).text.splitlines()
-        stopped = max(i for i, line in enumerate(lines) if "Stopped receiving messages" in line)
-        assert any("Established connection with ground station" in line for line in lines[stopped:])
+        stopped = max(i for i, line in enumerate(lines) if "Link lost: stopped receiving messages" in line)
+        assert any("Link restored: established connection with ground station" in line for line in lines[stopped:])
 
 
 async def test_killed_ground_restarted_on_the_same_data_dir_keeps_every_log_line(ground_and_agent: tuple[GroundProcess, AgentProcess]) -> None:

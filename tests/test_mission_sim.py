@@ -172,13 +172,19 @@ async def test_critical_battery_fails_and_sends_the_drone_home() -> None:
     assert field.vehicles["drone01"].mode in ("return_to_launch", "land") or field.vehicles["drone01"].rel_alt < 0.5
 
 
-async def test_timeout_when_the_agent_dies() -> None:
+async def test_link_lost_after_the_grace_when_the_agent_dies() -> None:
+    killed_at: list[float] = []
+
     async def kill(field: SimField, mission_id: str) -> None:
         await field.until(lambda: field.vehicles["drone01"].rel_alt > 5)
         field.kill_agent("drone01")
+        killed_at.append(field.clock.time_ms())
 
-    record, _, _ = await fly(FLY + "sleep(100)\n", world_with(), during=kill)
-    assert cause(record) == ("failed", "timeout")
+    record, field, lines = await fly(FLY + "sleep(100)\n", world_with(), during=kill)
+    assert cause(record) == ("failed", "link_lost")
+    assert "drone01: link lost; waiting up to 30 s for it to come back" in lines
+    # The mission waited the whole grace (30 s default) after the drone went silent.
+    assert record.end is not None and record.end - killed_at[0] >= 30_000
 
 
 async def test_unexpected(monkeypatch: pytest.MonkeyPatch) -> None:

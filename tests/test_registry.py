@@ -111,12 +111,12 @@ def test_silence_past_the_timeout_makes_the_drone_unknown_until_telemetry_resume
     reg.on_telemetry(telem(), 0)
     reg.on_status(cmd_status("start"), 10)
     assert reg.tick(5000) == []
-    assert lines(reg.tick(5001)) == ["WARN Stopped receiving messages from drone"]
+    assert lines(reg.tick(5001)) == ["WARN Link lost: stopped receiving messages from drone"]
     info = reg.info("drone01")
     assert info.state == "unknown" and info.current_command is None
     assert reg.tick(9000) == []  # said once
     assert reg.check_command("drone01", "arm").status == 409  # type: ignore[union-attr]
-    assert lines(reg.on_telemetry(telem(), 9100)) == ["INFO Established connection with ground station"]
+    assert lines(reg.on_telemetry(telem(), 9100)) == ["INFO Link restored: established connection with ground station"]
     assert reg.info("drone01").state == "ready"
 
 
@@ -124,12 +124,12 @@ def test_liveliness_loss_is_unknown_at_once_and_late_samples_do_not_revive(reg: 
     reg.on_telemetry(telem(), 0)
     reg.on_liveliness("drone01", True, 1)
     assert lines(reg.on_liveliness("drone01", False, 100)) == [
-        "WARN Stopped receiving messages from drone (liveliness token lost)"
+        "WARN Link lost: stopped receiving messages from drone (liveliness token lost)"
     ]
     assert reg.on_telemetry(telem(), 150) == []
     assert reg.info("drone01").state == "unknown"
     reg.on_liveliness("drone01", True, 2000)
-    assert lines(reg.on_telemetry(telem(), 2100)) == ["INFO Established connection with ground station"]
+    assert lines(reg.on_telemetry(telem(), 2100)) == ["INFO Link restored: established connection with ground station"]
 
 
 def test_flight_controller_disconnect_is_a_warning(reg: Registry) -> None:

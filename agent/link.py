@@ -1,0 +1,138 @@
+"""Link quality and lost-link behaviour as pure logic (SPEC §8): probe outcomes in,
+scores and decisions out. No I/O and no clock reads: the prober and the agent feed
+times and act on what comes back.
+
+Quality is measured, never derived from distance: each probe is a query to the
+peer's ping queryable over the real transport; a window of the last probes gives
+loss (unanswered share), mean RTT and jitter (mean change between consecutive
+RTTs), and a score in [0, 1] that falls with loss and with RTT past what a healthy
+radio hop shows.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import msgspec
+from msgspec import Meta
+
+WINDOW = 10  # probes per sliding window (one a second: the last 10 s)
+RTT_GOOD_MS = 50.0  # RTTs up to this cost nothing
+RTT_BAD_MS = 1000.0  # an RTT this long scores zero
+DEGRADED_BELOW = 0.5  # quality under this is "link degraded"
+
+LostLinkAction = Literal["hold", "return", "land", "continue"]
+
+
+class LostLinkPolicy(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Agent config `lost_link`: what the drone does alone when the ground is gone."""
+
+    timeout_s: Annotated[float, Meta(gt=0, le=3600)] = 5.0
+    action: LostLinkAction = "hold"
+    return_after_s: Annotated[float, Meta(ge=0, le=86_400)] = 30.0  # hold this long, then return
+
+
+def quality_score(loss: float, rtt_ms: float | None) -> float:
+    if rtt_ms is None:
+        return 0.0
+    rtt_factor = 1.0 - min(1.0, max(0.0, (rtt_ms - RTT_GOOD_MS) / (RTT_BAD_MS - RTT_GOOD_MS)))
+    return round((1.0 - loss) * rtt_factor, 3)
+
+
+@dataclass(frozen=True, slots=True)
+class LinkSummary:
+    rtt_ms: float | None
+    jitter_ms: float | None
+    loss: float
+    quality: float
+
+
+class LinkWindow:
+    """The last WINDOW probe outcomes to one peer: an RTT in ms, or None if unanswered."""
+
+    def __init__(self, size: int = WINDOW) -> None:
+        self._outcomes: deque[float | None] = deque(maxlen=size)
+
+    def add(self, rtt_ms: float | None) -> None:
+        self._outcomes.append(rtt_ms)
+
+    def __len__(self) -> int:
+        return len(self._outcomes)
+
+    def summary(self) -> LinkSummary:
+        answered = [r for r in self._outcomes if r is not None]
+        loss = 1.0 - len(answered) / len(self._outcomes) if self._outcomes else 1.0
+        rtt = sum(answered) / len(answered) if answered else None
+        steps = [abs(b - a) for a, b in zip(answered, answered[1:])]
+        jitter = sum(steps) / len(steps) if steps else (0.0 if answered else None)
+        return LinkSummary(
+            rtt_ms=None if rtt is None else round(rtt, 3),
+            jitter_ms=None if jitter is None else round(jitter, 3),
+            loss=round(loss, 3),
+            quality=quality_score(loss, rtt),
+        )
+
+
+# ("link_lost", None), ("failsafe", action), ("link_restored", what happened meanwhile)
+Decision = tuple[Literal["link_lost", "failsafe", "link_restored"], str | None]
+
+
+class LostLink:
+    """When the ground has been silent for `timeout_s`: lost, act; hold → return later.
+
+    `contact(now)` is any sign of the ground (an answered probe); `tick(now, flying)`
+    runs often. Decisions: ("link_lost", None), ("failsafe", action),
+    ("link_restored", summary). Acting only happens in the air; a drone on the ground
+    reports the loss and stays put. What was said while the ground was gone never
+    reached it, so the restore's summary repeats it: how long, and what the drone did.
+
+    At the edge of range a link flaps. An outage therefore ends only after contact
+    has held for `timeout_s`: until then a new loss continues the same outage, the
+    hold → return timer keeps counting from its first loss, and no failsafe repeats.
+    """
+
+    def __init__(self, policy: LostLinkPolicy, now: float) -> None:
+        self.policy = policy
+        self.last_contact = now
+        self.lost = False
+        self.acted: LostLinkAction | None = None
+        self.actions: list[LostLinkAction] = []  # taken during this outage
+        self._outage_at: float | None = None  # first loss of the open outage
+        self._restored_at = 0.0
+
+    def contact(self, now: float) -> list[Decision]:
+        silent_s = now - self.last_contact
+        self.last_contact = now
+        if not self.lost:
+            return []
+        self.lost = False
+        self._restored_at = now
+        summary = f"after {silent_s:.1f} s without the ground; failsafe: {', '.join(self.actions) or 'none'}"
+        return [("link_restored", summary)]
+
+    def tick(self, now: float, flying: bool) -> list[Decision]:
+        p = self.policy
+        decisions: list[Decision] = []
+        if not self.lost:
+            if now - self.last_contact < p.timeout_s:
+                if self._outage_at is not None and now - self._restored_at >= p.timeout_s:
+                    self._outage_at, self.acted, self.actions = None, None, []  # steady again
+                return decisions
+            self.lost = True
+            if self._outage_at is None:
+                self._outage_at = now
+            decisions.append(("link_lost", None))
+        if not flying:
+            return decisions
+        assert self._outage_at is not None
+        if self.acted is None and p.action != "continue":
+            self.acted = p.action
+        elif self.acted == "hold" and now - self._outage_at >= p.return_after_s:
+            self.acted = "return"
+        else:
+            return decisions
+        self.actions.append(self.acted)
+        decisions.append(("failsafe", self.acted))
+        return decisions

@@ -1,0 +1,103 @@
+"""The agent's link probe (SPEC §8): every period, one query to `ground/ping` and one
+to each neighbour's `drone/<id>/ping`, over whatever path the mesh takes; each
+outcome feeds that peer's window, and a LinkQuality per peer goes out on
+`drone/<id>/link`. Neighbours are the drones whose liveliness token this agent sees.
+
+An answered ground probe is the agent's sign of the ground: `on_ground_contact` is
+called with its time, which drives the lost-link policy.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+
+import msgspec
+
+from agent.link import WINDOW, LinkWindow
+from bus.clock import Clock
+from bus.port import Bus, BusError
+from schemas.codec import encode
+from schemas.keys import Keys
+from schemas.telemetry import LinkQuality
+
+log = logging.getLogger(__name__)
+GROUND = "ground"
+
+
+class Ping(msgspec.Struct, frozen=True, kw_only=True):
+    drone_id: str  # who probes
+    timestamp: int
+    seq: int
+
+
+class LinkProber:
+    def __init__(
+        self, drone_id: str, bus: Bus, keys: Keys, clock: Clock, period_s: float,
+        on_ground_contact: Callable[[float], None], window: int = WINDOW,
+    ) -> None:
+        self.drone_id = drone_id
+        self.bus = bus
+        self.keys = keys
+        self.clock = clock
+        self.period_s = period_s
+        self.on_ground_contact = on_ground_contact
+        self.window = window
+        self.windows: dict[str, LinkWindow] = {GROUND: LinkWindow(window)}
+        self.neighbours: set[str] = set()
+        self.latest: dict[str, LinkQuality] = {}
+        self._seq = 0
+
+    def on_liveliness(self, key: str, alive: bool) -> None:
+        parsed = self.keys.parse(key)
+        if parsed is None or parsed.drone_id == self.drone_id:
+            return
+        if alive:
+            self.neighbours.add(parsed.drone_id)
+            self.windows.setdefault(parsed.drone_id, LinkWindow(self.window))
+        else:
+            self.neighbours.discard(parsed.drone_id)
+
+    async def run(self) -> None:
+        watch = self.bus.watch_liveliness(self.keys.alive(), self.on_liveliness)
+        try:
+            next_at = self.clock.monotonic()
+            while True:
+                await self.probe_all()
+                next_at += self.period_s
+                await self.clock.sleep(max(0.0, next_at - self.clock.monotonic()))
+        finally:
+            watch.close()
+
+    async def probe_all(self) -> None:
+        peers = [GROUND, *sorted(self.neighbours)]
+        rtts = await asyncio.gather(*(self._probe(peer) for peer in peers))
+        now_ms = self.clock.time_ms()
+        for peer, rtt in zip(peers, rtts):
+            window = self.windows[peer]
+            window.add(rtt)
+            s = window.summary()
+            quality = LinkQuality(
+                drone_id=self.drone_id, timestamp=now_ms, peer=peer,
+                rtt_ms=s.rtt_ms, jitter_ms=s.jitter_ms, loss=s.loss, quality=s.quality,
+            )
+            self.latest[peer] = quality
+            try:
+                self.bus.publish(self.keys.link(self.drone_id), encode(quality), reliable=False)
+            except BusError as exc:
+                log.debug("%s: link quality not published: %s", self.drone_id, exc)
+
+    async def _probe(self, peer: str) -> float | None:
+        self._seq += 1
+        key = self.keys.ground_ping() if peer == GROUND else self.keys.ping(peer)
+        ping = Ping(drone_id=self.drone_id, timestamp=self.clock.time_ms(), seq=self._seq)
+        sent = self.clock.monotonic()
+        try:
+            await self.bus.query(key, encode(ping), timeout_s=self.period_s)
+        except (BusError, TimeoutError):
+            return None
+        now = self.clock.monotonic()
+        if peer == GROUND:
+            self.on_ground_contact(now)
+        return (now - sent) * 1000.0

@@ -1,0 +1,85 @@
+"""The simulated field on the emulated radio: drones' positions → link loss, live.
+
+`RadioField` owns a RadioNet for the drones of a world and keeps its loss rules
+following where the vehicles are (SPEC §8: updated `radio.update_hz` times a second,
+5 by default), from the same RadioModel fast-time simulation uses. It also builds
+the command lines that put a drone's agent and sensor programs inside the drone's
+namespace: the agent connects to the ground's radio address and listens for its
+on-board programs and neighbours on its own; the sensors connect to that agent.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import msgspec
+import yaml
+
+from agent.config import AGENT_PORT
+from sim.radio import GROUND, Spot3, distance_3d, link_losses
+from sim.radio_net import RadioNet
+from sim.world import World
+
+log = logging.getLogger(__name__)
+RADIO_INTERFACE = "radio0"
+
+
+class RadioField:
+    def __init__(self, world: World, drone_ids: list[str], ground_port: int) -> None:
+        self.world = world
+        self.ground_port = ground_port
+        self.net = RadioNet(drone_ids, world.radio)
+        spot = world.ground_spot()
+        self.ground = Spot3(spot.lat, spot.lon, spot.alt)
+        self.losses: dict[tuple[str, str], int] = {}
+
+    def up(self) -> RadioField:
+        self.net.up()
+        return self
+
+    def close(self) -> None:
+        self.net.close()
+
+    @property
+    def ground_endpoint(self) -> str:
+        return f"tcp/{self.net.ground_address}:{self.ground_port}"
+
+    def update(self, where: Mapping[str, Spot3]) -> None:
+        """Apply the model to the drones' current positions (one nft transaction)."""
+        nodes = {GROUND: self.ground, **where}
+        self.losses = link_losses(self.world.radio, nodes)
+        self.net.apply(self.losses)
+        for drone_id, spot in where.items():
+            self.net.shape(drone_id, distance_3d(spot, self.ground))
+
+    async def follow(self, positions: Callable[[], Mapping[str, Spot3]]) -> None:
+        period = 1.0 / self.world.radio.update_hz
+        while True:
+            self.update(positions())
+            await asyncio.sleep(period)
+
+    def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None) -> list[str]:
+        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet_cli", "agent", "--id", drone_id,
+                "--fc", fc, "--connect", self.ground_endpoint, "--listen", f"tcp/0.0.0.0:{AGENT_PORT}",
+                "--mesh-interface", RADIO_INTERFACE]
+        return args + (["--config", str(agent_config)] if agent_config is not None else [])
+
+    def sensor_args(self, drone_id: str, kind: str, config_dir: Path) -> list[str] | None:
+        """A simulated sensor program beside the drone's agent (temperature only)."""
+        if kind != "temperature":
+            return None
+        heat = config_dir / f"{drone_id}-heat.yml"
+        heat.write_text(yaml.safe_dump(msgspec.to_builtins(self.world.heat_config())))
+        return [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet_cli", "sensor", "temperature",
+                "--drone", drone_id, "--config", str(heat), "--connect", f"tcp/127.0.0.1:{AGENT_PORT}"]
+
+    def describe(self) -> list[str]:
+        lines = [f"radio: {self.net.subnet}, ground {self.net.ground_address} (agents connect to {self.ground_endpoint}); "
+                 f"loss 0 up to {self.world.radio.good_m:g} m, total from {self.world.radio.lost_m:g} m"]
+        for drone_id in self.net.drone_ids:
+            lines.append(f"radio: {drone_id} at {self.net.address(drone_id)} in namespace {self.net.netns(drone_id)}")
+        return lines

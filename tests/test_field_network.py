@@ -1,0 +1,245 @@
+"""The field network on real packets (SPEC §8): `fleet sim --agents --radio` puts each
+drone's agent and sensor in its own network namespace on the emulated radio, a real
+`fleet ground` listens in this namespace (the laptop), and the loss between nodes
+follows the simulated distances. Needs CAP_NET_ADMIN: in CI (root) a missing
+capability fails these tests instead of skipping them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+import yaml
+
+from schemas.geo import destination, distance_m
+from sim.radio_net import has_net_admin, leftovers, list_netns
+from tests.harness import ChildProcess, GroundProcess, fleet_command
+from tests.helpers import free_udp_base, until
+
+pytestmark = pytest.mark.integration
+GROUND = (40.633490, -8.660815)
+FIELD_ALT = 8.2
+
+
+@pytest.fixture(autouse=True)
+def net_admin() -> None:
+    if not has_net_admin():
+        if os.environ.get("CI"):
+            pytest.fail("the emulated-radio tests need CAP_NET_ADMIN, and CI runs as root")
+        pytest.skip("needs CAP_NET_ADMIN (run as root)")
+
+
+def north(metres: float) -> tuple[float, float]:
+    return destination(GROUND[0], GROUND[1], metres, 0.0)
+
+
+def fleet_resources(pid: int) -> list[str]:
+    """What a radio run of `pid` has on this machine: namespaces, the laptop link."""
+    links = subprocess.run(["ip", "-o", "link", "show"], capture_output=True, text=True).stdout
+    return [ns for ns in list_netns() if ns.startswith(f"fleet-{pid}-")] + (
+        [f"fl{pid}g"] if f" fl{pid}g" in links or f": fl{pid}g@" in links else []
+    )
+
+
+class RadioSim(ChildProcess):
+    """`fleet sim WORLD --agents --radio` with its world and agent config written here."""
+
+    name = "fleet sim --radio"
+
+    def __init__(self, tmp: Path, ground: GroundProcess, drones: list[dict[str, Any]], **agent: Any) -> None:
+        world = tmp / "world.yml"
+        world.write_text(yaml.safe_dump({
+            "origin": {"lat": GROUND[0], "lon": GROUND[1], "alt": FIELD_ALT},
+            "ground_station": {"lat": GROUND[0], "lon": GROUND[1]},
+            "drones": drones,
+            "heat_sources": [{"lat": GROUND[0], "lon": GROUND[1], "radius": 300, "temp": 60}],
+        }))
+        cfg = tmp / "agent.yml"
+        cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 200, "probe_period_ms": 500, "probe_window": 6, "max_speed": 10, **agent}))
+        self.drone_ids = [d["id"] for d in drones]
+        super().__init__(fleet_command(
+            "-v", "sim", str(world), "--agents", "--radio", "--agent-config", str(cfg),
+            "--ground-port", str(ground.zenoh_port), "--base-port", str(free_udp_base(2) + 1),
+        ), tmp / "sim.log")
+
+    @property
+    def pid(self) -> int:
+        assert self.proc is not None
+        return self.proc.pid
+
+    def netns(self, drone_id: str) -> str:
+        return f"fleet-{self.pid}-{drone_id}"
+
+    async def up(self) -> None:
+        await until(lambda: self._alive() and all(self.netns(d) in list_netns() for d in self.drone_ids),
+                    30, "the radio namespaces")
+
+    def _alive(self) -> bool:
+        assert self.proc is not None and self.proc.poll() is None, f"fleet sim exited:\n{self.output()[-3000:]}"
+        return True
+
+    def rules(self) -> str:
+        return subprocess.run(["ip", "netns", "exec", f"fleet-{self.pid}-air", "nft", "list", "table", "bridge", "fleet_radio"],
+                              capture_output=True, text=True).stdout
+
+
+class OnBoard(ChildProcess):
+    """`fleet sub` inside a drone's namespace, connected to that drone's agent only."""
+
+    name = "on-board listener"
+
+    def __init__(self, tmp: Path, netns: str, drone_id: str) -> None:
+        super().__init__(["ip", "netns", "exec", netns, *fleet_command(
+            "sub", f"drone/{drone_id}/**", "--connect", "tcp/127.0.0.1:7448")], tmp / f"onboard-{drone_id}.log")
+
+    def messages(self, kind: str) -> list[dict[str, Any]]:
+        out = []
+        for line in self.output().splitlines():
+            key, _, body = line.partition(" ")
+            if key.endswith(kind) and body.startswith("{"):
+                out.append(json.loads(body))
+        return out
+
+
+@pytest.fixture
+def processes(tmp_path: Path) -> Iterator[list[ChildProcess]]:
+    """Everything a test starts, stopped in reverse; then nothing of the run may remain."""
+    started: list[ChildProcess] = []
+    yield started
+    sims = [p for p in started if isinstance(p, RadioSim)]
+    for proc in reversed(started):
+        proc.stop()
+    for sim in sims:
+        assert fleet_resources(sim.pid) == [], f"left behind: {fleet_resources(sim.pid)}"
+
+
+async def drone(http: httpx.AsyncClient, drone_id: str) -> dict[str, Any] | None:
+    r = await http.get(f"/drone/{drone_id}")
+    return r.json() if r.status_code == 200 else None
+
+
+async def command(http: httpx.AsyncClient, drone_id: str, **body: Any) -> None:
+    r = await http.post(f"/drone/{drone_id}/cmd", json=body)
+    assert r.status_code == 200, r.text
+
+
+async def log_lines(http: httpx.AsyncClient, drone_id: str) -> list[str]:
+    return (await http.get("/drone/logs", params={"drone_id": drone_id})).text.splitlines()
+
+
+async def state_is(http: httpx.AsyncClient, drone_id: str, state: str) -> bool:
+    d = await drone(http, drone_id)
+    return d is not None and d["info"]["state"] == state
+
+
+def index_of(lines: list[str], text: str, start: int = 0) -> int:
+    for i in range(start, len(lines)):
+        if text in lines[i]:
+            return i
+    raise AssertionError(f"no line with {text!r} after line {start}:\n" + "\n".join(lines[-40:]))
+
+
+async def _has(http: httpx.AsyncClient, text: str) -> bool:
+    return any(text in line for line in await log_lines(http, "drone01"))
+
+
+async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildProcess]) -> None:
+    """Ground, A at 50 m, B at 105 m: B is reachable only through A; A leaves, B is
+    lost; A comes back, B is reachable again within 5 s."""
+    ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0")
+    processes.append(ground)
+    await ground.ready()
+    a, b = north(50), north(105)
+    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1]}, {"id": "droneB", "lat": b[0], "lon": b[1]}],
+                   lost_link={"timeout_s": 60, "action": "continue"})
+    processes.append(sim)
+    await sim.up()
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        await until(lambda: state_is(http, "droneB", "ready"), 60, "droneB ready at the ground (through droneA)")
+        # Only through A: B's packets to and from the ground are all dropped.
+        await until(lambda: 'iifname "d1" oifname "g" drop' in sim.rules(), 10, "B-ground total loss")
+        assert 'iifname "g" oifname "d1" drop' in sim.rules()
+        await command(http, "droneB", cmd="arm")  # accepted: the agent's reply came back through A
+        await command(http, "droneB", cmd="disarm")
+
+        away = destination(GROUND[0], GROUND[1], 55, 180.0)  # 55 m south: 155 m from B
+        await command(http, "droneA", cmd="arm")
+        await command(http, "droneA", cmd="takeoff", alt=5)
+        await until(lambda: state_is(http, "droneA", "hold"), 60, "droneA hovering")
+        await command(http, "droneA", cmd="goto", lat=away[0], lon=away[1], speed=10)
+        await until(lambda: state_is(http, "droneB", "unknown"), 60, "droneB unreachable once droneA left")
+        await command(http, "droneA", cmd="goto", lat=a[0], lon=a[1], speed=10)
+
+        async def a_back() -> bool:  # within good range (60 m) of B again: no loss between them
+            pos = (await drone(http, "droneA"))["telem"]["position"]
+            return distance_m(b[0], b[1], pos["lat"], pos["lon"]) < 60
+
+        await until(a_back, 60, "droneA back within range of droneB")
+        back_at = _now()
+        await until(lambda: _reachable(http, "droneB"), 15, "droneB reachable again")
+        assert _now() - back_at <= 5.0, f"droneB came back {_now() - back_at:.1f} s after droneA was in range again"
+
+
+def _now() -> float:
+    import time
+
+    return time.monotonic()
+
+
+async def _reachable(http: httpx.AsyncClient, drone_id: str) -> bool:
+    d = await drone(http, drone_id)
+    return d is not None and d["info"]["state"] != "unknown"
+
+
+def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -> None:
+    """SIGKILL `fleet sim --radio`: its namespaces stay (and its agents die with it);
+    the next radio run removes them before it builds its own."""
+    world = tmp_path / "world.yml"
+    world.write_text(yaml.safe_dump({"drones": [{"id": "drone01"}]}))
+    killed = subprocess.Popen(fleet_command("sim", str(world), "--radio", "--base-port", str(free_udp_base(2) + 1)),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_sync(lambda: f"fleet-{killed.pid}-air" in list_netns(), 30, "the first run's namespaces")
+    finally:
+        killed.kill()
+        killed.wait()
+    namespaces, _ = leftovers()
+    assert f"fleet-{killed.pid}-air" in namespaces
+    second = subprocess.Popen(fleet_command("sim", str(world), "--radio", "--base-port", str(free_udp_base(2) + 1)),
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        _wait_sync(lambda: f"fleet-{second.pid}-air" in list_netns(), 30, "the second run's namespaces")
+        assert fleet_resources(killed.pid) == []
+    finally:
+        second.send_signal(signal.SIGINT)
+        second.wait(timeout=20)
+    assert fleet_resources(second.pid) == []
+
+
+def test_without_net_admin_the_radio_says_so_and_exits_2(tmp_path: Path) -> None:
+    world = tmp_path / "world.yml"
+    world.write_text(yaml.safe_dump({"drones": [{"id": "drone01"}]}))
+    # Drop CAP_NET_ADMIN from the child's bounding and effective sets (setpriv, util-linux).
+    result = subprocess.run(["setpriv", "--inh-caps=-all", "--bounding-set=-net_admin", "--",
+                             *fleet_command("sim", str(world), "--radio")],
+                            capture_output=True, text=True, timeout=30, stdin=subprocess.DEVNULL)
+    assert result.returncode == 2, result
+    assert "CAP_NET_ADMIN" in result.stderr
+
+
+def _wait_sync(predicate: Any, timeout_s: float, what: str) -> None:
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.1)
