@@ -143,13 +143,8 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
         fail("--output takes HOST:PORT", 2)
     except FleetError as exc:
         fail(str(exc), 2)
-    if radio:
-        from sim.radio_net import RadioUnavailable, require_net_admin
+    from sim.radio_net import RadioUnavailable
 
-        try:
-            require_net_admin()
-        except RadioUnavailable as exc:
-            fail(str(exc), 2)
     try:
         run_async(run_sim(
             loaded, count, base_port=base_port, agents=agents, connect=list(connect),
@@ -158,6 +153,8 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
         ))
     except OSError as exc:
         fail(f"cannot bind the simulator's ports: {exc}")
+    except RadioUnavailable as exc:
+        fail(str(exc), 2)
     except FleetError as exc:
         fail(str(exc))
 

@@ -21,7 +21,6 @@ from msgspec import Meta
 WINDOW = 10  # probes per sliding window (one a second: the last 10 s)
 RTT_GOOD_MS = 50.0  # RTTs up to this cost nothing
 RTT_BAD_MS = 1000.0  # an RTT this long scores zero
-DEGRADED_BELOW = 0.5  # quality under this is "link degraded"
 
 LostLinkAction = Literal["hold", "return", "land", "continue"]
 
@@ -57,9 +56,6 @@ class LinkWindow:
 
     def add(self, rtt_ms: float | None) -> None:
         self._outcomes.append(rtt_ms)
-
-    def __len__(self) -> int:
-        return len(self._outcomes)
 
     def summary(self) -> LinkSummary:
         answered = [r for r in self._outcomes if r is not None]

@@ -20,10 +20,9 @@ from bus.clock import Clock
 from bus.port import Bus, BusError
 from schemas.codec import encode
 from schemas.keys import Keys
-from schemas.telemetry import LinkQuality
+from schemas.telemetry import GROUND_PEER, LinkQuality
 
 log = logging.getLogger(__name__)
-GROUND = "ground"
 
 
 class Ping(msgspec.Struct, frozen=True, kw_only=True):
@@ -44,9 +43,8 @@ class LinkProber:
         self.period_s = period_s
         self.on_ground_contact = on_ground_contact
         self.window = window
-        self.windows: dict[str, LinkWindow] = {GROUND: LinkWindow(window)}
+        self.windows: dict[str, LinkWindow] = {GROUND_PEER: LinkWindow(window)}
         self.neighbours: set[str] = set()
-        self.latest: dict[str, LinkQuality] = {}
         self._seq = 0
 
     def on_liveliness(self, key: str, alive: bool) -> None:
@@ -71,7 +69,7 @@ class LinkProber:
             watch.close()
 
     async def probe_all(self) -> None:
-        peers = [GROUND, *sorted(self.neighbours)]
+        peers = [GROUND_PEER, *sorted(self.neighbours)]
         rtts = await asyncio.gather(*(self._probe(peer) for peer in peers))
         now_ms = self.clock.time_ms()
         for peer, rtt in zip(peers, rtts):
@@ -82,7 +80,6 @@ class LinkProber:
                 drone_id=self.drone_id, timestamp=now_ms, peer=peer,
                 rtt_ms=s.rtt_ms, jitter_ms=s.jitter_ms, loss=s.loss, quality=s.quality,
             )
-            self.latest[peer] = quality
             try:
                 self.bus.publish(self.keys.link(self.drone_id), encode(quality), reliable=False)
             except BusError as exc:
@@ -90,7 +87,7 @@ class LinkProber:
 
     async def _probe(self, peer: str) -> float | None:
         self._seq += 1
-        key = self.keys.ground_ping() if peer == GROUND else self.keys.ping(peer)
+        key = self.keys.ground_ping() if peer == GROUND_PEER else self.keys.ping(peer)
         ping = Ping(drone_id=self.drone_id, timestamp=self.clock.time_ms(), seq=self._seq)
         sent = self.clock.monotonic()
         try:
@@ -98,6 +95,6 @@ class LinkProber:
         except (BusError, TimeoutError):
             return None
         now = self.clock.monotonic()
-        if peer == GROUND:
+        if peer == GROUND_PEER:
             self.on_ground_contact(now)
         return (now - sent) * 1000.0

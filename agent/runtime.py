@@ -25,7 +25,7 @@ from agent.link import LostLink, LostLinkAction
 from agent.prober import LinkProber
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
-from bus.port import Bus
+from bus.port import Bus, echo
 from schemas.codec import encode
 from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from schemas.errors import InvalidMessage
@@ -138,7 +138,7 @@ class Agent:
         """Serve until cancelled. The caller owns (and closes) fc and bus."""
         # Queryable first: once the liveliness token is visible, commands are served.
         queryable = self.bus.serve(self.keys.cmd(self.drone_id), self._on_command)
-        ping = self.bus.serve(self.keys.ping(self.drone_id), _echo)
+        ping = self.bus.serve(self.keys.ping(self.drone_id), echo)
         token = self.bus.announce(self.keys.alive(self.drone_id))
         log.info("%s: serving commands on %s", self.drone_id, self.keys.cmd(self.drone_id))
         try:
@@ -166,10 +166,6 @@ async def _join(bus: Bus, keys: Keys, drone_id: str) -> None:
         log.warning("%s: the ground is not reachable yet; serving without it", drone_id)
     finally:
         watch.close()
-
-
-async def _echo(key: str, payload: bytes) -> bytes:
-    return payload
 
 
 def _peek_command_id(payload: bytes) -> str:

@@ -27,6 +27,11 @@ QueryHandler = Callable[[str, bytes], Awaitable[bytes]]
 LivelinessHandler = Callable[[str, bool], None]
 
 
+async def echo(key: str, payload: bytes) -> bytes:
+    """The ping queryables' handler (`ground/ping`, `drone/<id>/ping`): the request back."""
+    return payload
+
+
 class BusError(FleetError):
     """Something went wrong on the message bus."""
 

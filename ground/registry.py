@@ -18,7 +18,7 @@ import msgspec
 from ground.config import GroundConfig
 from ground.describe import Described, Level, describe_start, status_line, system_line
 from schemas.status import CommandStatus, Coords, SystemStatus
-from schemas.telemetry import MANUAL_MODES, LinkQuality, SensorReading, Telemetry
+from schemas.telemetry import GROUND_PEER, MANUAL_MODES, LinkQuality, SensorReading, Telemetry
 
 DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
 DRONE_STATES: tuple[str, ...] = get_args(DroneState)
@@ -173,8 +173,8 @@ class Registry:
             if message not in before_warns and message not in (FC_DISCONNECTED, LINK_DEGRADED):
                 out.append(self._line(now_ms, "warn", d, message))
         if reconnected:
-            message = "Established connection with ground station"
-            out.append(self._line(now_ms, "info", d, message if first else f"{LINK_RESTORED}: {message[0].lower()}{message[1:]}"))
+            message = "Established connection with ground station" if first else f"{LINK_RESTORED}: established connection with ground station"
+            out.append(self._line(now_ms, "info", d, message))
         if before_errors and not info.errors:
             out.append(self._line(now_ms, "info", d, "Errors cleared"))
         return out + self._publish(d, info)
@@ -219,7 +219,7 @@ class Registry:
     def on_link(self, quality: LinkQuality, now_ms: int) -> list[Event]:
         """The drone's measured link to the ground (its `peer: ground` reports)."""
         d = self._drones.get(quality.drone_id)
-        if d is None or quality.peer != "ground":
+        if d is None or quality.peer != GROUND_PEER:
             return []
         assert d.info is not None
         before = d.info.warns

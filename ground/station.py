@@ -21,7 +21,7 @@ import msgspec
 
 from agent.remote import new_command_id
 from bus.clock import Clock, SystemClock
-from bus.port import Bus, Declaration, Sample
+from bus.port import Bus, Declaration, Sample, echo
 from ground.config import GroundConfig
 from ground.eventlog import EventLog
 from ground.registry import Event, InfoChanged, LogLine, Registry
@@ -89,7 +89,7 @@ class GroundStation:
             self.bus.subscribe(k.sensor(), self._on_sensor, latest_only=True, maxsize=8192),
             self.bus.subscribe(k.link(), self._on_link, latest_only=True, maxsize=8192),
             self.bus.watch_liveliness(k.alive(), self._on_liveliness),
-            self.bus.serve(k.ground_ping(), self._on_ping),
+            self.bus.serve(k.ground_ping(), echo),
             self.bus.announce(k.ground_alive()),
         ]
         self.log_ground("info", "Ground station started")
@@ -210,9 +210,6 @@ class GroundStation:
         parsed = self.keys.parse(key)
         if parsed is not None:
             self._emit(self.registry.on_liveliness(parsed.drone_id, alive, self.clock.time_ms()))
-
-    async def _on_ping(self, key: str, payload: bytes) -> bytes:
-        return payload
 
     def _from_drone(self, decoder: Any, sample: Sample) -> Any:
         """A drone's message, its drone_id taken from the key (the key is the authority

@@ -89,12 +89,15 @@ class SensorReading(_Msg, frozen=True, kw_only=True):
     position: Position | None = None
 
 
+GROUND_PEER = "ground"  # LinkQuality.peer of a drone's link to the ground
+
+
 class LinkQuality(_Msg, frozen=True, kw_only=True):
     """Measured by the agent's probes on the real transport (SPEC §2, §8), never from distance."""
 
     drone_id: str
     timestamp: int
-    peer: str = "ground"  # "ground" or another drone's id
+    peer: str = GROUND_PEER  # GROUND_PEER or another drone's id
     rtt_ms: float | None = None  # mean over the answered probes of the window
     jitter_ms: float | None = None  # mean change between consecutive RTTs
     loss: float = 0.0  # 0..1: probes unanswered over the last window

@@ -109,7 +109,8 @@ async def run_sim(
             out(status_line(v))
         if field is not None:
             def where() -> dict[str, Spot3]:
-                return {k: Spot3(p.lat, p.lon, p.alt) for k, v in vehicles.items() if (p := v.endpoint.vehicle.position())}
+                spots = {k: v.endpoint.vehicle.position() for k, v in vehicles.items()}
+                return {k: Spot3(p.lat, p.lon, p.alt) for k, p in spots.items()}
 
             field.update(where())
             tasks.append(loop.create_task(field.follow(where), name="radio"))

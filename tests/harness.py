@@ -16,7 +16,7 @@ import httpx
 import yaml
 
 from agent.remote import send_command
-from bus.port import Sample
+from bus.port import Sample, echo
 from bus.zenoh_bus import ZenohBus
 from schemas.codec import decode_status, decode_telemetry
 from schemas.commands import CommandReply
@@ -34,16 +34,12 @@ def fleet_command(*args: str) -> list[str]:
     return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet_cli", *args]
 
 
-async def _echo(key: str, payload: bytes) -> bytes:
-    return payload
-
-
 async def open_ground_router(endpoint: str) -> ZenohBus:
     """A bare router playing the ground as `fleet ground` does: it announces
     `ground/alive` (agents wait for it at start) and answers their link probes on
     `ground/ping`, so they do not fall into lost-link."""
     bus = await ZenohBus.open("router", listen=[endpoint])
-    bus.serve(Keys().ground_ping(), _echo)
+    bus.serve(Keys().ground_ping(), echo)
     bus.announce(Keys().ground_alive())
     return bus
 

@@ -11,6 +11,7 @@ import json
 import os
 import signal
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -245,8 +246,6 @@ async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildPr
 
 
 def _now() -> float:
-    import time
-
     return time.monotonic()
 
 
@@ -292,8 +291,6 @@ def test_without_net_admin_the_radio_says_so_and_exits_2(tmp_path: Path) -> None
 
 
 def _wait_sync(predicate: Any, timeout_s: float, what: str) -> None:
-    import time
-
     deadline = time.monotonic() + timeout_s
     while not predicate():
         if time.monotonic() > deadline:
