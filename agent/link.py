@@ -85,26 +85,32 @@ class LostLink:
     reached it, so the restore's summary repeats it: how long, and what the drone did.
 
     At the edge of range a link flaps. An outage therefore ends only after contact
-    has held for `timeout_s`: until then a new loss continues the same outage, the
-    hold → return timer keeps counting from its first loss, and no failsafe repeats.
+    has held steadily for `timeout_s` - no silence longer than `steady_gap_s` (two
+    probe periods: one lost probe is tolerated) since the restore. Until then a new
+    loss continues the same outage, the hold → return timer keeps counting from its
+    first loss, and no failsafe repeats.
     """
 
-    def __init__(self, policy: LostLinkPolicy, now: float) -> None:
+    def __init__(self, policy: LostLinkPolicy, now: float, steady_gap_s: float = 2.0) -> None:
         self.policy = policy
+        self.steady_gap_s = steady_gap_s
         self.last_contact = now
         self.lost = False
         self.acted: LostLinkAction | None = None
         self.actions: list[LostLinkAction] = []  # taken during this outage
         self._outage_at: float | None = None  # first loss of the open outage
         self._restored_at = 0.0
+        self._steady = True  # no silence over steady_gap_s since the restore
 
     def contact(self, now: float) -> list[Decision]:
         silent_s = now - self.last_contact
         self.last_contact = now
         if not self.lost:
+            self._steady = self._steady and silent_s <= self.steady_gap_s
             return []
         self.lost = False
         self._restored_at = now
+        self._steady = True
         summary = f"after {silent_s:.1f} s without the ground; failsafe: {', '.join(self.actions) or 'none'}"
         return [("link_restored", summary)]
 
@@ -113,7 +119,8 @@ class LostLink:
         decisions: list[Decision] = []
         if not self.lost:
             if now - self.last_contact < p.timeout_s:
-                if self._outage_at is not None and now - self._restored_at >= p.timeout_s:
+                self._steady = self._steady and now - self.last_contact <= self.steady_gap_s
+                if self._outage_at is not None and self._steady and now - self._restored_at >= p.timeout_s:
                     self._outage_at, self.acted, self.actions = None, None, []  # steady again
                 return decisions
             self.lost = True

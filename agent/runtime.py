@@ -66,7 +66,7 @@ class Agent:
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
         self._seq = 0
-        self.lost_link = LostLink(config.lost_link, clock.monotonic())
+        self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
             on_ground_contact=self._on_ground_contact, window=config.probe_window,

@@ -193,10 +193,14 @@ async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProces
 
     statuses = [s for s in onboard.messages("/status") if s.get("component") == "system"]
     states = [(s["state"], s.get("reason", "")) for s in statuses if s["state"] in ("link_lost", "failsafe", "link_restored")]
-    firsts = [states.index(next(x for x in states if x[0] == "link_lost")),
-              states.index(("failsafe", "hold")), states.index(("failsafe", "return")),
-              next(i for i, x in enumerate(states) if x[0] == "link_restored")]
-    assert firsts == sorted(firsts), states
+    # At the edge of range probes get through now and then, so the link may be
+    # restored and lost again on the way; the order that matters is: lost, hold,
+    # return, and restored for good once home.
+    order = [next(i for i, x in enumerate(states) if x[0] == "link_lost"),
+             states.index(("failsafe", "hold")), states.index(("failsafe", "return")),
+             max(i for i, x in enumerate(states) if x[0] == "link_restored")]
+    assert order == sorted(order), states
+    assert states[-1][0] == "link_restored" and states[-1][1].endswith("failsafe: hold, return"), states
     lost_ms = next(s["timestamp"] for s in statuses if s["state"] == "link_lost")
     back_ms = next(s["timestamp"] for s in statuses if s["state"] == "link_restored" and s["timestamp"] > lost_ms)
     during = [r for r in onboard.messages("/sensor/temperature") if lost_ms < r["timestamp"] < back_ms]
