@@ -97,9 +97,8 @@ class Agent:
 
     def _failsafe(self, action: LostLinkAction) -> None:
         """Act alone: the same handler and priority rules as a command from the ground."""
-        command = FAILSAFE_COMMANDS[action](
-            drone_id=self.drone_id, command_id=f"failsafe-{uuid.uuid4()}", timestamp=self.clock.time_ms(),
-        )
+        now_ms = self.clock.time_ms()  # one failsafe per action at a time: unique, and replays in fast time
+        command = FAILSAFE_COMMANDS[action](drone_id=self.drone_id, command_id=f"failsafe-{action}-{now_ms}", timestamp=now_ms)
         reply = self.handler.submit(command)
         log.warning("%s: lost link failsafe: %s (%s)", self.drone_id, action,
                     "accepted" if reply.accepted else f"refused: {reply.reason}")

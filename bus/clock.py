@@ -11,6 +11,7 @@ import asyncio
 import heapq
 import itertools
 import time
+from collections.abc import Callable
 from typing import Protocol
 
 
@@ -52,6 +53,12 @@ class VirtualClock:
         fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         heapq.heappush(self._timers, (self._now + max(0.0, seconds), next(self._seq), fut))
         await fut
+
+    def call_later(self, seconds: float, callback: Callable[[], None]) -> None:
+        """Run `callback` when virtual time reaches now + seconds (a message in flight)."""
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        fut.add_done_callback(lambda _: callback())
+        heapq.heappush(self._timers, (self._now + max(0.0, seconds), next(self._seq), fut))
 
     async def advance(self, seconds: float) -> None:
         """Move time forward, waking each sleeper at its deadline and letting it run.

@@ -4,6 +4,13 @@ A MemoryNetwork plays the router; each MemoryBus is one session on it. Samples
 travel through the same bounded Inbox as on Zenoh, a get with no matching
 queryable ends at once, a slow queryable times out, and closing a session drops
 its liveliness tokens as a dead node's would.
+
+Each session sits on a node of the mesh (the ground, a drone; on-board programs
+share their drone's node). Without a Medium every node reaches every other at
+once. With one (fast time: sim/radio_air.py) a message between two nodes crosses
+it hop by hop and may arrive late or never, a query times out on the Medium's
+clock, and a liveliness token is seen only where its node can be reached, as on
+the real mesh.
 """
 
 from __future__ import annotations
@@ -12,6 +19,7 @@ import asyncio
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 from bus.delivery import Inbox
 from bus.keyexpr import intersects, strip_parameters
@@ -24,6 +32,23 @@ from bus.port import (
     SampleHandler,
     Unreachable,
 )
+
+class Medium(Protocol):
+    """What lies between the nodes: reachability, transit time, and the clock it runs on."""
+
+    def reachable(self, src: str, dst: str) -> bool: ...
+
+    def transit(self, src: str, dst: str) -> float | None:
+        """Seconds one message from src takes to reach dst now; None: it never arrives."""
+        ...
+
+    def call_later(self, seconds: float, callback: Callable[[], None]) -> None: ...
+
+    async def sleep(self, seconds: float) -> None: ...
+
+    def on_change(self, callback: Callable[[], None]) -> None:
+        """Call back whenever which nodes reach which may have changed."""
+        ...
 
 
 @dataclass(eq=False)
@@ -41,24 +66,69 @@ class _Decl:
 
 @dataclass
 class MemoryNetwork:
-    """The shared medium: every declaration of every session, by kind."""
+    """Every declaration of every session, by kind, and the Medium between their nodes."""
 
+    medium: Medium | None = None
     subscribers: list[tuple[_Decl, Inbox[Sample]]] = field(default_factory=list)
     queryables: list[tuple[_Decl, QueryHandler]] = field(default_factory=list)
     tokens: list[_Decl] = field(default_factory=list)
     watchers: list[tuple[_Decl, Inbox[tuple[str, bool]]]] = field(default_factory=list)
+    # The tokens each watcher has been told are alive (what it sees of the mesh).
+    _seen: dict[int, set[int]] = field(default_factory=dict)
 
-    def _tell_watchers(self, key: str, alive: bool) -> None:
-        for decl, inbox in self.watchers:
-            if intersects(decl.keyexpr, key):
-                inbox.put_nowait((key, alive))
+    def __post_init__(self) -> None:
+        if self.medium is not None:
+            self.medium.on_change(self._reconsider_tokens)
+
+    def reachable(self, src: str, dst: str) -> bool:
+        return self.medium is None or src == dst or self.medium.reachable(src, dst)
+
+    def carry(self, src: str, dst: str, deliver: Callable[[], None]) -> None:
+        """One message from node src to node dst: now, later, or (lost) never."""
+        if self.medium is None or src == dst:
+            deliver()
+            return
+        delay = self.medium.transit(src, dst)
+        if delay is not None:
+            self.medium.call_later(delay, deliver)
+
+    async def cross(self, src: str, dst: str) -> None:
+        """Return once a message from src has crossed to dst (never, if it is lost)."""
+        if self.medium is None or src == dst:
+            return
+        delay = self.medium.transit(src, dst)
+        if delay is None:
+            await asyncio.get_running_loop().create_future()  # lost: until the asker gives up
+        await self.medium.sleep(delay or 0.0)
+
+    def _tell(self, watcher: tuple[_Decl, Inbox[tuple[str, bool]]], token: _Decl, alive: bool) -> None:
+        seen = self._seen.setdefault(id(watcher[0]), set())
+        if alive == (id(token) in seen):
+            return
+        (seen.add if alive else seen.discard)(id(token))
+        watcher[1].put_nowait((token.keyexpr, alive))
+
+    def _tell_watchers(self, token: _Decl, alive: bool) -> None:
+        for watcher in self.watchers:
+            decl = watcher[0]
+            if intersects(decl.keyexpr, token.keyexpr) and (not alive or self.reachable(token.owner.node, decl.owner.node)):
+                self._tell(watcher, token, alive)
+
+    def _reconsider_tokens(self) -> None:
+        """The mesh changed shape: tokens come into and go out of each watcher's sight."""
+        for watcher in list(self.watchers):
+            decl = watcher[0]
+            for token in self.tokens:
+                if intersects(decl.keyexpr, token.keyexpr):
+                    self._tell(watcher, token, self.reachable(token.owner.node, decl.owner.node))
 
 
 class MemoryBus:
     _ids = itertools.count(1)
 
-    def __init__(self, network: MemoryNetwork) -> None:
+    def __init__(self, network: MemoryNetwork, node: str = "") -> None:
         self._net = network
+        self.node = node  # where on the mesh this session runs
         self._name = f"mem{next(self._ids)}"
         self._decls: list[_Decl] = []
 
@@ -70,7 +140,8 @@ class MemoryBus:
     def publish(self, key: str, payload: bytes, *, reliable: bool = True) -> None:
         for decl, inbox in list(self._net.subscribers):
             if intersects(decl.keyexpr, key):
-                inbox.put_nowait(Sample(key, bytes(payload)))
+                sample = Sample(key, bytes(payload))
+                self._net.carry(self.node, decl.owner.node, lambda inbox=inbox, sample=sample: inbox.put_nowait(sample))
 
     def subscribe(
         self, keyexpr: str, handler: SampleHandler, *, latest_only: bool = False, maxsize: int = 1024
@@ -97,26 +168,65 @@ class MemoryBus:
 
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
         key = strip_parameters(selector)
-        matches = [(d, h) for d, h in self._net.queryables if intersects(d.keyexpr, key)]
+        net = self._net
+        matches = [(d, h) for d, h in net.queryables
+                   if intersects(d.keyexpr, key) and net.reachable(self.node, d.owner.node)]
         if not matches:
             raise Unreachable(f"no queryable for {key}")
         decl, handler = matches[0]
+        name = decl.keyexpr if "*" not in decl.keyexpr else key
+        if net.medium is None or decl.owner.node == self.node:
+            try:
+                async with asyncio.timeout(timeout_s):
+                    return await handler(name, bytes(payload))
+            except TimeoutError:
+                raise QueryTimeout(f"no reply from {key} within {timeout_s:g} s") from None
+            except Exception as exc:  # an error reply, as Zenoh's reply_err
+                raise QueryRefused(f"{key}: {exc}") from None
+        return await self._remote_query(net.medium, decl.owner.node, key, name, handler, bytes(payload), timeout_s)
+
+    async def _remote_query(self, medium: Medium, there: str, key: str, name: str,
+                            handler: QueryHandler, payload: bytes, timeout_s: float) -> bytes:
+        """Across the Medium: the request and the reply each cross it, and the asker
+        gives up after `timeout_s` on the Medium's clock. The queryable, once reached,
+        runs to its end whether or not its reply makes it back, as on Zenoh."""
+        net = self._net
+
+        async def answer() -> tuple[bytes | None, Exception | None]:
+            try:
+                return await handler(name, payload), None
+            except Exception as exc:  # an error reply, as Zenoh's reply_err
+                return None, exc
+
+        async def exchange() -> bytes:
+            await net.cross(self.node, there)
+            reply, error = await asyncio.shield(asyncio.ensure_future(answer()))
+            await net.cross(there, self.node)
+            if error is not None:
+                raise QueryRefused(f"{key}: {error}")
+            assert reply is not None
+            return reply
+
+        trip = asyncio.ensure_future(exchange())
+        timer = asyncio.ensure_future(medium.sleep(timeout_s))
         try:
-            async with asyncio.timeout(timeout_s):
-                return await handler(decl.keyexpr if "*" not in decl.keyexpr else key, bytes(payload))
-        except TimeoutError:
-            raise QueryTimeout(f"no reply from {key} within {timeout_s:g} s") from None
-        except Exception as exc:  # an error reply, as Zenoh's reply_err
-            raise QueryRefused(f"{key}: {exc}") from None
+            await asyncio.wait((trip, timer), return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            timer.cancel()
+            if not trip.done():
+                trip.cancel()
+        if not trip.done() or trip.cancelled():
+            raise QueryTimeout(f"no reply from {key} within {timeout_s:g} s")
+        return trip.result()
 
     def announce(self, key: str) -> _Decl:
         def close() -> None:
             self._net.tokens.remove(decl)
-            self._net._tell_watchers(key, False)
+            self._net._tell_watchers(decl, False)
 
         decl = self._declare(key, close)
         self._net.tokens.append(decl)
-        self._net._tell_watchers(key, True)
+        self._net._tell_watchers(decl, True)
         return decl
 
     def watch_liveliness(self, keyexpr: str, handler: LivelinessHandler) -> _Decl:
@@ -129,12 +239,13 @@ class MemoryBus:
         def close() -> None:
             inbox.close()
             self._net.watchers.remove(entry)
+            self._net._seen.pop(id(entry[0]), None)
 
         entry = (self._declare(keyexpr, close), inbox)
         self._net.watchers.append(entry)
         for token in self._net.tokens:
-            if intersects(keyexpr, token.keyexpr):
-                inbox.put_nowait((token.keyexpr, True))
+            if intersects(keyexpr, token.keyexpr) and self._net.reachable(token.owner.node, self.node):
+                self._net._tell(entry, token, True)
         return entry[0]
 
     async def close(self) -> None:

@@ -15,6 +15,7 @@ from typing import Any
 
 import click
 import httpx
+import msgspec
 
 from ground.cli import _cell, _fail, _request, aligned, url_option
 
@@ -170,8 +171,11 @@ def check(script: Path) -> None:
               help="Enable a plugin before the script's first line, e.g. --enable 'replacement drainage=0.0015' (repeatable).")
 @click.option("--plugins-dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="Also load the plugin scripts in this directory (besides the bundled ones).")
+@click.option("--radio/--no-radio", default=None,
+              help="Fly on the radio model (SPEC §8: links lost with distance, relayed by drones). "
+                   "Default: on if the world file has `radio:`.")
 def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int | None, seed: int, out_dir: Path | None,
-             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None) -> None:
+             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, radio: bool | None) -> None:
     """Run SCRIPT against simulated drones in fast time; exit with its outcome.
 
     Plugin inputs go with --enable in one word (--enable 'replacement drainage=0.0015')
@@ -208,10 +212,13 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the mission's own lines are echoed
         for name in ("ground", "mission", "agent", "matplotlib"):
             logging.getLogger(name).setLevel(logging.WARNING)
+    field = load_world(world)
+    if radio is not None:
+        field = msgspec.structs.replace(field, radio=field.radio_model if radio else None)
     started = time.perf_counter()
     try:
         result = asyncio.run(run(
-            source, load_world(world), n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,
+            source, field, n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,
             echo=lambda t, message: click.echo(f"[{t:8.1f} s] {message}"), plugins=library, enable=enable,
         ))
     except ScriptError as exc:

@@ -32,7 +32,9 @@ from mission.manager import MissionManager, MissionStore
 from mission.mission import MissionRecord
 from mission.plugins import PluginLibrary
 from schemas.keys import Keys
-from schemas.telemetry import Telemetry
+from schemas.telemetry import LinkQuality, Telemetry
+from sim.radio import GROUND, RadioModel, Spot3
+from sim.radio_air import RadioAir
 from sim.sensors import simulated_sensor
 from sim.vehicle import Vehicle
 from sim.world import World
@@ -59,34 +61,49 @@ class SimField:
         ground_config: GroundConfig | None = None,
         data_dir: Path | None = None,
         plugins: PluginLibrary | None = None,
+        radio: RadioModel | None = None,
+        agent_config: AgentConfig | None = None,
     ) -> None:
         self.world = world
         self.specs = world.spawn(n)
         self.seed = seed
         self.clock = VirtualClock()
-        self.network = MemoryNetwork()
+        self.vehicles: dict[str, Vehicle] = {}
+        # The radio (world `radio:` or the argument): links follow the vehicles.
+        radio = radio or world.radio
+        self.air = RadioAir(radio, self._where, self.clock, seed) if radio is not None else None
+        self.network = MemoryNetwork(medium=self.air)
         self._tmp = tempfile.TemporaryDirectory(prefix="fleet-sim-") if data_dir is None else None
         self.data_dir = data_dir or Path(self._tmp.name)  # type: ignore[union-attr]
         self.config = ground_config or GroundConfig(data_dir=str(self.data_dir))
-        self.agent_config = AgentConfig(telemetry_rate_ms=telemetry_rate_ms)
-        self.vehicles: dict[str, Vehicle] = {}
+        self.agent_config = agent_config or AgentConfig(telemetry_rate_ms=telemetry_rate_ms)
         self.tracks: dict[str, Track] = {}
         self._tasks: list[asyncio.Task[Any]] = []
         self._agents: dict[str, asyncio.Task[Any]] = {}
         self._buses: list[MemoryBus] = []
         self._fcs: list[SimFlightController] = []
         self.events = EventLog(self.data_dir / "events.db")
-        self.station = GroundStation(self.config, self._bus(), self.events, self.clock)
+        self.station = GroundStation(self.config, self._bus(GROUND), self.events, self.clock)
         self.manager: MissionManager | None = None
         self.plugins = plugins if plugins is not None else PluginLibrary.default(None)
 
-    def _bus(self) -> MemoryBus:
-        bus = MemoryBus(self.network)
+    def _bus(self, node: str = GROUND) -> MemoryBus:
+        """A session on `node` of the mesh: the ground, or a drone (its agent and on-board programs)."""
+        bus = MemoryBus(self.network, node)
         self._buses.append(bus)
         return bus
 
+    def _where(self) -> dict[str, Spot3]:
+        spots = {GROUND: self.world.ground_spot3()}
+        for drone_id, vehicle in self.vehicles.items():
+            p = vehicle.position()
+            spots[drone_id] = Spot3(p.lat, p.lon, p.alt)
+        return spots
+
     async def start(self, echo: Callable[[float, str], None] | None = None) -> None:
         loop = asyncio.get_running_loop()
+        if self.air is not None:
+            self._tasks.append(loop.create_task(self.air.run(), name="radio"))
         self._tasks.append(loop.create_task(self.station.run(), name="ground"))
         self.station.listen(self._record)
         for spec in self.specs:
@@ -97,7 +114,9 @@ class SimField:
             fc = SimFlightController(vehicle, self.clock)
             await fc.start()
             self._fcs.append(fc)
-            agent = Agent(spec.id, self.agent_config, fc, self._bus(), self.clock)
+            if self.air is not None:
+                self.air.tick()  # the new drone's links
+            agent = Agent(spec.id, self.agent_config, fc, self._bus(spec.id), self.clock)
             self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
             self._tasks.append(self._agents[spec.id])
             for fault in spec.faults:
@@ -110,10 +129,12 @@ class SimField:
         )
         if echo is not None:
             self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
-        # Let every drone register (first telemetry) with its sensors before the mission starts.
+        # Let every drone register (first telemetry) with its sensors before the mission
+        # starts; on the radio, every drone the ground can reach.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000 + 0.1)
         for _ in range(100):
-            if all(set(spec.sensors) <= set(self._sensors_of(spec.id)) for spec in self.specs):
+            if all(set(spec.sensors) <= set(self._sensors_of(spec.id)) for spec in self.specs
+                   if self.air is None or self.air.reachable(spec.id, GROUND)):
                 break
             await self.clock.advance(0.1)
         else:
@@ -135,7 +156,7 @@ class SimField:
 
     async def _sensors(self, drone_id: str, kinds: list[str]) -> None:
         """Simulated on-board sensors (sim/sensors.py), following the drone's telemetry."""
-        bus = self._bus()
+        bus = self._bus(drone_id)  # on board: connected to its own agent
         keys = Keys(self.config.namespace)
         tasks = [asyncio.ensure_future(simulated_sensor(bus, drone_id, kind, self.world, clock=self.clock, keys=keys))
                  for kind in kinds]
@@ -154,7 +175,7 @@ class SimField:
             registry = self.station.registry
             info = registry.info(t.drone_id)
             sensors = {r.type: r.value for r in registry.sensor_readings(t.drone_id)}
-            track.samples.append(telemetry_sample(t, self.clock.monotonic(), info.state, sensors))
+            track.samples.append(telemetry_sample(t, self.clock.monotonic(), info.state, sensors, info.link))
 
     async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S,
                           enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
@@ -224,8 +245,10 @@ class SimField:
             self._tmp.cleanup()
 
 
-def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, Any]) -> dict[str, Any]:
-    """One row of a drone's time series in result.json (SPEC §5)."""
+def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, Any],
+                     link: LinkQuality | None = None) -> dict[str, Any]:
+    """One row of a drone's time series in result.json (SPEC §5); `link` is the drone's
+    last measured link to the ground (SPEC §8), absent before its first probe."""
     assert t.position is not None
     return {
         "t_s": round(t_s, 3),
@@ -234,6 +257,7 @@ def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, An
         "heading": round(t.heading, 2), "speed": round(t.speed, 3),
         "battery": round(t.battery.remaining_percent, 5) if t.battery else None,
         "state": state, "armed": t.armed, "sensors": sensors,
+        "link": None if link is None else {"quality": link.quality, "rtt_ms": link.rtt_ms, "loss": link.loss},
     }
 
 

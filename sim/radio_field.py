@@ -32,9 +32,8 @@ class RadioField:
     def __init__(self, world: World, drone_ids: list[str], ground_port: int) -> None:
         self.world = world
         self.ground_port = ground_port
-        self.net = RadioNet(drone_ids, world.radio)
-        spot = world.ground_spot()
-        self.ground = Spot3(spot.lat, spot.lon, spot.alt)
+        self.net = RadioNet(drone_ids, world.radio_model)
+        self.ground = world.ground_spot3()
         self.losses: dict[tuple[str, str], int] = {}
 
     def up(self) -> RadioField:
@@ -51,13 +50,13 @@ class RadioField:
     def update(self, where: Mapping[str, Spot3]) -> None:
         """Apply the model to the drones' current positions (one nft transaction)."""
         nodes = {GROUND: self.ground, **where}
-        self.losses = link_losses(self.world.radio, nodes)
+        self.losses = link_losses(self.world.radio_model, nodes)
         self.net.apply(self.losses)
         for drone_id, spot in where.items():
             self.net.shape(drone_id, distance_3d(spot, self.ground))
 
     async def follow(self, positions: Callable[[], Mapping[str, Spot3]]) -> None:
-        period = 1.0 / self.world.radio.update_hz
+        period = 1.0 / self.world.radio_model.update_hz
         while True:
             self.update(positions())
             await asyncio.sleep(period)
@@ -79,7 +78,7 @@ class RadioField:
 
     def describe(self) -> list[str]:
         lines = [f"radio: {self.net.subnet}, ground {self.net.ground_address} (agents connect to {self.ground_endpoint}); "
-                 f"loss 0 up to {self.world.radio.good_m:g} m, total from {self.world.radio.lost_m:g} m"]
+                 f"loss 0 up to {self.world.radio_model.good_m:g} m, total from {self.world.radio_model.lost_m:g} m"]
         for drone_id in self.net.drone_ids:
             lines.append(f"radio: {drone_id} at {self.net.address(drone_id)} in namespace {self.net.netns(drone_id)}")
         return lines

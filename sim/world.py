@@ -11,7 +11,7 @@ import msgspec
 from msgspec import Meta
 
 from schemas.geo import destination
-from sim.radio import RadioModel
+from sim.radio import RadioModel, Spot3
 from sim.vehicle import VehicleParams
 
 if TYPE_CHECKING:
@@ -72,7 +72,18 @@ class World(_Strict):
     heat_sources: list[HeatSource] = []
     sensor_rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200  # simulated sensors publish this often
     battery: BatteryModel = BatteryModel()
-    radio: RadioModel = RadioModel()  # distance → loss between any two nodes (SPEC §8)
+    # Distance → loss between any two nodes (SPEC §8). Fast time flies on a perfect
+    # network unless the world has `radio:` (or `simulate --radio`); `fleet sim --radio`
+    # always applies it, with the thesis's defaults when absent.
+    radio: RadioModel | None = None
+
+    @property
+    def radio_model(self) -> RadioModel:
+        return self.radio or RadioModel()
+
+    def ground_spot3(self) -> Spot3:
+        spot = self.ground_spot()
+        return Spot3(spot.lat, spot.lon, spot.alt or 0.0)
 
     def ground_spot(self) -> Spot:
         """Where the field laptop stands: `ground_station`, else the origin, at field level."""

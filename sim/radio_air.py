@@ -1,0 +1,158 @@
+"""The radio in fast time: the Medium of the in-process bus (bus/memory.py), SPEC §8.
+
+The same RadioModel as the emulated network, and the same mesh shape as the real one
+(ADR 0003): every pair of nodes in range may hold a link; a link lives while something
+crosses it within the lease and is re-opened by the agents' connect retries; messages
+travel the fewest-hop path over live links, each hop losing packets with the model's
+loss, which a reliable transport turns into retransmission delay, and a message that
+cannot cross before the link's lease runs out is lost. All of it on the virtual clock
+and one seeded random stream, so a run replays exactly for the same seed.
+
+Figures from the real mesh (ADR 0003, docs): lease 2 s with keep-alives at a quarter
+of it; connect retry every 1 s; Linux's first TCP retransmission after 200 ms,
+doubling. An opened link needs its handshake (TCP SYN/SYN-ACK, Zenoh init/open) through.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from bus.clock import VirtualClock
+from sim.radio import GROUND, RadioModel, Spot3, distance_3d
+
+LEASE_S = 2.0  # a link with nothing through it for this long is closed
+KEEPALIVE_S = LEASE_S / 4  # how often each link shows it is alive
+RETRY_S = 1.0  # agents retry a closed link this often
+HANDSHAKE_PACKETS = 4  # what must cross to open a link
+RTO_S = 0.2  # first retransmission; doubles on each further loss
+
+
+@dataclass
+class _Link:
+    loss: float = 1.0
+    delay_s: float = 0.0
+    up: bool = False
+    heard: float = 0.0  # when something last crossed
+    retry_at: float = 0.0
+
+
+class RadioAir:
+    """Links between the nodes of a simulated field, following where they are."""
+
+    def __init__(self, model: RadioModel, where: Callable[[], Mapping[str, Spot3]],
+                 clock: VirtualClock, seed: int = 0) -> None:
+        self.model = model
+        self.where = where
+        self.clock = clock
+        self.rng = random.Random(f"radio:{seed}")
+        self.links: dict[tuple[str, str], _Link] = {}
+        self._neighbours: dict[str, list[str]] = {}
+        self._paths: dict[tuple[str, str], list[str] | None] = {}
+        self._in_flight: dict[tuple[str, str], float] = {}  # last arrival per directed hop (in order)
+        self._listeners: list[Callable[[], None]] = []
+        self.tick()
+
+    # Medium ------------------------------------------------------------------
+
+    def reachable(self, src: str, dst: str) -> bool:
+        return self.path(src, dst) is not None
+
+    def transit(self, src: str, dst: str) -> float | None:
+        path = self.path(src, dst)
+        if path is None:
+            return None
+        now = self.clock.monotonic()
+        at = now
+        for a, b in zip(path, path[1:]):
+            link = self.links[_pair(a, b)]
+            spent, rto = link.delay_s, RTO_S
+            while self.rng.random() < link.loss:  # lost on air: sent again after the RTO
+                spent += rto
+                rto *= 2
+                if spent > LEASE_S:
+                    return None  # the link's lease runs out first
+            at = max(at + spent, self._in_flight.get((a, b), 0.0))  # a stream keeps its order
+            self._in_flight[(a, b)] = at
+        return at - now
+
+    def call_later(self, seconds: float, callback: Callable[[], None]) -> None:
+        self.clock.call_later(seconds, callback)
+
+    async def sleep(self, seconds: float) -> None:
+        await self.clock.sleep(seconds)
+
+    def on_change(self, callback: Callable[[], None]) -> None:
+        self._listeners.append(callback)
+
+    # The mesh ----------------------------------------------------------------
+
+    def path(self, src: str, dst: str) -> list[str] | None:
+        """The fewest-hop path over live links (ties: by node name), or None."""
+        src, dst = self._node(src), self._node(dst)
+        if (src, dst) not in self._paths:
+            self._paths[(src, dst)] = self._search(src, dst)
+        return self._paths[(src, dst)]
+
+    def _search(self, src: str, dst: str) -> list[str] | None:
+        came_from: dict[str, str | None] = {src: None}
+        queue = deque([src])
+        while queue:
+            node = queue.popleft()
+            if node == dst:
+                path = [node]
+                while (prev := came_from[path[-1]]) is not None:
+                    path.append(prev)
+                return path[::-1]
+            for nxt in self._neighbours.get(node, []):
+                if nxt not in came_from:
+                    came_from[nxt] = node
+                    queue.append(nxt)
+        return None
+
+    def _node(self, name: str) -> str:
+        """Sessions not in the field (a test's observer) are wired to the ground."""
+        return name if name in self._neighbours else GROUND
+
+    async def run(self) -> None:
+        while True:
+            await self.clock.sleep(KEEPALIVE_S)
+            self.tick()
+
+    def tick(self) -> None:
+        """Follow the nodes: each link's loss from their distance; links close when
+        their lease runs out and open again when a retry's handshake gets through."""
+        where = dict(self.where())
+        now = self.clock.monotonic()
+        names = sorted(where)
+        changed = set(names) != set(self._neighbours)
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                link = self.links.setdefault((a, b), _Link())
+                d = distance_3d(where[a], where[b])
+                link.loss, link.delay_s = self.model.loss(d), self.model.delay(d) / 1000
+                if link.up:
+                    if self.rng.random() >= link.loss:
+                        link.heard = now
+                    elif now - link.heard >= LEASE_S:
+                        link.up, link.retry_at, changed = False, now + RETRY_S, True
+                elif now >= link.retry_at:
+                    link.retry_at = now + RETRY_S
+                    if self.rng.random() < (1.0 - link.loss) ** HANDSHAKE_PACKETS:
+                        link.up, link.heard, changed = True, now, True
+        if not changed:
+            return
+        self._neighbours = {n: [] for n in names}
+        for (a, b), link in sorted(self.links.items()):
+            if link.up and a in self._neighbours and b in self._neighbours:
+                self._neighbours[a].append(b)
+                self._neighbours[b].append(a)
+        self._paths.clear()
+        for callback in self._listeners:
+            callback()
+
+
+def _pair(a: str, b: str) -> tuple[str, str]:
+    return (a, b) if a < b else (b, a)
