@@ -38,6 +38,10 @@ log = logging.getLogger(__name__)
 Mode = Literal["client", "peer", "router"]
 DEFAULT_LEASE_MS = 2000
 
+# Zenoh's own log (links opening and closing, why a connect failed) goes to stderr when
+# RUST_LOG asks for it, e.g. RUST_LOG=zenoh=debug (on stdout); errors only otherwise.
+zenoh.init_log_from_env_or("error")
+
 
 def zenoh_config(
     mode: Mode,
@@ -62,7 +66,12 @@ def zenoh_config(
     put("transport/link/tx/lease", lease_ms)
     if mode == "router":
         put("scouting/delay", 0)
-        put("scouting/gossip/autoconnect", {"router": ["router"], "peer": ["router", "peer"]})
+        # Drones dial the routers they learn of (neighbours, for relaying). The ground
+        # (no `connect`) dials no one: each drone's link to it is the drone's own, so
+        # there is one link per drone. Seen in bench/mesh.py (Zenoh debug log): when
+        # the ground also dialled back, a pair held two links, and after the radio was
+        # cut the ground kept the second one 7 s past its 2 s lease (ADR 0003).
+        put("scouting/gossip/autoconnect", {"router": ["router"] if connect else [], "peer": ["router", "peer"]})
         if connect:
             # Measured (zenoh 1.10.2): 0 never retries an endpoint that was down at
             # open; 1 ms returns at once and retries every period, for ever.
