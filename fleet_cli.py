@@ -218,7 +218,11 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
 @click.option("--until-done", is_flag=True, help="Exit when the mission ends: 0 if it finished with success, else 1.")
 @click.option("--max-time", "max_time_s", type=click.FloatRange(1, 86_400), default=600, show_default=True,
               help="Cancel the mission and exit 1 if it runs longer than this (s).")
-def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float) -> None:
+@click.option("--radio", is_flag=True,
+              help="Drones on the emulated radio: each agent and its sensors in its own network namespace, "
+                   "loss following the distances (needs root; SPEC §8).")
+def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float,
+         radio: bool) -> None:
     """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
     from sim.demo import DEFAULT_WORLD, Demo, DemoOptions
 
@@ -227,12 +231,14 @@ def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_don
             logging.getLogger(name).setLevel(logging.WARNING)
     options = DemoOptions(
         port=port, http_port=http_port, world=world or DEFAULT_WORLD, out_dir=out_dir,
-        until_done=until_done, max_time_s=max_time_s,
+        until_done=until_done, max_time_s=max_time_s, radio=radio,
     )
     run = Demo(options, lambda line: click.echo(line))
+    from sim.radio_net import RadioUnavailable
+
     try:
         code = run_async(run.run())
-    except ConfigError as exc:
+    except (ConfigError, RadioUnavailable) as exc:
         fail(str(exc), 2)
     except FleetError as exc:
         fail(str(exc))

@@ -188,7 +188,10 @@ class MavsdkFlightController:
                 if bat is not None else None
             ),
             gps_info=GpsInfo(satellites=gps.num_satellites, fix_type=gps.fix_type.name.lower()) if gps else None,  # type: ignore[arg-type]
-            health_failures=tuple(n for attr, n in _HEALTH.items() if health is not None and not getattr(health, attr)),
+            # Unknown health is not good health: until MAVSDK has a health report (about
+            # 2 s after discovery; its first ones read all False) every check counts as
+            # failing, so the drone is not `ready` before the autopilot would arm.
+            health_failures=tuple(n for attr, n in _HEALTH.items() if health is None or not getattr(health, attr)),
             local_ned=(
                 (local.position.north_m, local.position.east_m, local.position.down_m) if local is not None else None
             ),

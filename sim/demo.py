@@ -75,6 +75,7 @@ class DemoOptions:
     out_dir: Path = Path("demo-out")
     until_done: bool = False
     max_time_s: float = 600.0
+    radio: bool = False  # drones on the emulated radio (root): MAVLink vehicles here, agents in namespaces
 
 
 @dataclass
@@ -109,6 +110,8 @@ class Demo:
         self.options = options
         self.out = out
         self.endpoint = f"tcp/127.0.0.1:{options.port}"
+        # On the radio the agents reach the ground at its radio address: listen on all.
+        self.listen = f"tcp/0.0.0.0:{options.port}" if options.radio else self.endpoint
         self.url = f"http://127.0.0.1:{options.http_port}"
         self.keys = Keys()
         self.mission_ok: bool | None = None  # set once the mission has ended
@@ -124,6 +127,10 @@ class Demo:
     # ---- the run ----------------------------------------------------------------------
 
     async def run(self) -> int:
+        if self.options.radio:
+            from sim.radio_net import require_net_admin
+
+            require_net_admin()
         world = load_world(self.options.world)
         specs = world.spawn()
         if not specs:
@@ -136,7 +143,7 @@ class Demo:
         self._broken = asyncio.get_running_loop().create_future()
         self.tracks = {spec.id: _Track() for spec in specs}
         with tempfile.TemporaryDirectory(prefix="fleet-demo-") as data_dir:
-            config = GroundConfig(listen=[self.endpoint], http_port=self.options.http_port, data_dir=data_dir)
+            config = GroundConfig(listen=[self.listen], http_port=self.options.http_port, data_dir=data_dir)
             self._background(run_ground(config, self.out), "the ground")
             body: asyncio.Task[int] | None = None
             try:
@@ -161,13 +168,16 @@ class Demo:
     async def _main(self, http: httpx.AsyncClient, world: World, specs: list[DroneSpec], source: str) -> int:
         opts = self.options
         await self._wait_http(http)
-        for spec in specs:
-            self._start_agent(spec)
+        if opts.radio:
+            self._start_radio(world)
+        else:
+            for spec in specs:
+                self._start_agent(spec)
         self.bus = bus = await ZenohBus.open("client", connect=[self.endpoint], wait=True)
         for spec in specs:
             bus.subscribe(self.keys.telem(spec.id), self._on_telem, latest_only=True)
             bus.subscribe(self.keys.sensor(spec.id), self._on_sensor)
-            for kind in spec.sensors:
+            for kind in spec.sensors if not opts.radio else []:  # on the radio: beside each agent
                 self._start_sensor(bus, world, spec.id, kind)
         sampler = self._background(self._sample(), "the telemetry recorder")
 
@@ -226,6 +236,30 @@ class Demo:
         )
         self.agents.append(_Agent(spec, proc, log_path, log_file))
 
+    def _start_radio(self, world: World) -> None:
+        """`fleet sim --agents --radio` in the background: the vehicles here, each drone's
+        agent and sensors in its own namespace, loss following the distances. Its
+        lines go to logs/sim.log, the radio's own to the screen."""
+        from sim.fleet_sim import run_sim
+
+        logs = self.options.out_dir / "logs"
+        agent_config = logs / "agent.yml"
+        agent_config.write_text(f"telemetry_rate_ms: {TELEMETRY_RATE_MS}\n")
+        sim_log = open(logs / "sim.log", "a", encoding="utf-8")  # noqa: SIM115 - closed with the task
+
+        def out(line: str) -> None:
+            if line.startswith("radio:"):
+                self.out(f"{self._stamp()} {line}")
+            sim_log.write(line + "\n")
+            sim_log.flush()
+
+        task = self._background(
+            run_sim(world, None, agents=True, radio=True, ground_port=self.options.port, agent_config=agent_config,
+                    out=out, log_dir=logs),
+            "the emulated radio",
+        )
+        task.add_done_callback(lambda _: sim_log.close())
+
     def _start_sensor(self, bus: Bus, world: World, drone_id: str, kind: str) -> None:
         self._background(simulated_sensor(bus, drone_id, kind, world, keys=self.keys), f"the {kind} sensor of {drone_id}")
 
@@ -235,16 +269,18 @@ class Demo:
         while True:
             self._check_agents()
             infos = await self._poll_states(http)
-            missing = [
+            missing = [  # ready, with its sensors, and healthy (an autopilot's checks pass after its start)
                 s.id for s in specs
                 if s.id not in infos or infos[s.id]["state"] != "ready" or not set(s.sensors) <= set(infos[s.id]["sensors"])
+                or infos[s.id].get("errors")
             ]
             if not missing:
                 self.out(f"{self._stamp()} all drones ready: {', '.join(s.id for s in specs)}")
                 return
             if time.monotonic() > deadline:
                 detail = "; ".join(
-                    f"{d}: " + (f"{infos[d]['state']}, sensors {infos[d]['sensors']}" if d in infos else "not registered")
+                    f"{d}: " + (f"{infos[d]['state']}, sensors {infos[d]['sensors']}"
+                                + "".join(f", {e}" for e in infos[d].get("errors") or []) if d in infos else "not registered")
                     for d in missing
                 )
                 raise FleetError(f"drones not ready within {DRONES_READY_S:g} s ({detail}); see {self.options.out_dir / 'logs'}")

@@ -71,7 +71,11 @@ async def run_sim(
     radio: bool = False,
     ground_port: int = 7447,
     out: Callable[[str], None] = print,
+    log_dir: Path | None = None,
 ) -> None:
+    """Run the world's vehicles (and with `agents`, an agent per vehicle, and with
+    `radio`, each in its own namespace on the emulated radio) until cancelled. The
+    children's output goes to `log_dir/<name>.log` if given, else to ours."""
     specs = world.spawn(n)
     vehicles: dict[str, SimVehicle] = {}
     tasks: list[asyncio.Task[None]] = []
@@ -126,12 +130,12 @@ async def run_sim(
                         args += ["--connect", ep]
                     if agent_config is not None:
                         args += ["--config", str(agent_config)]
-                children.append(subprocess.Popen(args, preexec_fn=die_with_parent))
+                children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
                 for kind in v.spec.sensors if field is not None else []:
                     sensor_args = field.sensor_args(v.spec.id, kind, Path(scratch.name))
                     if sensor_args is not None:
-                        children.append(subprocess.Popen(sensor_args, preexec_fn=die_with_parent))
+                        children.append(_child(sensor_args, log_dir, f"{v.spec.id}-{kind}"))
                         out(f"{kind} sensor of {v.spec.id} started (pid {children[-1].pid})")
         await asyncio.gather(*tasks)
     finally:
@@ -153,3 +157,11 @@ async def run_sim(
         if field is not None:
             field.close()
         scratch.cleanup()
+
+
+def _child(args: list[str], log_dir: Path | None, name: str) -> subprocess.Popen[bytes]:
+    if log_dir is None:
+        return subprocess.Popen(args, preexec_fn=die_with_parent)
+    with open(log_dir / f"{name}.log", "ab") as log:  # the child keeps its own descriptor
+        return subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                                preexec_fn=die_with_parent)

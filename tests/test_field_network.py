@@ -23,7 +23,7 @@ import yaml
 from schemas.geo import destination, distance_m
 from sim.radio_net import has_net_admin, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, fleet_command
-from tests.helpers import free_udp_base, until
+from tests.helpers import free_port, free_udp_base, until
 
 pytestmark = pytest.mark.integration
 GROUND = (40.633490, -8.660815)
@@ -300,3 +300,32 @@ def _wait_sync(predicate: Any, timeout_s: float, what: str) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
         time.sleep(0.1)
+
+
+@pytest.mark.timeout(480)
+def test_the_demo_on_the_radio_traces_the_fire_and_leaves_nothing(tmp_path: Path) -> None:
+    """`fleet demo --radio`: the fire world with the laptop beside the fire (every point
+    of the trace in good range); each agent and sensor in its namespace."""
+    from tests.test_demo import run_demo
+
+    world = tmp_path / "near.yml"
+    world.write_text(yaml.safe_dump({
+        "origin": {"lat": 40.633490, "lon": -8.660815, "alt": 8.2},
+        "ground_station": {"lat": 40.633849, "lon": -8.660637},
+        "drones": [{"id": "drone01", "lat": 40.633490, "lon": -8.660815, "sensors": ["temperature"]},
+                   {"id": "drone02", "lat": 40.633490, "lon": -8.660756}],
+        "heat_sources": [{"lat": 40.633849, "lon": -8.660637, "radius": 50, "temp": 60}],
+    }))
+    out = tmp_path / "demo-out"
+    code, stdout, stderr, elapsed = run_demo(
+        "--radio", "--until-done", "--world", str(world), "--port", str(free_port()), "--http-port", str(free_port()),
+        "--out", str(out), timeout_s=420,
+    )
+    assert code == 0, f"exit {code} after {elapsed:.0f} s:\n{stdout[-4000:]}\n{stderr[-4000:]}"
+    assert "radio: drone01 at 10.231." in stdout and "in namespace fleet-" in stdout
+    assert "mission m1 finished: success" in stdout
+    result = json.loads((out / "result.json").read_text())
+    temperatures = [s["sensors"].get("temperature") for s in result["drones"]["drone01"]["samples"]]
+    assert max(t for t in temperatures if t is not None) > 37  # the sensor program in drone01's namespace
+    assert "drone01 system connect" in (out / "logs" / "drone01.log").read_text()
+    assert not [ns for ns in list_netns() if ns.startswith("fleet-")]  # all removed on exit
