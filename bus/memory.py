@@ -74,7 +74,7 @@ class MemoryNetwork:
     tokens: list[_Decl] = field(default_factory=list)
     watchers: list[tuple[_Decl, Inbox[tuple[str, bool]]]] = field(default_factory=list)
     # The tokens each watcher has been told are alive (what it sees of the mesh).
-    _seen: dict[int, set[int]] = field(default_factory=dict)
+    _seen: dict[_Decl, set[_Decl]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.medium is not None:
@@ -93,19 +93,17 @@ class MemoryNetwork:
             self.medium.call_later(delay, deliver)
 
     async def cross(self, src: str, dst: str) -> None:
-        """Return once a message from src has crossed to dst (never, if it is lost)."""
-        if self.medium is None or src == dst:
-            return
-        delay = self.medium.transit(src, dst)
-        if delay is None:
-            await asyncio.get_running_loop().create_future()  # lost: until the asker gives up
-        await self.medium.sleep(delay or 0.0)
+        """Return once a message from src has crossed to dst (never, if it is lost:
+        until the asker gives up)."""
+        arrived: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self.carry(src, dst, lambda: arrived.done() or arrived.set_result(None))
+        await arrived
 
     def _tell(self, watcher: tuple[_Decl, Inbox[tuple[str, bool]]], token: _Decl, alive: bool) -> None:
-        seen = self._seen.setdefault(id(watcher[0]), set())
-        if alive == (id(token) in seen):
+        seen = self._seen.setdefault(watcher[0], set())
+        if alive == (token in seen):
             return
-        (seen.add if alive else seen.discard)(id(token))
+        (seen.add if alive else seen.discard)(token)
         watcher[1].put_nowait((token.keyexpr, alive))
 
     def _tell_watchers(self, token: _Decl, alive: bool) -> None:
@@ -239,7 +237,7 @@ class MemoryBus:
         def close() -> None:
             inbox.close()
             self._net.watchers.remove(entry)
-            self._net._seen.pop(id(entry[0]), None)
+            self._net._seen.pop(entry[0], None)
 
         entry = (self._declare(keyexpr, close), inbox)
         self._net.watchers.append(entry)

@@ -38,8 +38,8 @@ log = logging.getLogger(__name__)
 Mode = Literal["client", "peer", "router"]
 DEFAULT_LEASE_MS = 2000
 
-# Zenoh's own log (links opening and closing, why a connect failed) goes to stderr when
-# RUST_LOG asks for it, e.g. RUST_LOG=zenoh=debug (on stdout); errors only otherwise.
+# Zenoh's own log (links opening and closing, why a connect failed) goes to stdout when
+# RUST_LOG asks for it, e.g. RUST_LOG=zenoh=debug; errors only otherwise.
 zenoh.init_log_from_env_or("error")
 
 

@@ -33,7 +33,7 @@ from mission.mission import MissionRecord
 from mission.plugins import PluginLibrary
 from schemas.keys import Keys
 from schemas.telemetry import LinkQuality, Telemetry
-from sim.radio import GROUND, RadioModel, Spot3
+from sim.radio import GROUND, RadioModel, Spot3, spot_of
 from sim.radio_air import RadioAir
 from sim.sensors import simulated_sensor
 from sim.vehicle import Vehicle
@@ -94,11 +94,7 @@ class SimField:
         return bus
 
     def _where(self) -> dict[str, Spot3]:
-        spots = {GROUND: self.world.ground_spot3()}
-        for drone_id, vehicle in self.vehicles.items():
-            p = vehicle.position()
-            spots[drone_id] = Spot3(p.lat, p.lon, p.alt)
-        return spots
+        return {GROUND: self.world.ground_spot3(), **{k: spot_of(v.position()) for k, v in self.vehicles.items()}}
 
     async def start(self, echo: Callable[[float, str], None] | None = None) -> None:
         loop = asyncio.get_running_loop()

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from sim.faults import FaultChannel, apply_fault, open_fault_channel
 from sim.mavlink_endpoint import MavlinkVehicle
-from sim.radio import Spot3
+from sim.radio import Spot3, spot_of
 from sim.radio_field import RadioField
 from sim.radio_net import die_with_parent, socket_in_netns
 from sim.vehicle import Vehicle
@@ -113,8 +113,7 @@ async def run_sim(
             out(status_line(v))
         if field is not None:
             def where() -> dict[str, Spot3]:
-                spots = {k: v.endpoint.vehicle.position() for k, v in vehicles.items()}
-                return {k: Spot3(p.lat, p.lon, p.alt) for k, p in spots.items()}
+                return {k: spot_of(v.endpoint.vehicle.position()) for k, v in vehicles.items()}
 
             field.update(where())
             tasks.append(loop.create_task(field.follow(where), name="radio"))

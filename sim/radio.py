@@ -18,7 +18,7 @@ import msgspec
 from msgspec import Meta
 
 from schemas.geo import distance_m
-from schemas.telemetry import GROUND_PEER
+from schemas.telemetry import GROUND_PEER, Position
 
 GROUND = GROUND_PEER  # the node name of the field laptop in every link table
 LOSS_STEPS = 1000  # loss is applied in 1/1000ths (nftables `numgen random mod 1000`)
@@ -68,6 +68,11 @@ class Spot3(msgspec.Struct, frozen=True):
     lat: float
     lon: float
     alt: float  # m AMSL
+
+
+def spot_of(position: Position) -> Spot3:
+    """Where a vehicle is, as the radio model sees it."""
+    return Spot3(position.lat, position.lon, position.alt)
 
 
 def distance_3d(a: Spot3, b: Spot3) -> float:

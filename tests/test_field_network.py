@@ -225,6 +225,7 @@ async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildPr
     await sim.up()
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         await until(lambda: state_is(http, "droneB", "ready"), 60, "droneB ready at the ground (through droneA)")
+        await until(lambda: state_is(http, "droneA", "ready"), 60, "droneA ready (its autopilot's health known)")
         # Only through A: B's packets to and from the ground are all dropped.
         await until(lambda: 'iifname "d1" oifname "g" drop' in sim.rules(), 10, "B-ground total loss")
         assert 'iifname "g" oifname "d1" drop' in sim.rules()
