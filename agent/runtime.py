@@ -35,6 +35,7 @@ from schemas.status import CommandStatus, SystemStatus
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
+NEIGHBOUR_SCOUT_PERIOD_S = 1.0
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 
@@ -66,6 +67,7 @@ class Agent:
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
         self._seq = 0
+        self.ground_heard_at = clock.monotonic()  # last answered ground probe (start: not yet)
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -78,7 +80,12 @@ class Agent:
             state=state, reason=reason,  # type: ignore[arg-type]
         ))
 
+    def ground_silent(self) -> bool:
+        """No answer from the ground for two probe periods."""
+        return self.clock.monotonic() - self.ground_heard_at > 2 * self.config.probe_period_ms / 1000
+
     def _on_ground_contact(self, now: float) -> None:
+        self.ground_heard_at = now
         for decision, summary in self.lost_link.contact(now):
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)
@@ -196,8 +203,37 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
         bus = await ZenohBus.open("router", config.connect, config.listen, mesh_interface=config.mesh_interface)
         try:
             await _join(bus, Keys(config.namespace), drone_id)
-            await Agent(drone_id, config, fc, bus, clock).run()
+            agent = Agent(drone_id, config, fc, bus, clock)
+            if config.mesh_interface is None:
+                await agent.run()
+            else:
+                async with asyncio.TaskGroup() as tg:
+                    tg.create_task(agent.run(), name=f"{drone_id} agent")
+                    tg.create_task(_find_neighbours(agent, config.mesh_interface), name=f"{drone_id} neighbours")
         finally:
             await bus.close()
     finally:
         await fc.close()
+
+
+async def _find_neighbours(agent: Agent, interface: str) -> None:
+    """While the ground is silent, scout for neighbours every second (bus/scout_assist.py:
+    Zenoh's own scouting slows to every 8 s, too slow to relink through a drone
+    coming back into range)."""
+    from bus.scout_assist import NeighbourScout
+
+    scout = await NeighbourScout.open(interface)
+    try:
+        silent = False
+        while True:
+            if agent.ground_silent():
+                if not silent:
+                    log.info("%s: the ground is silent; scouting %s for neighbours every %g s",
+                             agent.drone_id, interface, NEIGHBOUR_SCOUT_PERIOD_S)
+                silent = True
+                scout.round()
+            else:
+                silent = False
+            await agent.clock.sleep(NEIGHBOUR_SCOUT_PERIOD_S)
+    finally:
+        scout.close()
