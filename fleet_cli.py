@@ -1,7 +1,9 @@
 """`fleet`: the command line. Thin: parse, load a strict config, call into the package.
 
 Only this module configures logging output. Exit codes: 0 done, 1 runtime failure
-(e.g. flight controller unreachable), 2 bad usage or configuration.
+(e.g. flight controller unreachable), 2 bad usage or configuration. The group is the
+one boundary for user errors: a FleetError (or a file that cannot be read or written)
+that reaches it ends as one line `fleet: …` and its exit code, never a traceback.
 """
 
 from __future__ import annotations
@@ -16,7 +18,12 @@ from typing import Any
 
 import click
 
+from schemas.endpoints import check_endpoint, split_host_port
 from schemas.errors import ConfigError, FleetError
+
+# Long-running services print what they do at INFO; clients only warn unless asked.
+SERVICES = frozenset({"agent", "ground", "sim", "demo", "sensor"})
+LIBRARIES = ("zenoh", "httpx", "httpcore", "matplotlib", "asyncio", "mavsdk", "grpc", "uvicorn")
 
 
 def run_async(main: Coroutine[Any, Any, Any]) -> Any:
@@ -42,21 +49,89 @@ def fail(message: str, code: int = 1) -> None:
     sys.exit(code)
 
 
-@click.group(help=__doc__.split("\n")[0].removeprefix("`fleet`: "))
-@click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
-def main(verbose: int) -> None:
-    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose + 1, 2)]
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr)
-    for noisy in ("zenoh", "httpx", "httpcore"):
-        logging.getLogger(noisy).setLevel(logging.WARNING)
+class FleetGroup(click.Group):
+    """Turns the package's deliberate errors into one line and an exit code."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except FleetError as exc:
+            click.echo(f"fleet: {exc}", err=True)
+            ctx.exit(exc.exit_code)
+        except OSError as exc:  # a file or socket the user named
+            where = f": {exc.filename}" if exc.filename else ""
+            click.echo(f"fleet: {exc.strerror or exc}{where}", err=True)
+            ctx.exit(1)
+
+
+class EndpointType(click.ParamType):
+    name = "ENDPOINT"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        try:
+            return check_endpoint(str(value))
+        except ConfigError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+class HostPortType(click.ParamType):
+    name = "HOST:PORT"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> tuple[str, int]:
+        if isinstance(value, tuple):
+            return value
+        try:
+            return split_host_port(str(value))
+        except ConfigError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+def checked_id(value: str, where: str) -> str:
+    from schemas.errors import InvalidMessage
+    from schemas.keys import check_id
+
+    try:
+        return check_id(value)
+    except InvalidMessage as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+
+
+def drone_id_option(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    try:
+        return None if value is None else checked_id(value, "drone id")
+    except ConfigError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
+ENDPOINT = EndpointType()
+HOST_PORT = HostPortType()
+
+
+def log_levels(command: str | None, verbose: int) -> tuple[str, str]:
+    """(Fleet's level, the libraries' level) for a command and a -v count."""
+    steps = ["WARNING", "INFO", "DEBUG"]
+    base = 1 if command in SERVICES else 0
+    fleet = steps[min(base + verbose, 2)]
+    return fleet, "DEBUG" if verbose >= 2 else "WARNING"
+
+
+@click.group(cls=FleetGroup, help=__doc__.split("\n")[0].removeprefix("`fleet`: "))
+@click.option("-v", "--verbose", count=True,
+              help="More log output: -v Fleet's next level (services: debug; clients: info), -vv debug for everything.")
+@click.pass_context
+def main(ctx: click.Context, verbose: int) -> None:
+    fleet, libraries = log_levels(ctx.invoked_subcommand, verbose)
+    logging.basicConfig(level=fleet, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr)
+    for name in LIBRARIES:
+        logging.getLogger(name).setLevel(libraries)
 
 
 @main.command()
-@click.option("--id", "drone_id", required=True, help="Drone identifier, e.g. drone01.")
+@click.option("--id", "drone_id", required=True, callback=drone_id_option, help="Drone identifier, e.g. drone01.")
 @click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Agent YAML config.")
 @click.option("--fc", help="Flight controller URL: sim, udp://:14540, serial:///dev/ttyACM0[:baud], tcp://host:port.")
-@click.option("--connect", multiple=True, help="Zenoh endpoint of the ground router (repeatable), e.g. tcp/192.168.1.10:7447.")
-@click.option("--listen", multiple=True, help="Zenoh endpoint of this agent's own router (repeatable; default tcp/0.0.0.0:7448): on-board programs and neighbouring drones connect here.")
+@click.option("--connect", multiple=True, type=ENDPOINT, help="Zenoh endpoint of the ground router (repeatable), e.g. tcp/192.168.1.10:7447.")
+@click.option("--listen", multiple=True, type=ENDPOINT, help="Zenoh endpoint of this agent's own router (repeatable; default tcp/0.0.0.0:7448): on-board programs and neighbouring drones connect here.")
 @click.option("--mesh-interface", help="Radio interface on which to find neighbouring drones (multicast scouting), e.g. wlan0.")
 @click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
 def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
@@ -65,28 +140,17 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
     from agent.config import AgentConfig
     from schemas.config import load_config
     from agent.runtime import run_agent
-    from schemas.keys import check_id
-
-    try:
-        check_id(drone_id)
-        config = load_config(
-            AgentConfig, config_path,
-            {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
-             "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms},
-        )
-    except FleetError as exc:
-        fail(str(exc), 2)
-    try:
-        run_async(run_agent(drone_id, config))
-    except ConfigError as exc:
-        fail(str(exc), 2)
-    except FleetError as exc:
-        fail(str(exc), 1)
+    config = load_config(
+        AgentConfig, config_path,
+        {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
+         "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms},
+    )
+    run_async(run_agent(drone_id, config))
 
 
 @main.command()
 @click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Ground YAML config.")
-@click.option("--listen", multiple=True, help="Zenoh endpoint the router listens on (repeatable); default tcp/0.0.0.0:7447.")
+@click.option("--listen", multiple=True, type=ENDPOINT, help="Zenoh endpoint the router listens on (repeatable); default tcp/0.0.0.0:7447.")
 @click.option("--http-port", type=click.IntRange(0, 65535), help="HTTP API port; default 8001.")
 @click.option("--data-dir", help="Where the event log and mission records live; default ~/.local/share/fleet.")
 def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None) -> None:
@@ -95,84 +159,63 @@ def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | N
     from ground.lifecycle import run_ground
     from schemas.config import load_config
 
-    try:
-        config = load_config(
-            GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir}
-        )
-        run_async(run_ground(config, lambda line: click.echo(line)))
-    except ConfigError as exc:
-        fail(str(exc), 2)
-    except FleetError as exc:
-        fail(str(exc), 1)
+    config = load_config(
+        GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir}
+    )
+    run_async(run_ground(config, lambda line: click.echo(line)))
 
 
 @main.command()
 @click.argument("keyexpr", default="**")
-@click.option("--connect", multiple=True, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
-@click.option("--count", type=int, help="Exit after this many samples.")
+@click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
+@click.option("--count", type=click.IntRange(1), help="Exit after this many samples.")
 def sub(keyexpr: str, connect: tuple[str, ...], count: int | None) -> None:
     """Print live traffic: one line per sample, key and compact JSON."""
     from bus.tap import tap
 
-    try:
-        run_async(tap(keyexpr, list(connect), lambda line: click.echo(line), count))
-    except FleetError as exc:
-        fail(str(exc))
+    run_async(tap(keyexpr, list(connect), lambda line: click.echo(line), count))
 
 
 @main.command()
 @click.argument("world", required=False, type=click.Path(path_type=Path, dir_okay=False, exists=True))
 @click.option("-n", "count", type=click.IntRange(1, 100), help="Number of vehicles (default: the world's, else 1).")
 @click.option("--agents", is_flag=True, help="Also start one `fleet agent` per vehicle.")
-@click.option("--connect", multiple=True, help="Zenoh endpoint for the agents (repeatable).")
+@click.option("--connect", multiple=True, type=ENDPOINT, help="Zenoh endpoint for the agents (repeatable).")
 @click.option("--agent-config", type=click.Path(path_type=Path, dir_okay=False, exists=True), help="Config file passed to each agent.")
 @click.option("--base-port", type=click.IntRange(1025, 65000), default=14540, show_default=True, help="Vehicle i sends MAVLink to 127.0.0.1:BASE+i; fault control listens on BASE-1.")
-@click.option("--output", "outputs", multiple=True, help="Extra MAVLink output HOST:PORT for every vehicle (e.g. a GCS on 14550).")
+@click.option("--output", "outputs", multiple=True, type=HOST_PORT, help="Extra MAVLink output HOST:PORT for every vehicle (e.g. a GCS on 14550).")
 @click.option("--radio", is_flag=True, help="Emulated radio: each drone in its own network namespace, loss following the distances (needs root).")
 @click.option("--ground-port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="With --radio: the port of `fleet ground` the agents connect to at the laptop's radio address.")
 def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int,
-        outputs: tuple[str, ...], radio: bool, ground_port: int) -> None:
+        outputs: tuple[tuple[str, int], ...], radio: bool, ground_port: int) -> None:
     """Run PX4-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
     from sim.fleet_sim import run_sim
     from sim.world import load_world
 
-    try:
-        loaded = load_world(world)
-        extra = [(host, int(port)) for host, _, port in (o.rpartition(":") for o in outputs)]
-    except ValueError:
-        fail("--output takes HOST:PORT", 2)
-    except FleetError as exc:
-        fail(str(exc), 2)
-    from sim.radio_net import RadioUnavailable
-
+    loaded = load_world(world)
     try:
         run_async(run_sim(
             loaded, count, base_port=base_port, agents=agents, connect=list(connect),
-            agent_config=agent_config, extra_outputs=extra, radio=radio, ground_port=ground_port,
+            agent_config=agent_config, extra_outputs=list(outputs), radio=radio, ground_port=ground_port,
             out=lambda line: click.echo(line),
         ))
     except OSError as exc:
         fail(f"cannot bind the simulator's ports: {exc}")
-    except RadioUnavailable as exc:
-        fail(str(exc), 2)
-    except FleetError as exc:
-        fail(str(exc))
 
 
 @main.command()
 @click.argument("drone")
 @click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "status"]))
 @click.argument("value", required=False)
-@click.option("--control", default="127.0.0.1:14539", show_default=True, help="Control channel: `fleet sim` (base port - 1) or an agent on `--fc sim://?control=PORT`.")
-def fault(drone: str, kind: str, value: str | None, control: str) -> None:
+@click.option("--control", type=HOST_PORT, default="127.0.0.1:14539", show_default=True, help="Control channel: `fleet sim` (base port - 1) or an agent on `--fc sim://?control=PORT`.")
+def fault(drone: str, kind: str, value: str | None, control: tuple[str, int]) -> None:
     """Inject a fault into a vehicle of a running `fleet sim`."""
     from sim.faults import send_fault
 
-    host, _, port = control.rpartition(":")
     try:
-        reply = run_async(send_fault(drone, kind, value, (host, int(port))))
+        reply = run_async(send_fault(drone, kind, value, control))
     except TimeoutError:
-        fail(f"no `fleet sim` answers on {control}")
+        fail(f"no `fleet sim` answers on {control[0]}:{control[1]}")
     if not reply or not reply.get("ok"):
         fail(str(reply.get("error") if reply else "no reply"))
     for line in (reply.get("status") or {}).values():
@@ -185,27 +228,21 @@ def sensor() -> None:
 
 
 @sensor.command("temperature")
-@click.option("--drone", "drone_id", help="The drone whose telemetry gives the position (or drone_id in the config).")
+@click.option("--drone", "drone_id", callback=drone_id_option, help="The drone whose telemetry gives the position (or drone_id in the config).")
 @click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Heat field YAML: rate_ms, environment_temp, heat_sources [{lat, lon, radius, temp}].")
-@click.option("--connect", multiple=True, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
+@click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
 @click.option("--rate-ms", type=int, help="Publish period in milliseconds (default 200).")
 @click.option("--count", type=click.IntRange(1), help="Exit after publishing this many readings.")
 def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: tuple[str, ...], rate_ms: int | None, count: int | None) -> None:
     """Thesis example 21: the temperature where DRONE is, from a heat field, on drone/<id>/sensor/temperature."""
     from schemas.config import load_config
-    from schemas.keys import check_id
     from sim.sensors import HeatConfig, run_temperature_sensor
 
-    try:
-        config = load_config(HeatConfig, config_path, {"drone_id": drone_id, "rate_ms": rate_ms})
-        if config.drone_id is None:
-            raise ConfigError("give --drone ID (or drone_id in the config)")
-        check_id(config.drone_id)
-        run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count))
-    except ConfigError as exc:
-        fail(str(exc), 2)
-    except FleetError as exc:
-        fail(str(exc))
+    config = load_config(HeatConfig, config_path, {"drone_id": drone_id, "rate_ms": rate_ms})
+    if config.drone_id is None:
+        raise ConfigError("give --drone ID (or drone_id in the config)")
+    checked_id(config.drone_id, f"{config_path}: drone_id")
+    run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count))
 
 
 @main.command()
@@ -224,6 +261,7 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
 def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float,
          radio: bool) -> None:
     """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
+    from schemas.config import writable_dir
     from sim.demo import DEFAULT_WORLD, Demo, DemoOptions
 
     if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the demo prints its own progress; -v shows the rest
@@ -233,15 +271,9 @@ def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_don
         port=port, http_port=http_port, world=world or DEFAULT_WORLD, out_dir=out_dir,
         until_done=until_done, max_time_s=max_time_s, radio=radio,
     )
+    writable_dir(out_dir, "--out")
     run = Demo(options, lambda line: click.echo(line))
-    from sim.radio_net import RadioUnavailable
-
-    try:
-        code = run_async(run.run())
-    except (ConfigError, RadioUnavailable) as exc:
-        fail(str(exc), 2)
-    except FleetError as exc:
-        fail(str(exc))
+    code = run_async(run.run())
     if code is None:  # Ctrl-C or SIGTERM: fine once the mission has succeeded
         code = 0 if run.mission_ok else 130
     sys.exit(code)

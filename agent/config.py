@@ -13,6 +13,7 @@ import msgspec
 from msgspec import Meta
 
 from agent.link import LostLinkPolicy
+from schemas.endpoints import check_endpoints
 
 AGENT_PORT = 7448  # the agent's own router: on-board programs and neighbours connect here
 
@@ -33,3 +34,6 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = 15.0
     max_speed: Annotated[float, Meta(gt=0.0, le=50.0)] = 5.0
     namespace: str = ""
+
+    def __post_init__(self) -> None:
+        check_endpoints(connect=self.connect, listen=self.listen)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import logging
 from collections.abc import Sequence
 from typing import Any, Literal
@@ -90,6 +91,14 @@ def zenoh_config(
     return conf
 
 
+def zenoh_message(exc: BaseException) -> str:
+    """A Zenoh error without the Rust source locations it carries (`at /root/.cargo/…rs:61.`)."""
+    return _RUST_LOCATION.sub("", str(exc)).strip()
+
+
+_RUST_LOCATION = re.compile(r"\s*at /\S+?\.rs:\d+\.?")
+
+
 class _Declared:
     def __init__(self, undeclare: Any, inbox: Inbox[Any] | None = None) -> None:
         self._undeclare = undeclare
@@ -144,7 +153,7 @@ class ZenohBus:
                 return cls(session, asyncio.get_running_loop())
             except zenoh.ZError as exc:
                 if not wait:
-                    raise BusError(f"cannot open Zenoh {mode} session ({', '.join(connect or listen)}): {exc}") from None
+                    raise BusError(f"cannot open Zenoh {mode} session ({', '.join(connect or listen)}): {zenoh_message(exc)}") from None
                 if attempt == 1 or attempt % 10 == 0:
                     log.warning("waiting for a Zenoh router at %s: %s", ", ".join(connect), exc)
                 await asyncio.sleep(retry_s)

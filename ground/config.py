@@ -13,6 +13,7 @@ from typing import Annotated, Literal
 
 import msgspec
 from msgspec import Meta
+from schemas.endpoints import check_endpoints
 
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
 Millis = Annotated[int, Meta(ge=0, le=86_400_000)]
@@ -51,6 +52,7 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
 
     def __post_init__(self) -> None:
+        check_endpoints(listen=self.listen)
         if self.battery.critical > self.battery.low:
             raise ValueError("battery.critical must not exceed battery.low")
 

@@ -184,6 +184,7 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
 
     from mission.sandbox import ScriptError, compile_mission
     from mission.simulate import simulate as run
+    from schemas.config import writable_dir
     from sim.world import load_world
 
     from mission.plugins import PluginLibrary, parse_enable, plugin_summary
@@ -194,15 +195,15 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     enable: dict[str, dict[str, object]] = {}
     if inputs:
         if len(plugins) != 1:
-            _fail(f"unexpected arguments {' '.join(inputs)}: key=value inputs after SCRIPT need exactly one --enable")
+            _fail(f"unexpected arguments {' '.join(inputs)}: key=value inputs after SCRIPT need exactly one --enable", 2)
         plugins = (" ".join((plugins[0], *inputs)),)
     for text in plugins:
         try:
             plugin_id, inputs = parse_enable(text)
         except ValueError as exc:
-            _fail(str(exc))
+            _fail(str(exc), 2)
         if library.get(plugin_id) is None:
-            _fail(f"--enable: no plugin {plugin_id!r} (loaded: {', '.join(sorted(library.plugins)) or 'none'})")
+            _fail(f"--enable: no plugin {plugin_id!r} (loaded: {', '.join(sorted(library.plugins)) or 'none'})", 2)
         enable[plugin_id] = inputs
     source = _read_script(script)
     try:
@@ -213,6 +214,8 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         for name in ("ground", "mission", "agent", "matplotlib"):
             logging.getLogger(name).setLevel(logging.WARNING)
     field = load_world(world)
+    if out_dir is not None:
+        writable_dir(out_dir, "--out")  # before the run, not after it
     if radio is not None:
         field = msgspec.structs.replace(field, radio=field.radio_model if radio else None)
     started = time.perf_counter()

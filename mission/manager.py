@@ -25,6 +25,7 @@ from ground.station import GroundStation, WatchEvent
 from mission.mission import CommandResult, Mission, MissionLogLine, MissionRecord
 from mission.plugins import PluginLibrary
 from mission.sandbox import compile_mission
+from schemas.errors import FleetError
 
 log = logging.getLogger(__name__)
 
@@ -47,11 +48,11 @@ CREATE INDEX IF NOT EXISTS mission_log_mission ON mission_log (mission_id, id);
 _record_decoder = msgspec.json.Decoder(MissionRecord)
 
 
-class UnknownMission(KeyError):
-    pass
+class UnknownMission(FleetError, KeyError):
+    """No mission with that id (HTTP 404)."""
 
 
-class MissionEnded(Exception):
+class MissionEnded(FleetError):
     """Cancelling a mission that already ended (HTTP 409)."""
 
 

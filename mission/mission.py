@@ -31,7 +31,7 @@ from mission import assignment as a
 from mission.plugins import MissionPlugins, PluginLibrary
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
-from schemas.errors import InvalidMessage
+from schemas.errors import FleetError, InvalidMessage
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
 
@@ -104,7 +104,7 @@ class CommandResult(msgspec.Struct, frozen=True, kw_only=True):
     target: dict[str, float] | None = None
 
 
-class MissionOver(Exception):
+class MissionOver(FleetError):
     """Internal: a verb found the mission failing; its subroutine unwinds."""
 
 

@@ -37,6 +37,7 @@ import msgspec
 
 from mission import units
 from mission.sandbox import Guards, ScriptError, compile_mission
+from schemas.errors import FleetError
 
 if TYPE_CHECKING:
     from mission.dsl import Drone
@@ -54,7 +55,7 @@ ID_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 LOAD_TICKS = 1_000_000  # a plugin's top level that computes longer than this is refused
 
 
-class PluginError(Exception):
+class PluginError(FleetError):
     """A plugin that cannot be loaded: message and, when known, where."""
 
     def __init__(self, message: str, line: int | None = None, column: int | None = None) -> None:

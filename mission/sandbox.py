@@ -32,6 +32,7 @@ import random as _random
 import types
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
+from schemas.errors import FleetError
 
 ALLOWED_MODULES = ("math", "random", "statistics", "itertools", "functools", "collections")
 HOOK_PREFIX = "_fleet_"
@@ -65,7 +66,7 @@ MAX_INT_BITS = 1_000_000  # bits a single `**` or `<<` may build
 BIG_RANGE = 1_000_000  # ranges longer than this tick while iterated
 
 
-class ScriptError(Exception):
+class ScriptError(FleetError):
     """A script that does not compile or breaks the sandbox where it can be seen."""
 
     def __init__(self, message: str, line: int | None, column: int | None, kind: str = "script") -> None:

@@ -22,17 +22,7 @@ _UNKNOWN = re.compile(r"unknown field `([^`]*)`(?: - at `\$\.?([^`]*)`)?")
 def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[str, Any]) -> Any:
     """Read `path` (YAML) into `kind`, apply non-None overrides, validate strictly."""
     where = str(path) if path else "configuration"
-    data: dict[str, Any] = {}
-    if path is not None:
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-        if loaded is not None and not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of keys to values, got {type(loaded).__name__}")
-        data = dict(loaded or {})
+    data: dict[str, Any] = read_yaml(path) if path is not None else {}
     data.update({k: v for k, v in overrides.items() if v is not None})
     try:
         return msgspec.convert(data, kind)
@@ -47,6 +37,23 @@ def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[s
         raise ConfigError(f"{where}: {text.replace('$.', '')}") from None
 
 
+def read_yaml(path: Path) -> dict[str, Any]:
+    """A YAML file holding a mapping (or nothing); ConfigError on one line otherwise."""
+    try:
+        loaded = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        raise ConfigError(f"{path}: not valid YAML{where}: {exc.problem}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+    if loaded is not None and not isinstance(loaded, dict):
+        raise ConfigError(f"{path}: expected a mapping of keys to values, got {type(loaded).__name__}")
+    return dict(loaded or {})
+
+
 def _fields_at(kind: type[msgspec.Struct], dotted: str) -> tuple[str, ...]:
     """Field names of the Struct found by following `dotted` from `kind`."""
     for part in filter(None, dotted.split(".")):
@@ -56,3 +63,16 @@ def _fields_at(kind: type[msgspec.Struct], dotted: str) -> tuple[str, ...]:
             return ()
         kind = match.type
     return kind.__struct_fields__
+
+
+def writable_dir(path: Path, option: str) -> Path:
+    """Create `path` if needed and prove a file can be written there, before any long
+    work whose results would go there; ConfigError names the option otherwise."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".fleet-write-probe"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"{option} {path}: cannot write there: {exc.strerror or exc}") from None
+    return path

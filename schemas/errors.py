@@ -9,7 +9,10 @@ from __future__ import annotations
 
 
 class FleetError(Exception):
-    """Root of all Fleet errors."""
+    """Root of all Fleet errors. `exit_code` is what the CLI exits with when one
+    reaches it: 1 a runtime failure, 2 bad usage or configuration."""
+
+    exit_code = 1
 
 
 class InvalidMessage(FleetError):
@@ -26,3 +29,5 @@ class InvalidMessage(FleetError):
 
 class ConfigError(FleetError):
     """A configuration file or flag that cannot be used; the message names the key."""
+
+    exit_code = 2

@@ -49,6 +49,8 @@ TABLE = "fleet_radio"
 class RadioUnavailable(FleetError):
     """The emulated network cannot be built here (no CAP_NET_ADMIN, no ip/nft)."""
 
+    exit_code = 2
+
 
 def has_net_admin() -> bool:
     try:

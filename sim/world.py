@@ -119,15 +119,13 @@ class World(_Strict):
 
 
 def load_world(path: Path | None) -> World:
+    from schemas.config import read_yaml
     from schemas.errors import ConfigError
 
     if path is None:
         return World()
+    data = read_yaml(path)
     try:
-        return msgspec.yaml.decode(path.read_bytes(), type=World)
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+        return msgspec.convert(data, World)
     except msgspec.ValidationError as exc:
         raise ConfigError(f"{path}: {exc}") from None
-    except msgspec.DecodeError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None

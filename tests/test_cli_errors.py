@@ -1,0 +1,92 @@
+"""The CLI boundary (issue 13): every user error ends in one line naming what is wrong
+and exit 1 (a runtime failure) or 2 (bad usage or configuration), never a traceback.
+Each command runs as a user would run it, in a subprocess."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests.harness import fleet_command
+
+EXAMPLE = "examples/two_drones.py"
+DEAD_URL = "http://127.0.0.1:9"  # discard port: nothing listens there
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("bad")
+    (d / "bad_world.yml").write_text("drones: [{id: d1, bogus: 1}]\n")
+    (d / "bad_agent.yml").write_text("telemetry_rate_ms: 100\nwings: 4\n")
+    (d / "bad_ground.yml").write_text("http_port: many\n")
+    (d / "not_yaml.yml").write_text("drones: [unclosed\n")
+    (d / "syntax.py").write_text("takeoff(\n")
+    (d / "a_file").write_text("")
+    return d
+
+
+# (name, argv with {d} for the temporary folder, allowed exit codes, a word the message must name)
+CASES = [
+    ("simulate: bad world", ["mission", "simulate", EXAMPLE, "--world", "{d}/bad_world.yml"], {2}, "bogus"),
+    ("simulate: world not YAML", ["mission", "simulate", EXAMPLE, "--world", "{d}/not_yaml.yml"], {2}, "not_yaml.yml"),
+    ("simulate: --out not writable", ["mission", "simulate", EXAMPLE, "--out", "{d}/a_file/out"], {1, 2}, "a_file"),
+    ("simulate: unknown plugin", ["mission", "simulate", EXAMPLE, "--enable", "nothing"], {2}, "nothing"),
+    ("check: syntax error", ["mission", "check", "{d}/syntax.py"], {1}, "syntax.py:"),
+    ("check: no such file", ["mission", "check", "{d}/missing.py"], {2}, "missing.py"),
+    ("fault: bad --control port", ["fault", "d1", "rc_takeover", "--control", "127.0.0.1:abc"], {2}, "--control"),
+    ("sub: bad endpoint", ["sub", "--connect", "notanendpoint", "--count", "1"], {2}, "notanendpoint"),
+    ("agent: bad endpoint", ["agent", "--id", "d1", "--fc", "sim", "--connect", "tcp/127.0.0.1:notaport"], {2}, "notaport"),
+    ("agent: bad listen", ["agent", "--id", "d1", "--fc", "sim", "--listen", "nowhere"], {2}, "nowhere"),
+    ("agent: bad id", ["agent", "--id", "bad id!", "--fc", "sim"], {2}, "bad id!"),
+    ("agent: unknown config key", ["agent", "--id", "d1", "--config", "{d}/bad_agent.yml"], {2}, "wings"),
+    ("agent: missing config", ["agent", "--id", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
+    ("agent: bad fc url", ["agent", "--id", "d1", "--fc", "carrier-pigeon://x"], {1, 2}, "carrier-pigeon"),
+    ("ground: bad config value", ["ground", "--config", "{d}/bad_ground.yml"], {2}, "http_port"),
+    ("ground: bad listen", ["ground", "--listen", "tcp/127.0.0.1:99999"], {2}, "99999"),
+    ("ground: address not here", ["ground", "--listen", "tcp/192.0.2.1:7447", "--http-port", "0"], {1}, "192.0.2.1"),
+    ("sim: bad world", ["sim", "{d}/bad_world.yml"], {2}, "bogus"),
+    ("sim: bad --output", ["sim", "--output", "nohostport"], {2}, "--output"),
+    ("sensor: missing config", ["sensor", "temperature", "--drone", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
+    ("sensor: bad endpoint", ["sensor", "temperature", "--drone", "d1", "--connect", "udp/:"], {2}, "udp/:"),
+    ("demo: bad world", ["demo", "--world", "{d}/bad_world.yml", "--until-done"], {2}, "bogus"),
+    ("demo: --out is a file", ["demo", "--out", "{d}/a_file", "--until-done"], {2}, "a_file"),
+    ("drone list: no ground", ["drone", "list", "--url", DEAD_URL], {1}, "127.0.0.1:9"),
+    ("drone list: bad url", ["drone", "list", "--url", "not a url"], {1, 2}, "not a url"),
+    ("mission list: no ground", ["mission", "list", "--url", DEAD_URL], {1}, "127.0.0.1:9"),
+    ("mission submit: no ground", ["mission", "submit", "--url", DEAD_URL, EXAMPLE], {1}, "127.0.0.1:9"),
+    ("logs: no ground", ["logs", "--url", DEAD_URL], {1}, "127.0.0.1:9"),
+    ("unknown command", ["fly"], {2}, "fly"),
+]
+
+
+@pytest.mark.parametrize(("argv", "codes", "names"), [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_a_user_error_is_one_line_and_an_exit_code(files: Path, argv: list[str], codes: set[int], names: str) -> None:
+    args = [a.replace("{d}", str(files)) for a in argv]
+    result = subprocess.run(fleet_command(*args), capture_output=True, text=True, timeout=60,
+                            stdin=subprocess.DEVNULL, cwd=Path(__file__).parent.parent)
+    output = result.stdout + result.stderr
+    assert "Traceback" not in output, output
+    assert result.returncode in codes, f"exit {result.returncode}: {output}"
+    last = result.stderr.strip().splitlines()[-1] if result.stderr.strip() else ""
+    assert names.replace("{d}", str(files)) in last, f"the last line should name {names!r}: {result.stderr}"
+    assert ".rs:" not in output, f"a Rust source path leaked: {output}"
+
+
+@pytest.mark.parametrize(("flags", "level"), [([], "INFO"), (["-v"], "DEBUG")])
+def test_verbosity_of_a_service(flags: list[str], level: str) -> None:
+    """Services (agent, ground, sim, demo, sensor) log at INFO by default; -v adds
+    Fleet's debug lines, -vv also the libraries'. Clients log warnings only; -v, -vv add."""
+    from fleet_cli import log_levels
+
+    assert log_levels("ground", len(flags))[0] == level
+
+
+def test_verbosity_levels_differ() -> None:
+    from fleet_cli import log_levels
+
+    assert [log_levels("drone", v) for v in (0, 1, 2)] == [
+        ("WARNING", "WARNING"), ("INFO", "WARNING"), ("DEBUG", "DEBUG")]
+    assert [log_levels("ground", v) for v in (0, 1, 2)] == [
+        ("INFO", "WARNING"), ("DEBUG", "WARNING"), ("DEBUG", "DEBUG")]
