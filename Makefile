@@ -1,11 +1,12 @@
 # Two entry points (README quick start): `make demo` and `make test`.
-# Both bootstrap .venv idempotently: it is rebuilt only when pyproject.toml changes.
+# Both bootstrap .venv idempotently from requirements.lock (exact versions, made by
+# `make lock` from the ranges in pyproject.toml); it is redone only when either changes.
 PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean sysdeps
+.PHONY: demo test test-fast bench lock clean sysdeps
 
 # The emulated radio (SPEC §8) needs iproute2 and nftables; as root on Debian they are
 # installed here (CI runs as root on a fresh machine). Elsewhere the radio tests say
@@ -18,11 +19,18 @@ sysdeps:
 	  else echo "note: iproute2/nftables missing: the emulated-radio tests will skip (or fail in CI)"; fi; \
 	fi
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -r requirements.lock
+	$(BIN)/python -m pip install --quiet --no-deps -e .
 	@touch $(STAMP)
+
+# Resolve the ranges of pyproject.toml (every extra and the tests) to exact versions.
+lock: $(STAMP)
+	$(BIN)/python -m pip install --quiet uv
+	$(BIN)/uv pip compile pyproject.toml --extra test --python-version 3.11 \
+	  --python-platform x86_64-unknown-linux-gnu --upgrade -o requirements.lock
 
 demo: $(STAMP)
 	$(BIN)/fleet demo $(ARGS)

@@ -23,6 +23,9 @@ from schemas.errors import ConfigError, FleetError
 
 # Long-running services print what they do at INFO; clients only warn unless asked.
 SERVICES = frozenset({"agent", "ground", "sim", "demo", "sensor"})
+# The extra (pyproject.toml) that brings each optional library.
+EXTRA_OF = {"zenoh": "agent", "mavsdk": "agent", "litestar": "ground", "uvicorn": "ground", "httpx": "ground",
+            "greenlet": "ground", "pymavlink": "sim", "matplotlib": "plots"}
 LIBRARIES = ("zenoh", "httpx", "httpcore", "matplotlib", "asyncio", "mavsdk", "grpc", "uvicorn")
 
 
@@ -58,6 +61,15 @@ class FleetGroup(click.Group):
         except FleetError as exc:
             click.echo(f"fleet: {exc}", err=True)
             ctx.exit(exc.exit_code)
+        except ModuleNotFoundError as exc:
+            library = (exc.name or "").partition(".")[0]
+            if library not in EXTRA_OF:
+                raise
+            extra = EXTRA_OF[library]
+            command = ctx.invoked_subcommand or "this command"
+            click.echo(f"fleet: `fleet {command}` needs {library}, which comes with the {extra!r} extra: "
+                       f"pip install 'fleet[{extra}]'", err=True)
+            ctx.exit(1)
         except OSError as exc:  # a file or socket the user named
             where = f": {exc.filename}" if exc.filename else ""
             click.echo(f"fleet: {exc.strerror or exc}{where}", err=True)

@@ -10,10 +10,12 @@ from __future__ import annotations
 import json
 import sys
 import time
-from typing import Any, NoReturn, get_args
+from typing import TYPE_CHECKING, Any, NoReturn, get_args
 
 import click
-import httpx
+
+if TYPE_CHECKING:
+    import httpx
 
 from ground.describe import Level
 from ground.registry import DRONE_STATES
@@ -31,6 +33,8 @@ def _fail(message: str, code: int = 1) -> NoReturn:
 
 
 def _request(method: str, url: str, path: str, **kwargs: Any) -> httpx.Response:
+    import httpx  # the ground extra: a drone's `fleet agent` never loads it
+
     try:
         response = httpx.request(method, url.rstrip("/") + path, timeout=10.0, **kwargs)
     except httpx.TransportError as exc:

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import click
-import httpx
 import msgspec
 
 from ground.cli import _cell, _fail, _request, aligned, url_option
@@ -63,6 +62,8 @@ def submit(url: str, script: Path, name: str, watch: bool) -> None:
         created = _request("POST", url, "/mission", content=source.encode(), params=params).json()
         click.echo(created["mission_id"])
         return
+    import httpx  # the ground extra
+
     # Listen first, then submit: no line of the new mission can slip by.
     try:
         with httpx.stream(

@@ -38,6 +38,7 @@ from typing import IO, Any
 
 import httpx
 
+import fleet_examples
 from bus.port import Bus, Sample
 from bus.zenoh_bus import ZenohBus
 from ground.config import GroundConfig
@@ -52,9 +53,8 @@ from sim.projection import LocalFrame
 from sim.sensors import simulated_sensor
 from sim.world import DroneSpec, World, load_world
 
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_WORLD = REPO / "examples" / "worlds" / "fire.yml"
-SCRIPT = REPO / "examples" / "fire_tracing.py"
+DEFAULT_WORLD = fleet_examples.WORLDS / "fire.yml"
+SCRIPT = fleet_examples.DIR / "fire_tracing.py"
 
 TELEMETRY_RATE_MS = 200  # the agents' telemetry period, also the recorder's sampling period
 POLL_S = 0.5  # mission record and drone states
@@ -232,7 +232,7 @@ class Demo:
             [sys.executable, "-m", "fleet_cli", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
              # three agents share this host: each router on its own ephemeral loopback port
              "--listen", "tcp/127.0.0.1:0", "--telemetry-rate-ms", str(TELEMETRY_RATE_MS)],
-            stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT, cwd=REPO,
+            stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
         )
         self.agents.append(_Agent(spec, proc, log_path, log_file))
 
@@ -310,7 +310,7 @@ class Demo:
         if response.status_code != 201:
             raise FleetError(f"the ground refused {SCRIPT.name}: {response.status_code} {response.text}")
         mission_id = str(response.json()["mission_id"])
-        self.out(f"{self._stamp()} mission {mission_id} submitted: {SCRIPT.relative_to(REPO)}"
+        self.out(f"{self._stamp()} mission {mission_id} submitted: {SCRIPT.name}"
                  f" (follow it: fleet mission show {mission_id} --url {self.url})")
         return mission_id
 

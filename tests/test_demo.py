@@ -35,14 +35,15 @@ def _group_alive(pgid: int) -> bool:
     return True
 
 
-def run_demo(*args: str, timeout_s: float) -> tuple[int, str, str, float]:
-    """`python -m fleet_cli demo ARGS` with stdin closed: (exit code, stdout, stderr, seconds).
-    Past the timeout it gets SIGTERM (its clean stop), then its whole group SIGKILL."""
+def run_demo(*args: str, timeout_s: float, fleet: list[str] | None = None, cwd: Path = REPO) -> tuple[int, str, str, float]:
+    """`python -m fleet_cli demo ARGS` (or `FLEET demo ARGS`) with stdin closed: (exit
+    code, stdout, stderr, seconds). Past the timeout it gets SIGTERM (its clean stop),
+    then its whole group SIGKILL."""
     started = time.monotonic()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "fleet_cli", "demo", *args],
+        [*(fleet or [sys.executable, "-m", "fleet_cli"]), "demo", *args],
         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        cwd=REPO, start_new_session=True,
+        cwd=cwd, start_new_session=True,
     )
     try:
         try:

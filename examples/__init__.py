@@ -1,0 +1,9 @@
+"""Mission scripts and worlds that users copy from, installed with Fleet as the
+`fleet_examples` package so that `fleet demo` and a user without the source tree find
+them: `python -c "import fleet_examples; print(fleet_examples.DIR)"`. The scripts are
+mission DSL (SPEC §5), run by the mission runtime, never imported."""
+
+from pathlib import Path
+
+DIR = Path(__file__).resolve().parent
+WORLDS = DIR / "worlds"

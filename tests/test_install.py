@@ -1,0 +1,67 @@
+"""Fleet installed like real software (issue 13): the wheel, built from this tree and
+installed into a fresh venv outside the checkout, runs there. A drone installs
+`fleet[agent]` only and gets nothing of the ground; an operator's `fleet[all]` runs the
+demo from the packaged examples. Versions come from requirements.lock."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import free_port
+from tests.test_demo import PLOTS, run_demo
+
+pytestmark = pytest.mark.integration
+
+REPO = Path(__file__).resolve().parents[1]
+GROUND_ONLY = ("litestar", "uvicorn", "httpx", "matplotlib", "pymavlink")
+
+
+def run(*args: str | Path, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([str(a) for a in args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          stdin=subprocess.DEVNULL)
+
+
+def installed(venv: Path) -> set[str]:
+    listed = run(venv / "bin" / "python", "-m", "pip", "list", "--format=freeze", cwd=venv)
+    return {line.split("==")[0].lower() for line in listed.stdout.splitlines()}
+
+
+@pytest.mark.timeout(900)
+def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path) -> None:
+    built = run(sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", tmp_path / "dist", REPO, cwd=tmp_path)
+    assert built.returncode == 0, built.stderr
+    (wheel,) = (tmp_path / "dist").glob("fleet-*.whl")
+    venv = tmp_path / "venv"
+    made = run(sys.executable, "-m", "venv", venv, cwd=tmp_path)
+    assert made.returncode == 0, made.stderr
+    pip = [venv / "bin" / "python", "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
+           "-c", REPO / "requirements.lock"]
+    fleet = venv / "bin" / "fleet"
+    work = tmp_path / "work"  # not the checkout: nothing can come from the source tree
+    work.mkdir()
+
+    # A drone: the agent extra, and nothing of the ground.
+    agent = run(*pip, f"{wheel}[agent]", cwd=work)
+    assert agent.returncode == 0, agent.stderr
+    assert not installed(venv) & set(GROUND_ONLY), f"fleet[agent] pulled {installed(venv) & set(GROUND_ONLY)}"
+    helped = run(fleet, "agent", "--help", cwd=work)
+    assert helped.returncode == 0 and "--mesh-interface" in helped.stdout, helped.stderr
+    ground = run(fleet, "ground", "--http-port", "0", cwd=work, timeout=60)
+    assert ground.returncode == 1, ground
+    assert "pip install 'fleet[ground]'" in ground.stderr and "Traceback" not in ground.stderr, ground.stderr
+
+    # The operator's laptop: everything; the demo finds its world and script in the package.
+    everything = run(*pip, f"{wheel}[all]", cwd=work)
+    assert everything.returncode == 0, everything.stderr
+    located = run(venv / "bin" / "python", "-c", "import fleet_examples; print(fleet_examples.DIR)", cwd=work)
+    assert located.stdout.strip().startswith(str(venv)), located
+    out = work / "demo-out"
+    code, stdout, stderr, _ = run_demo("--until-done", "--port", str(free_port()), "--http-port", str(free_port()),
+                                       "--out", str(out), timeout_s=420, fleet=[str(fleet)], cwd=work)
+    assert code == 0, f"{stdout[-3000:]}\n{stderr[-3000:]}"
+    assert (out / "result.json").exists()
+    assert all((out / plot).exists() for plot in PLOTS)
