@@ -39,6 +39,7 @@ test: $(STAMP) sysdeps
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
+	$(BIN)/python bench/agent_install.py
 	$(BIN)/python bench/agent_cpu.py
 	$(BIN)/python bench/agent_mavsdk.py
 	$(BIN)/python bench/ground_fanin.py
