@@ -150,8 +150,8 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
           mesh_interface: str | None, telemetry_rate_ms: int | None) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
     from agent.config import AgentConfig
-    from schemas.config import load_config
     from agent.runtime import run_agent
+    from schemas.config import load_config
     config = load_config(
         AgentConfig, config_path,
         {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,

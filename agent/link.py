@@ -11,6 +11,7 @@ radio hop shows.
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from dataclasses import dataclass
 from typing import Annotated, Literal
@@ -61,7 +62,7 @@ class LinkWindow:
         answered = [r for r in self._outcomes if r is not None]
         loss = 1.0 - len(answered) / len(self._outcomes) if self._outcomes else 1.0
         rtt = sum(answered) / len(answered) if answered else None
-        steps = [abs(b - a) for a, b in zip(answered, answered[1:])]
+        steps = [abs(b - a) for a, b in itertools.pairwise(answered)]
         jitter = sum(steps) / len(steps) if steps else (0.0 if answered else None)
         return LinkSummary(
             rtt_ms=None if rtt is None else round(rtt, 3),

@@ -72,7 +72,7 @@ class LinkProber:
         peers = [GROUND_PEER, *sorted(self.neighbours)]
         rtts = await asyncio.gather(*(self._probe(peer) for peer in peers))
         now_ms = self.clock.time_ms()
-        for peer, rtt in zip(peers, rtts):
+        for peer, rtt in zip(peers, rtts, strict=True):
             window = self.windows[peer]
             window.add(rtt)
             s = window.summary()

@@ -17,6 +17,8 @@ from schemas.codec import encode
 from schemas.commands import CommandReply
 from schemas.keys import Keys
 
+DEFAULT_KEYS = Keys()
+
 _reply_decoder = msgspec.json.Decoder(CommandReply)
 
 
@@ -25,7 +27,7 @@ def new_command_id() -> str:
 
 
 async def send_command(
-    bus: Bus, drone_id: str, cmd: str, *, keys: Keys = Keys(), timeout_s: float = 3.0, **fields: Any
+    bus: Bus, drone_id: str, cmd: str, *, keys: Keys = DEFAULT_KEYS, timeout_s: float = 3.0, **fields: Any
 ) -> CommandReply:
     """Send one command (fields as in SPEC §2); raises bus Unreachable/QueryTimeout."""
     body = {

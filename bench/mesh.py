@@ -120,10 +120,10 @@ async def failover(mesh: Mesh, trials: int, steady_s: float) -> list[float]:
         await mesh.steady(lambda: mesh.direct_neighbours() == 2, steady_s,
                           "A and B both direct neighbours of the ground")
         now = time.time()
-        await mesh.wait(lambda: mesh.sent_after("B", now), "B's telemetry on the direct link")
+        await mesh.wait(lambda now=now: mesh.sent_after("B", now), "B's telemetry on the direct link")
         mesh.cut((GROUND, "B"))
         cut_at = time.time()  # the rules are in: nothing B sends from now on crosses directly
-        await mesh.wait(lambda: mesh.sent_after("B", cut_at), "B's telemetry through A")
+        await mesh.wait(lambda cut_at=cut_at: mesh.sent_after("B", cut_at), "B's telemetry through A")
         first = min(mesh.sent_after("B", cut_at))
         if trial:
             times.append(first - cut_at)

@@ -33,6 +33,7 @@ from bus.port import (
     Unreachable,
 )
 
+
 class Medium(Protocol):
     """What lies between the nodes: reachability, transit time, and the clock it runs on."""
 

@@ -26,8 +26,8 @@ from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from bus.port import QueryRefused, Unreachable
-from ground.eventlog import format_line
 from ground.describe import Level
+from ground.eventlog import format_line
 from ground.registry import DroneInfo, DroneState
 from ground.station import CommandRejected, GroundStation, WatchEvent
 from mission.manager import MissionEnded, MissionManager, UnknownMission

@@ -13,6 +13,7 @@ from typing import Annotated, Literal
 
 import msgspec
 from msgspec import Meta
+
 from schemas.endpoints import check_endpoints
 
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]

@@ -16,16 +16,16 @@ import math
 from collections.abc import Callable
 from typing import Any
 
+from greenlet import getcurrent
+
 from mission import assignment as a
 from mission import geo, units
 from mission.geo import Position, as_position
 from mission.mission import Mission, MissionOver
-from greenlet import getcurrent
-
 from mission.runtime import Stopped, Subroutine, await_
 from mission.sandbox import Guards
-from schemas.telemetry import LinkQuality
 from schemas.geo import angle_diff_deg, normalize_deg
+from schemas.telemetry import LinkQuality
 
 COMPLETED = frozenset({"success", "finish"})
 MIN_HANDOVER_HEIGHT_M = 2.0

@@ -15,8 +15,8 @@ import json
 import logging
 import sqlite3
 from collections.abc import Callable
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import msgspec
 
@@ -210,7 +210,7 @@ class MissionManager:
 
     async def close(self) -> None:
         """Stop every running mission (cause ground_restart) and wait for its clean-up."""
-        for mission, task in list(self._running.values()):
+        for mission, _ in list(self._running.values()):
             mission.end("ground_restart")
         tasks = [task for _, task in self._running.values()]
         if tasks:

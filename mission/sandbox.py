@@ -32,6 +32,7 @@ import random as _random
 import types
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
+
 from schemas.errors import FleetError
 
 ALLOWED_MODULES = ("math", "random", "statistics", "itertools", "functools", "collections")

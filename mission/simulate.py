@@ -280,10 +280,14 @@ async def simulate(
     finally:
         await sim.close()
     if out_dir is not None:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "result.json").write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
-        if plots:
-            from mission.plots import write_plots
-
-            write_plots(result, out_dir)
+        await asyncio.to_thread(write_result, result, out_dir, plots)
     return result
+
+
+def write_result(result: dict[str, Any], out_dir: Path, plots: bool) -> None:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "result.json").write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+    if plots:
+        from mission.plots import write_plots
+
+        write_plots(result, out_dir)

@@ -11,14 +11,14 @@ which accept a bare number or a Quantity of the right dimension.
 from __future__ import annotations
 
 import math
-from typing import Any, Union
+from typing import Any
 
 from schemas.errors import FleetError
 
 # exponents of (length, time, angle)
 Dims = tuple[int, int, int]
 _NAMES = {(1, 0, 0): "distance (m)", (0, 1, 0): "duration (s)", (0, 0, 1): "angle (deg)", (1, -1, 0): "speed (m/s)", (0, 0, 0): "number"}
-Number = Union[int, float]
+Number = int | float
 
 
 class UnitError(FleetError, TypeError):

@@ -452,8 +452,9 @@ class Demo:
             task.cancel()
         await asyncio.gather(*([body] if body is not None else []), *rest, return_exceptions=True)
         deadline = time.monotonic() + AGENT_STOP_S
-        while any(a.proc.poll() is None for a in self.agents) and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
+        for agent in self.agents:  # they stop with the ground's liveliness or their own SIGTERM
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                await asyncio.to_thread(agent.proc.wait, max(0.0, deadline - time.monotonic()))
         for agent in self.agents:
             if agent.proc.poll() is None:
                 agent.proc.kill()

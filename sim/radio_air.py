@@ -15,6 +15,7 @@ doubling. An opened link needs its handshake (TCP SYN/SYN-ACK, Zenoh init/open) 
 
 from __future__ import annotations
 
+import itertools
 import random
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -66,7 +67,7 @@ class RadioAir:
             return None
         now = self.clock.monotonic()
         at = now
-        for a, b in zip(path, path[1:]):
+        for a, b in itertools.pairwise(path):
             link = self.links[_pair(a, b)]
             spent, rto = link.delay_s, RTO_S
             while self.rng.random() < link.loss:  # lost on air: sent again after the RTO

@@ -5,7 +5,17 @@ from __future__ import annotations
 import pytest
 
 from mission.assignment import (
-    AnyDrone, ById, ByKind, BySensors, Candidate, Near, Unfulfilled, assign_many, choose, replaceable, replacement,
+    AnyDrone,
+    ById,
+    ByKind,
+    BySensors,
+    Candidate,
+    Near,
+    Unfulfilled,
+    assign_many,
+    choose,
+    replaceable,
+    replacement,
 )
 
 FIELD = (40.633490, -8.660815)

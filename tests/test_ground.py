@@ -163,7 +163,7 @@ async def test_arm_takeoff_goto_fly_active_then_hold_with_thesis_log_lines(fleet
         "Start takeoff with altitude 10.0m", f"Queued {goto}", "Finish takeoff", f"Start {goto}", f"Finish {goto}",
     ]
     positions = [next((i for i, line in enumerate(lines) if line.startswith(e)), -1) for e in expected]
-    assert -1 not in positions and positions == sorted(positions), f"log lines out of order:\n" + "\n".join(lines)
+    assert -1 not in positions and positions == sorted(positions), "log lines out of order:\n" + "\n".join(lines)
     assert all(" drone01 - " in line for line in (await http.get("/drone/logs", params={"drone_id": "drone01"})).text.splitlines())
 
 

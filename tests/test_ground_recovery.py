@@ -10,6 +10,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+
 from tests.harness import AgentProcess, GroundProcess, drone_state, fleet_command, wait_state
 from tests.helpers import until
 
