@@ -177,13 +177,13 @@ class MissionManager:
                 "info" if r.status == "finished" else "warn", f"Mission {r.mission_id} {r.status}: {r.cause}"
             )
 
-    def cancel(self, mission_id: str, cause: str = "user") -> MissionRecord:
+    def cancel(self, mission_id: str, cause: str = "user", message: str | None = None) -> MissionRecord:
         entry = self._running.get(mission_id)
         if entry is None:
             if self.store.get(mission_id) is None:
                 raise UnknownMission(mission_id)
             raise MissionEnded(f"mission {mission_id} already ended")
-        entry[0].end(cause)
+        entry[0].end(cause, message)
         return msgspec.structs.replace(entry[0].record)
 
     def get(self, mission_id: str) -> MissionRecord:

@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 MissionStatus = Literal["pending", "running", "finished", "failed", "cancelled"]
-# Thesis table 5.3, plus geofence, link_lost and ground_restart.
+# Thesis table 5.3, plus geofence, link_lost, ground_restart (SPEC §5) and time_limit.
 CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "success": ("finished", "success"),
     "user": ("cancelled", "user request"),
@@ -65,6 +65,7 @@ CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "geofence": ("failed", "drone left the geofence"),
     "link_lost": ("failed", "lost the link to a drone"),
     "ground_restart": ("failed", "the ground station stopped while the mission ran"),
+    "time_limit": ("cancelled", "time limit reached"),  # fast-time simulation's --max-time
 }
 TERMINAL_COMMAND_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})
 INSTANT_COMMANDS = frozenset({"arm", "disarm", "cancel"})

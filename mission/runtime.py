@@ -90,6 +90,9 @@ class Scheduler:
         sub = Subroutine(self, name or f"sub{next(self._names)}", daemon)
         self.subroutines.append(sub)
         sub._task = asyncio.get_running_loop().create_task(self._drive(sub, fn, args), name=sub.name)
+        # A task cancelled before its first step never runs _drive's `finally`: the
+        # subroutine must still finish (a survey stopped right after it was started).
+        sub._task.add_done_callback(lambda _: sub._done.done() or sub._done.set_result(None))
         if self.stopping:
             sub._stopping = True
         return sub

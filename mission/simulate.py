@@ -188,8 +188,9 @@ class SimField:
         while not task.done():
             if self.clock.monotonic() - start >= max_s and not limited:
                 limited = True
-                self.station.log_ground("warn", f"simulation time limit of {max_s:g} s reached")
-                self.manager.cancel(mission_id, "user")
+                message = f"simulation time limit of {max_s:g} s reached"
+                self.station.log_ground("warn", message)
+                self.manager.cancel(mission_id, "time_limit", message)
             await self.clock.advance(STEP_S)
         # One more telemetry period so the series shows the state the mission left.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000)

@@ -13,6 +13,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pytest
 
 from mission.simulate import SimField, simulate
@@ -62,9 +63,8 @@ async def test_fire_tracing_one_source_traces_the_40_degree_circle() -> None:
     print(f"fire tracing: mean radial error {mean_error:.2f} m, {len(sectors)}/36 sectors, {len(loop)} samples")
     assert mean_error < MAX_MEAN_RADIAL_ERROR_M
     assert len(sectors) == 36, f"the loop misses sectors {sorted(set(range(36)) - sectors)}"
-    # the loop closes where it began, then the drone flies home and lands
-    start = loop[0]
-    assert distance_m(loop[-1]["lat"], loop[-1]["lon"], start["lat"], start["lon"]) < 5 + 4
+    # the loop closes where it reached the contour, then the drone flies home and lands
+    assert "back where it reached the contour" in " ".join(line["message"] for line in result["log"])
     home, last = samples[0], samples[-1]
     assert distance_m(last["lat"], last["lon"], home["lat"], home["lon"]) < 2.0
     assert last["rel_alt"] < 0.5
@@ -84,6 +84,27 @@ async def test_fire_tracing_four_contiguous_sources_closes_the_loop() -> None:
     sectors = {int(bearing_deg(centre_lat, centre_lon, s["lat"], s["lon"]) // 10) for s in loop}
     assert len(sectors) == 36
     assert all(25 < distance_m(s["lat"], s["lon"], centre_lat, centre_lon) < 75 for s in loop[5:])
+
+
+async def test_fire_tracing_from_inside_the_contour_flies_out_and_closes_the_loop() -> None:
+    """Issue 13: the drone takes off 20 m from the source, inside the 40 °C contour (a
+    60 °C source of 50 m radius: the contour is r = 16.7 m). It used to trace without end
+    because its loop closed only near a start point off the contour."""
+    world = msgspec.convert({
+        "origin": {"lat": 40.633400, "lon": -8.660815, "alt": 8.2},
+        "ground_station": {"lat": 40.634125, "lon": -8.660336},
+        "drones": [{"id": "drone01", "lat": 40.633273, "lon": -8.660982, "sensors": ["temperature"]}],
+        "environment_temp": 20,
+        "heat_sources": [{"lat": 40.633400, "lon": -8.660815, "radius": 50, "temp": 60}],
+    }, World)
+    (source,) = world.heat_sources
+    result = await simulate((EXAMPLES / "fire_tracing.py").read_text(), world, seed=1, plots=False, max_s=900)
+    record = result["mission"]
+    assert (record["status"], record["cause"]) == ("finished", "success"), record["message"]
+    began, closed = logged_at(result, "tracing the 40"), logged_at(result, "perimeter traced")
+    loop = [s for s in result["drones"]["drone01"]["samples"] if began <= s["t_s"] <= closed]
+    sectors = {int(bearing_deg(source.lat, source.lon, s["lat"], s["lon"]) // 10) for s in loop}
+    assert len(sectors) == 36, f"the loop misses sectors {sorted(set(range(36)) - sectors)}"
 
 
 # ---- drone replacement ---------------------------------------------------------------

@@ -219,6 +219,26 @@ async def test_two_hundred_subroutines_channels_and_stop() -> None:
     assert cause(record) == ("finished", "success"), record.message
 
 
+async def test_a_subroutine_stopped_before_it_ran_is_finished() -> None:
+    """Issue 13: `stop(run(f))` in one breath (a survey stopped at once because the drone
+    took off inside the fire) left the subroutine `running` for ever; the mission's end
+    then waited a real second for it and logged that it did not stop."""
+    script = (
+        "survey = run(lambda: sleep(100))\nstop(survey)\nwait(survey)\n"
+        "assert survey.finished and not survey.running\n"
+    )
+    record, _, log = await fly(script)
+    assert cause(record) == ("finished", "success"), record.message
+    assert not any("did not stop" in line for line in log), log
+
+
+async def test_the_simulation_time_limit_has_its_own_cause() -> None:
+    record, _, log = await fly("while True:\n    sleep(1)\n", max_s=30)
+    assert (record.status, record.cause) == ("cancelled", "time_limit"), record
+    assert record.message == "simulation time limit of 30 s reached"
+    assert not any("did not stop" in line for line in log), log
+
+
 async def test_wait_for_telemetry_and_the_drone_wrapper() -> None:
     script = FLY + (
         "seqs = []\n"
