@@ -30,6 +30,8 @@ from schemathesis.core.failures import FailureGroup
 
 from tests.harness import AgentProcess, GroundProcess, wait_state
 
+pytestmark = pytest.mark.integration
+
 CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance, response_headers_conformance]
 EXAMPLES_PER_MODE = 80
 MIN_CASES = 500

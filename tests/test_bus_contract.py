@@ -20,7 +20,7 @@ from tests.helpers import Collector, free_port
 MeshFactory = Callable[[], Awaitable[Bus]]
 
 
-@pytest.fixture(params=["memory", "zenoh"])
+@pytest.fixture(params=["memory", pytest.param("zenoh", marks=pytest.mark.integration)])
 async def mesh(request: pytest.FixtureRequest) -> AsyncIterator[MeshFactory]:
     opened: list[Bus] = []
     if request.param == "memory":

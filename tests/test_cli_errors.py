@@ -11,6 +11,8 @@ import pytest
 
 from tests.harness import fleet_command
 
+pytestmark = pytest.mark.integration
+
 EXAMPLE = "examples/two_drones.py"
 DEAD_URL = "http://127.0.0.1:9"  # discard port: nothing listens there
 

@@ -25,7 +25,7 @@ from sim.radio_net import has_net_admin, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, fleet_command
 from tests.helpers import free_port, free_udp_base, until
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.radio]
 GROUND = (40.633490, -8.660815)
 FIELD_ALT = 8.2
 

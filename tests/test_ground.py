@@ -22,6 +22,8 @@ from schemas.telemetry import SensorReading
 from tests.harness import GroundFleet, fleet_command, wait_state
 from tests.helpers import Collector, free_udp_base, until
 
+pytestmark = pytest.mark.integration
+
 DRONES = ("drone01", "drone02", "drone03")
 SPAWNS = {"drone01": (40.633490, -8.660815), "drone02": (40.633590, -8.660815), "drone03": (40.633690, -8.660815)}
 

@@ -14,6 +14,8 @@ import pytest
 from tests.harness import AgentProcess, GroundProcess, drone_state, fleet_command, wait_state
 from tests.helpers import until
 
+pytestmark = pytest.mark.integration
+
 
 @pytest.fixture
 async def ground_and_agent(tmp_path: Path) -> AsyncIterator[tuple[GroundProcess, AgentProcess]]:

@@ -20,6 +20,8 @@ import pytest
 from tests.harness import GroundFleet, GroundProcess, fleet_command
 from tests.helpers import until
 
+pytestmark = pytest.mark.integration
+
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
 DRONES = ("drone01", "drone02", "drone03", "drone04")

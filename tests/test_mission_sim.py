@@ -74,6 +74,7 @@ async def test_examples_finish(example: str) -> None:
     assert cause(record) == ("finished", "success"), record.message
 
 
+@pytest.mark.integration  # runs `fleet mission simulate` twice as processes
 def test_mapping_visits_the_thesis_waypoints_and_replays_identically(tmp_path: Path) -> None:
     outs = []
     for run in ("a", "b"):
@@ -204,7 +205,7 @@ async def test_unexpected(monkeypatch: pytest.MonkeyPatch) -> None:
 
 async def test_two_hundred_subroutines_channels_and_stop() -> None:
     script = (
-        "hs = [run(lambda i=i: sleep(1 + i % 7)) for i in range(200)]\n"
+        "hs = [run(lambda i=i: sleep(1 + i % 3)) for i in range(200)]\n"
         "def producer():\n    sleep(3)\n    channel.ready = 42\n"
         "def consumer():\n    return channel.ready + 1\n"
         "c = run(consumer)\nrun(producer)\n"

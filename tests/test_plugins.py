@@ -170,6 +170,7 @@ async def test_each_mission_has_its_own_plugin_namespace(tmp_path: Path) -> None
 # ---- GET /plugin on a real ground ------------------------------------------------------
 
 
+@pytest.mark.integration
 async def test_ground_lists_plugins_and_load_errors(tmp_path: Path) -> None:
     plugins = tmp_path / "user-plugins"
     plugins.mkdir()
@@ -192,6 +193,7 @@ async def test_ground_lists_plugins_and_load_errors(tmp_path: Path) -> None:
     assert "broken.py:1" in ground.output() and "NOT loaded" in ground.output()
 
 
+@pytest.mark.integration
 def test_simulate_cli_enables_plugins(tmp_path: Path) -> None:
     script = tmp_path / "m.py"
     script.write_text('d = assign()\nwait(d)\nwait(d)\n')

@@ -27,6 +27,8 @@ from sim.world import HeatSource, World
 from tests.harness import Operator, fleet_command
 from tests.helpers import Collector
 
+pytestmark = pytest.mark.integration
+
 LAT, LON = 40.633490, -8.660815
 
 
