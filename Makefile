@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-fast bench lock clean sysdeps
+.PHONY: demo test test-fast lint bench lock clean sysdeps
 
 # The emulated radio (SPEC §8) needs iproute2 and nftables; as root on Debian they are
 # installed here (CI runs as root on a fresh machine). Elsewhere the radio tests say
@@ -37,9 +37,14 @@ demo: $(STAMP)
 
 # Three workers for everything but the emulated radio, whose tests then run alone
 # (their timing bounds assume an idle machine); each run prints its 25 slowest tests.
-test: $(STAMP) sysdeps
+test: $(STAMP) sysdeps lint
 	$(BIN)/python -m pytest -q -n 3 -m "not radio"
 	$(BIN)/python -m pytest -q -m radio
+
+# ruff and mypy, configured in pyproject.toml.
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/mypy
 
 # Pure logic and virtual-time tests only: seconds, no processes, no sockets.
 test-fast: $(STAMP)

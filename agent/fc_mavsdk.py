@@ -187,7 +187,7 @@ class MavsdkFlightController:
                 Battery(remaining_percent=_finite(bat.remaining_percent) / 100, voltage=_finite(bat.voltage_v))
                 if bat is not None else None
             ),
-            gps_info=GpsInfo(satellites=gps.num_satellites, fix_type=gps.fix_type.name.lower()) if gps else None,  # type: ignore[arg-type]
+            gps_info=GpsInfo(satellites=gps.num_satellites, fix_type=gps.fix_type.name.lower()) if gps else None,
             # Unknown health is not good health: until MAVSDK has a health report (about
             # 2 s after discovery; its first ones read all False) every check counts as
             # failing, so the drone is not `ready` before the autopilot would arm.

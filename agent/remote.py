@@ -7,23 +7,18 @@ query; the reply says whether the agent took it. Completion arrives as status.
 from __future__ import annotations
 
 import time
-import uuid
 from typing import Any
 
 import msgspec
 
 from bus.port import Bus
 from schemas.codec import encode
-from schemas.commands import CommandReply
+from schemas.commands import CommandReply, new_command_id
 from schemas.keys import Keys
 
 DEFAULT_KEYS = Keys()
 
 _reply_decoder = msgspec.json.Decoder(CommandReply)
-
-
-def new_command_id() -> str:
-    return str(uuid.uuid4())
 
 
 async def send_command(

@@ -16,6 +16,7 @@ the real mesh.
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -97,7 +98,11 @@ class MemoryNetwork:
         """Return once a message from src has crossed to dst (never, if it is lost:
         until the asker gives up)."""
         arrived: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self.carry(src, dst, lambda: arrived.done() or arrived.set_result(None))
+        def arrive() -> None:
+            if not arrived.done():
+                arrived.set_result(None)
+
+        self.carry(src, dst, arrive)
         await arrived
 
     def _tell(self, watcher: tuple[_Decl, Inbox[tuple[str, bool]]], token: _Decl, alive: bool) -> None:
@@ -140,7 +145,7 @@ class MemoryBus:
         for decl, inbox in list(self._net.subscribers):
             if intersects(decl.keyexpr, key):
                 sample = Sample(key, bytes(payload))
-                self._net.carry(self.node, decl.owner.node, lambda inbox=inbox, sample=sample: inbox.put_nowait(sample))
+                self._net.carry(self.node, decl.owner.node, functools.partial(inbox.put_nowait, sample))
 
     def subscribe(
         self, keyexpr: str, handler: SampleHandler, *, latest_only: bool = False, maxsize: int = 1024

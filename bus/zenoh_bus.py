@@ -179,7 +179,7 @@ class ZenohBus:
         )
 
         def on_sample(sample: zenoh.Sample) -> None:
-            kind = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
+            kind: Literal["put", "delete"] = "delete" if sample.kind == zenoh.SampleKind.DELETE else "put"
             inbox.put(Sample(str(sample.key_expr), sample.payload.to_bytes(), kind))
 
         sub = self._session.declare_subscriber(keyexpr, on_sample)
@@ -240,7 +240,8 @@ class ZenohBus:
         for reply in result:
             if reply.ok is not None:
                 return reply.ok.payload.to_bytes()
-            errors.append(reply.err.payload.to_string())
+            if reply.err is not None:
+                errors.append(reply.err.payload.to_string())
         if not errors:
             raise Unreachable(f"no queryable answers {selector}")
         if any(e == "Timeout" for e in errors):

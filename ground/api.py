@@ -258,7 +258,7 @@ async def cancel_mission(missions: MissionManager, mission_id: str) -> Response[
     summary="Live server-sent events: telemetry (rate-capped per drone), status, drone (registry changes), log",
 )
 def events(station: GroundStation, types: list[EventKind] | None = None) -> ServerSentEvent:
-    wanted = set(types or ("telemetry", "status", "drone", "log", "mission", "mission_log"))
+    wanted: set[str] = set(types or ("telemetry", "status", "drone", "log", "mission", "mission_log"))
     return ServerSentEvent(_stream(station, wanted))
 
 
@@ -319,7 +319,7 @@ def _http_error(request: Request[Any, Any, Any], exc: HTTPException) -> Response
     error, detail = str(exc.detail), None
     if isinstance(exc, ValidationException) and isinstance(exc.extra, list) and exc.extra:
         detail = [
-            {**item, "key": _QUERY_ALIASES.get(item.get("key"), item.get("key"))} if isinstance(item, dict) else item
+            {**item, "key": _QUERY_ALIASES.get(str(item.get("key")), item.get("key"))} if isinstance(item, dict) else item
             for item in exc.extra
         ]
         error = "; ".join(f"{d.get('key')}: {d.get('message')}" for d in detail if isinstance(d, dict)) or error
@@ -339,7 +339,7 @@ def _add_command_components(app: Litestar) -> None:
     schemas = app.openapi_schema.components.schemas
     assert schemas is not None
     for name, schema in _BODY_COMPONENTS.items():
-        schemas.setdefault(name, schema)  # type: ignore[arg-type]
+        schemas.setdefault(name, schema)
 
 
 def create_app(station: GroundStation, missions: MissionManager) -> Litestar:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, NoReturn, get_args
 
 import click
@@ -75,7 +76,7 @@ def drone_table(views: list[dict[str, Any]]) -> list[str]:
     return aligned(rows)
 
 
-def aligned(rows: list[tuple[str, ...]]) -> list[str]:
+def aligned(rows: Sequence[tuple[str, ...]]) -> list[str]:
     """Rows of cells as lines with every column padded to its widest cell."""
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip() for row in rows]
@@ -143,7 +144,7 @@ def command(url: str, drone_id: str, cmd: str, fields: tuple[str, ...]) -> None:
 @click.option("--follow", "-f", is_flag=True, help="Keep printing new lines until Ctrl-C.")
 def logs(url: str, drones: tuple[str, ...], levels: tuple[str, ...], follow: bool) -> None:
     """The ground's event log, oldest first."""
-    params: list[tuple[str, str | int]] = [("drone_id", d) for d in drones] + [("loglevel", lv) for lv in levels]
+    params: list[tuple[str, str | int]] = [*(("drone_id", d) for d in drones), *(("loglevel", lv) for lv in levels)]
     cursor = 0
     try:
         while True:

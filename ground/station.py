@@ -19,14 +19,13 @@ from typing import Any
 
 import msgspec
 
-from agent.remote import new_command_id
 from bus.clock import Clock, SystemClock
 from bus.port import Bus, Declaration, Sample, echo
 from ground.config import GroundConfig
 from ground.eventlog import EventLog
 from ground.registry import Event, InfoChanged, LogLine, Registry
 from schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry, encode
-from schemas.commands import Command, CommandReply, decode_command
+from schemas.commands import Command, CommandReply, decode_command, new_command_id
 from schemas.errors import FleetError, InvalidMessage
 from schemas.keys import Keys
 from schemas.telemetry import LinkQuality, SensorReading, Telemetry

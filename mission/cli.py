@@ -90,7 +90,7 @@ def submit(url: str, script: Path, name: str, watch: bool) -> None:
 
 
 def _sse(lines: Any) -> Any:
-    kind, data = "message", []
+    kind, data = "message", list[str]()
     for line in lines:
         if not line:
             if data:
@@ -199,12 +199,12 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         plugins = (" ".join((plugins[0], *inputs)),)
     for text in plugins:
         try:
-            plugin_id, inputs = parse_enable(text)
+            plugin_id, plugin_inputs = parse_enable(text)
         except ValueError as exc:
             _fail(str(exc), 2)
         if library.get(plugin_id) is None:
             _fail(f"--enable: no plugin {plugin_id!r} (loaded: {', '.join(sorted(library.plugins)) or 'none'})", 2)
-        enable[plugin_id] = inputs
+        enable[plugin_id] = plugin_inputs
     source = _read_script(script)
     try:
         compile_mission(source, filename=str(script))

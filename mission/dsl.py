@@ -502,12 +502,8 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     def disable(plugin_id: str) -> None:
         m.plugins.disable(plugin_id, namespace)
 
-    verbs: dict[str, Any] = {
-        f.__name__: guarded(f) for f in (
-            assign, revoke, replace, arm, disarm, takeoff, land, home, cancel, turn, move,
-            sleep, run, wait, stop, enable, disable,
-        )
-    }
+    defined = locals()
+    verbs: dict[str, Any] = {name: guarded(defined[name]) for name in VERBS}
     base = common_names(guards)  # what a plugin enabled by this mission sees
     base.update(verbs)
     base.update(channel=Channel(m), mission_id=m.id)
@@ -515,10 +511,13 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     return namespace
 
 
-VERB_NAMES = (
+# The DSL's verbs (SPEC §5): the one list. build_namespace binds each name to the
+# function of that name it defines, so a verb cannot be listed without existing.
+VERBS = (
     "assign", "revoke", "replace", "arm", "disarm", "takeoff", "land", "home", "cancel", "turn",
-    "move", "sleep", "run", "wait", "stop", "enable", "disable", "channel", "mission_id",
+    "move", "sleep", "run", "wait", "stop", "enable", "disable",
 )
+VERB_NAMES = (*VERBS, "channel", "mission_id")  # every name a mission script gets from its mission
 
 
 def common_names(guards: Guards) -> dict[str, Any]:

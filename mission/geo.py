@@ -94,7 +94,7 @@ def as_position(value: Any) -> Position:
         return value
     as_pos = getattr(type(value), "as_position", None)
     if as_pos is not None:  # drones, commands, homes
-        return as_pos(value)  # type: ignore[no-any-return]
+        return as_pos(value)
     if isinstance(value, dict):
         try:
             return Position(value["lat"], value["lon"], value.get("alt"), value.get("heading", 0.0))

@@ -10,6 +10,7 @@ every mission; ones that were running when it died are marked failed with cause
 from __future__ import annotations
 
 import asyncio
+import builtins
 import itertools
 import json
 import logging
@@ -195,10 +196,10 @@ class MissionManager:
             raise UnknownMission(mission_id)
         return record
 
-    def list(self) -> list[MissionRecord]:
+    def list(self) -> builtins.list[MissionRecord]:
         return [self.get(r.mission_id) if r.mission_id in self._running else r for r in self.store.all()]
 
-    def log(self, mission_id: str) -> list[MissionLogLine]:
+    def log(self, mission_id: str) -> builtins.list[MissionLogLine]:
         self.get(mission_id)
         return self.store.log(mission_id)
 

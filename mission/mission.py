@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import msgspec
 
-from agent.remote import new_command_id
 from bus.clock import Clock
 from bus.port import Unreachable
 from ground.config import GroundConfig
@@ -31,6 +30,7 @@ from mission import assignment as a
 from mission.plugins import MissionPlugins, PluginLibrary
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
+from schemas.commands import new_command_id
 from schemas.errors import FleetError, InvalidMessage
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
@@ -214,7 +214,8 @@ class Mission:
         self.record.cause = cause
         self.record.message = message or default
         self.record.status = status
-        level = "info" if status == "finished" else ("warn" if status == "cancelled" else "error")
+        level: Literal["info", "warn", "error"] = (
+            "info" if status == "finished" else ("warn" if status == "cancelled" else "error"))
         self.log(level, f"Mission {status}: {cause}" + (f" - {message}" if message else ""))
         if self.scheduler is not None:
             self.scheduler.stop_all()
@@ -472,7 +473,7 @@ class Mission:
             raise self.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
         finally:
             self._pending.pop(command_id, None)
-        target = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
+        target: dict[str, float] | None = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
         self.commands.append(CommandResult(
             drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
         ))

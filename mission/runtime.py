@@ -33,7 +33,7 @@ class Stopped(BaseException):
     """Raised inside a subroutine that is being stopped; scripts cannot catch it."""
 
 
-class _ScriptGreenlet(greenlet):  # type: ignore[misc]
+class _ScriptGreenlet(greenlet):
     sub: Subroutine
 
 
@@ -64,6 +64,11 @@ class Subroutine:
     def result(self) -> Any:
         return self._result
 
+    def finish(self) -> None:
+        """Mark the subroutine ended (once: its driver or its task's end, whichever first)."""
+        if not self._done.done():
+            self._done.set_result(None)
+
     def __repr__(self) -> str:
         return f"<subroutine {self.name} {'running' if self.running else 'finished'}>"
 
@@ -92,7 +97,7 @@ class Scheduler:
         sub._task = asyncio.get_running_loop().create_task(self._drive(sub, fn, args), name=sub.name)
         # A task cancelled before its first step never runs _drive's `finally`: the
         # subroutine must still finish (a survey stopped right after it was started).
-        sub._task.add_done_callback(lambda _: sub._done.done() or sub._done.set_result(None))
+        sub._task.add_done_callback(lambda _: sub.finish())
         if self.stopping:
             sub._stopping = True
         return sub
@@ -154,7 +159,7 @@ class Scheduler:
             sub._error = exc
             self._on_error(sub, exc)
         finally:
-            sub._done.set_result(None)
+            sub.finish()
             if not g.dead:  # the task itself was torn down: unwind the script's frames
                 try:
                     g.throw(Stopped())
@@ -194,4 +199,4 @@ def await_(awaitable: Awaitable[T]) -> T:
         raise Stopped()
     result = current.parent.switch(awaitable)
     sub.owner.note_switch()
-    return result  # type: ignore[no-any-return]
+    return result

@@ -148,7 +148,7 @@ class SimField:
         from sim.faults import apply_fault
 
         await self.clock.sleep(at_s)
-        apply_fault(vehicle, fault, value)  # type: ignore[arg-type]
+        apply_fault(vehicle, fault, value)
 
     async def _sensors(self, drone_id: str, kinds: list[str]) -> None:
         """Simulated on-board sensors (sim/sensors.py), following the drone's telemetry."""

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import uuid
 from typing import Annotated, ClassVar, Literal
 
 import msgspec
@@ -22,6 +23,12 @@ from msgspec import UNSET, Meta, UnsetType
 from schemas.errors import InvalidMessage
 
 CommandMode = Literal["action", "offboard", "custom"]
+
+
+def new_command_id() -> str:
+    """A fresh command id: the ground's, a mission's and the agent's all come from here."""
+    return str(uuid.uuid4())
+
 
 # Ranges double as finiteness checks: NaN and infinities fail every bound.
 Lat = Annotated[float, Meta(ge=-90.0, le=90.0, description="degrees")]
@@ -55,24 +62,24 @@ class _Command(msgspec.Struct, frozen=True, kw_only=True, tag_field="cmd", omit_
         return self.__struct_config__.tag  # type: ignore[return-value]
 
 
-class Arm(_Command, tag="arm"):
+class Arm(_Command, tag="arm", frozen=True):
     MODE = "action"
 
 
-class Disarm(_Command, tag="disarm"):
+class Disarm(_Command, tag="disarm", frozen=True):
     MODE = "action"
 
 
-class Takeoff(_Command, tag="takeoff"):
+class Takeoff(_Command, tag="takeoff", frozen=True):
     MODE = "action"
     alt: AltAboveGround | None = None
 
 
-class Land(_Command, tag="land"):
+class Land(_Command, tag="land", frozen=True):
     MODE = "action"
 
 
-class Goto(_Command, tag="goto"):
+class Goto(_Command, tag="goto", frozen=True):
     MODE = "action"
     lat: Lat
     lon: Lon
@@ -81,20 +88,20 @@ class Goto(_Command, tag="goto"):
     speed: Speed | None = None
 
 
-class Return(_Command, tag="return"):
+class Return(_Command, tag="return", frozen=True):
     MODE = "action"
     alt: AltAboveHome | None = None
 
 
-class StartOffboard(_Command, tag="start_offboard"):
+class StartOffboard(_Command, tag="start_offboard", frozen=True):
     MODE = "offboard"
 
 
-class StopOffboard(_Command, tag="stop_offboard"):
+class StopOffboard(_Command, tag="stop_offboard", frozen=True):
     MODE = "offboard"
 
 
-class PositionNed(_Command, tag="position_ned"):
+class PositionNed(_Command, tag="position_ned", frozen=True):
     MODE = "offboard"
     north: Metres = 0.0
     east: Metres = 0.0
@@ -102,7 +109,7 @@ class PositionNed(_Command, tag="position_ned"):
     yaw: Angle | None = None  # None keeps the current heading
 
 
-class VelocityNed(_Command, tag="velocity_ned"):
+class VelocityNed(_Command, tag="velocity_ned", frozen=True):
     MODE = "offboard"
     north: Velocity = 0.0
     east: Velocity = 0.0
@@ -110,7 +117,7 @@ class VelocityNed(_Command, tag="velocity_ned"):
     yaw: Angle | None = None
 
 
-class VelocityBody(_Command, tag="velocity_body"):
+class VelocityBody(_Command, tag="velocity_body", frozen=True):
     MODE = "offboard"
     forward: Velocity = 0.0
     right: Velocity = 0.0
@@ -118,7 +125,7 @@ class VelocityBody(_Command, tag="velocity_body"):
     yaw: AngleRate = 0.0  # deg/s
 
 
-class Attitude(_Command, tag="attitude"):
+class Attitude(_Command, tag="attitude", frozen=True):
     MODE = "offboard"
     roll: Angle = 0.0
     pitch: Angle = 0.0
@@ -126,7 +133,7 @@ class Attitude(_Command, tag="attitude"):
     thrust: Thrust = 0.5
 
 
-class AttitudeRate(_Command, tag="attitude_rate"):
+class AttitudeRate(_Command, tag="attitude_rate", frozen=True):
     MODE = "offboard"
     roll: AngleRate = 0.0
     pitch: AngleRate = 0.0
@@ -134,16 +141,16 @@ class AttitudeRate(_Command, tag="attitude_rate"):
     thrust: Thrust = 0.5
 
 
-class Cancel(_Command, tag="cancel"):
+class Cancel(_Command, tag="cancel", frozen=True):
     MODE = "custom"
 
 
-class Turn(_Command, tag="turn"):
+class Turn(_Command, tag="turn", frozen=True):
     MODE = "custom"
     deg: Angle
 
 
-class Move(_Command, tag="move"):
+class Move(_Command, tag="move", frozen=True):
     MODE = "custom"
     x: Metres = 0.0  # right
     y: Metres = 0.0  # forward
@@ -156,7 +163,7 @@ Command = (
     | PositionNed | VelocityNed | VelocityBody | Attitude | AttitudeRate | Cancel | Turn | Move
 )
 COMMAND_TYPES: dict[str, type[_Command]] = {
-    t.__struct_config__.tag: t for t in Command.__args__  # type: ignore[attr-defined]
+    t.__struct_config__.tag: t for t in Command.__args__
 }
 OFFBOARD_SETPOINTS = (PositionNed, VelocityNed, VelocityBody, Attitude, AttitudeRate)
 

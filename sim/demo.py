@@ -149,15 +149,16 @@ class Demo:
             try:
                 async with httpx.AsyncClient(base_url=self.url, timeout=10) as http:
                     body = asyncio.get_running_loop().create_task(self._main(http, world, specs, source), name="demo")
-                    await asyncio.wait([body, self._broken], return_when=asyncio.FIRST_COMPLETED)
+                    either: list[asyncio.Future[Any]] = [body, self._broken]
+                    await asyncio.wait(either, return_when=asyncio.FIRST_COMPLETED)
                     if body.done():
                         return body.result()
-                    name, exc = self._broken.result()
-                    if isinstance(exc, FleetError) and "in use" in str(exc) and not isinstance(exc, ConfigError):
-                        raise FleetError(f"{exc} (choose another port with --port)") from None
-                    if isinstance(exc, FleetError):
-                        raise exc
-                    raise FleetError(f"{name} stopped unexpectedly" + (f": {exc!r}" if exc else ""))
+                    name, failure = self._broken.result()
+                    if isinstance(failure, FleetError) and "in use" in str(failure) and not isinstance(failure, ConfigError):
+                        raise FleetError(f"{failure} (choose another port with --port)") from None
+                    if isinstance(failure, FleetError):
+                        raise failure
+                    raise FleetError(f"{name} stopped unexpectedly" + (f": {failure!r}" if failure else ""))
             finally:
                 cleanup = asyncio.ensure_future(self._stop(body))
                 while not cleanup.done():  # a second SIGTERM must not cut the clean-up short

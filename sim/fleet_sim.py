@@ -93,10 +93,11 @@ async def run_sim(
             vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params())
             # On the radio every drone has its own 127.0.0.1: PX4's first ports serve all.
             port = base_port + (0 if field else i)
-            endpoint = MavlinkVehicle(
-                vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])],
-                on_change=lambda ep, sv_id=spec.id: out(status_line(vehicles[sv_id])) if sv_id in vehicles else None,
-            )
+            def on_change(_: object, sv_id: str = spec.id) -> None:
+                if sv_id in vehicles:
+                    out(status_line(vehicles[sv_id]))
+
+            endpoint = MavlinkVehicle(vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])], on_change=on_change)
             local = PX4_SITL_LOCAL + (0 if field else i) if base_port == PX4_SITL_BASE else 0
             sock = socket_in_netns(field.net.netns(spec.id)) if field else None
             await endpoint.start(("127.0.0.1", local), sock)
@@ -132,6 +133,7 @@ async def run_sim(
                 children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
                 for kind in v.spec.sensors if field is not None else []:
+                    assert field is not None
                     sensor_args = field.sensor_args(v.spec.id, kind, Path(scratch.name))
                     if sensor_args is not None:
                         children.append(_child(sensor_args, log_dir, f"{v.spec.id}-{kind}"))

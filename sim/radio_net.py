@@ -130,7 +130,7 @@ def _pick_subnet() -> ipaddress.IPv4Network:
     used = _run("ip", "-o", "-4", "addr", "show", check=False).stdout
     for subnet in SUBNET_BASE.subnets(new_prefix=24):
         if f" {subnet.network_address + 1}/" not in used:
-            return subnet
+            return ipaddress.IPv4Network(subnet)
     raise RadioUnavailable(f"no free /24 left in {SUBNET_BASE} for the emulated radio")
 
 
@@ -158,7 +158,7 @@ class RadioNet:
         self._applied: dict[tuple[str, str], int] = {}
         self._rates: dict[str, int] = {}
         self.netem = False
-        self._made: list[Callable[[], None]] = []
+        self._made: list[Callable[[], object]] = []  # undo steps, newest last
 
     def netns(self, drone_id: str) -> str:
         return f"{NETNS_PREFIX}{self.run}-{drone_id}"

@@ -30,19 +30,19 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     pass
 
 
-class Spot(_Strict):
+class Spot(_Strict, frozen=True):
     lat: Lat
     lon: Lon
     alt: float = 0.0
 
 
-class Fault(_Strict):
+class Fault(_Strict, frozen=True):
     at_s: Annotated[float, Meta(ge=0)]
     fault: FaultKind
     value: float | str | None = None
 
 
-class DroneSpec(_Strict):
+class DroneSpec(_Strict, frozen=True):
     id: str
     lat: Lat | None = None
     lon: Lon | None = None
@@ -51,19 +51,19 @@ class DroneSpec(_Strict):
     faults: list[Fault] = []
 
 
-class HeatSource(_Strict):
+class HeatSource(_Strict, frozen=True):
     lat: Lat
     lon: Lon
     radius: Annotated[float, Meta(gt=0)]
     temp: float
 
 
-class BatteryModel(_Strict):
+class BatteryModel(_Strict, frozen=True):
     drain_per_s: Annotated[float, Meta(ge=0)] = 0.0033
     floor: Annotated[float, Meta(ge=0, le=1)] = 0.38
 
 
-class World(_Strict):
+class World(_Strict, frozen=True):
     origin: Spot = Spot(lat=40.633490, lon=-8.660815, alt=8.2)
     ground_station: Spot | None = None
     drones: list[DroneSpec] = []
