@@ -273,7 +273,6 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
 def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float,
          radio: bool) -> None:
     """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
-    from schemas.config import writable_dir
     from sim.demo import DEFAULT_WORLD, Demo, DemoOptions
 
     if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the demo prints its own progress; -v shows the rest
@@ -283,7 +282,6 @@ def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_don
         port=port, http_port=http_port, world=world or DEFAULT_WORLD, out_dir=out_dir,
         until_done=until_done, max_time_s=max_time_s, radio=radio,
     )
-    writable_dir(out_dir, "--out")
     run = Demo(options, lambda line: click.echo(line))
     code = run_async(run.run())
     if code is None:  # Ctrl-C or SIGTERM: fine once the mission has succeeded

@@ -103,6 +103,10 @@ class LostLink:
         self._restored_at = 0.0
         self._steady = True  # no silence over steady_gap_s since the restore
 
+    def silent(self, now: float) -> bool:
+        """No sign of the ground for longer than `steady_gap_s` (two probe periods)."""
+        return now - self.last_contact > self.steady_gap_s
+
     def contact(self, now: float) -> list[Decision]:
         silent_s = now - self.last_contact
         self.last_contact = now

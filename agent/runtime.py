@@ -67,7 +67,6 @@ class Agent:
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
         self._seq = 0
-        self.ground_heard_at = clock.monotonic()  # last answered ground probe (start: not yet)
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -82,10 +81,9 @@ class Agent:
 
     def ground_silent(self) -> bool:
         """No answer from the ground for two probe periods."""
-        return self.clock.monotonic() - self.ground_heard_at > 2 * self.config.probe_period_ms / 1000
+        return self.lost_link.silent(self.clock.monotonic())
 
     def _on_ground_contact(self, now: float) -> None:
-        self.ground_heard_at = now
         for decision, summary in self.lost_link.contact(now):
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)

@@ -8,6 +8,7 @@ the file and the key (nested keys dotted: `battery.low`), and the keys it knows.
 from __future__ import annotations
 
 import re
+import typing
 from pathlib import Path
 from typing import Any
 
@@ -55,14 +56,30 @@ def read_yaml(path: Path) -> dict[str, Any]:
 
 
 def _fields_at(kind: type[msgspec.Struct], dotted: str) -> tuple[str, ...]:
-    """Field names of the Struct found by following `dotted` from `kind`."""
+    """Field names of the Struct found by following `dotted` from `kind` (`drones[0]`
+    steps into the list's element type)."""
     for part in filter(None, dotted.split(".")):
-        hint = msgspec.structs.fields(kind)
-        match = next((f for f in hint if f.encode_name == part), None)
-        if match is None or not isinstance(match.type, type) or not issubclass(match.type, msgspec.Struct):
+        name, indexed = _INDEX.sub("", part), _INDEX.search(part) is not None
+        match = next((f for f in msgspec.structs.fields(kind) if f.encode_name == name), None)
+        found = _struct_in(None if match is None else match.type, indexed)
+        if found is None:
             return ()
-        kind = match.type
+        kind = found
     return kind.__struct_fields__
+
+
+def _struct_in(hint: Any, indexed: bool) -> type[msgspec.Struct] | None:
+    """The Struct a field holds: itself, the element of a list (when indexed), or the
+    Struct member of an optional."""
+    if indexed and typing.get_origin(hint) is list:
+        (hint,) = typing.get_args(hint)
+    for candidate in (hint, *typing.get_args(hint)):
+        if isinstance(candidate, type) and issubclass(candidate, msgspec.Struct):
+            return candidate
+    return None
+
+
+_INDEX = re.compile(r"\[\d+\]$")
 
 
 def writable_dir(path: Path, option: str) -> Path:

@@ -46,6 +46,7 @@ from ground.lifecycle import run_ground
 from mission.cli import outcome
 from mission.simulate import telemetry_sample
 from schemas.codec import decode_sensor, decode_telemetry
+from schemas.config import writable_dir
 from schemas.errors import ConfigError, FleetError
 from schemas.keys import Keys
 from schemas.telemetry import Telemetry
@@ -137,9 +138,9 @@ class Demo:
             raise ConfigError(f"{self.options.world}: the world has no drones")
         try:
             source = SCRIPT.read_text(encoding="utf-8")
-            (self.options.out_dir / "logs").mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ConfigError(f"{exc.filename}: {exc.strerror}") from None
+        writable_dir(self.options.out_dir / "logs", "--out")
         self._broken = asyncio.get_running_loop().create_future()
         self.tracks = {spec.id: _Track() for spec in specs}
         with tempfile.TemporaryDirectory(prefix="fleet-demo-") as data_dir:

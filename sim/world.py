@@ -119,13 +119,7 @@ class World(_Strict, frozen=True):
 
 
 def load_world(path: Path | None) -> World:
-    from schemas.config import read_yaml
-    from schemas.errors import ConfigError
+    """A world file, as strictly as a config file (schemas/config.py); None: the default world."""
+    from schemas.config import load_config
 
-    if path is None:
-        return World()
-    data = read_yaml(path)
-    try:
-        return msgspec.convert(data, World)
-    except msgspec.ValidationError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
+    return load_config(World, path, {})

@@ -103,3 +103,12 @@ def test_radio_config_is_strict() -> None:
         msgspec.convert({"good_m": 80, "lost_m": 60}, RadioModel)
     with pytest.raises(msgspec.ValidationError, match="good_meters"):
         msgspec.convert({"good_meters": 80}, RadioModel)
+
+
+def test_the_ground_is_silent_after_two_probe_periods_without_contact() -> None:
+    """What starts the agent's neighbour scouting (bus/scout_assist.py)."""
+    ll = LostLink(LostLinkPolicy(timeout_s=3), now=0.0, steady_gap_s=2.0)
+    assert not ll.silent(2.0)
+    assert ll.silent(2.1)
+    ll.contact(2.5)
+    assert not ll.silent(4.4)
