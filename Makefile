@@ -41,10 +41,11 @@ test: $(STAMP) sysdeps lint
 	$(BIN)/python -m pytest -q -n 3 -m "not radio"
 	$(BIN)/python -m pytest -q -m radio
 
-# ruff and mypy, configured in pyproject.toml.
+# ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 
 # Pure logic and virtual-time tests only: seconds, no processes, no sockets.
 test-fast: $(STAMP)

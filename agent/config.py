@@ -13,9 +13,7 @@ import msgspec
 from msgspec import Meta
 
 from agent.link import LostLinkPolicy
-from schemas.endpoints import check_endpoints
-
-AGENT_PORT = 7448  # the agent's own router: on-board programs and neighbours connect here
+from schemas.endpoints import AGENT_PORT, check_endpoints
 
 
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

@@ -15,7 +15,7 @@ import tempfile
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-AGENT_IMPORTS = "import fleet_cli, agent.runtime, agent.fc_mavsdk, bus.zenoh_bus"
+AGENT_IMPORTS = "import fleet.cli, agent.runtime, agent.fc_mavsdk, bus.zenoh_bus"
 RUNS = 5
 
 

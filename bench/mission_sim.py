@@ -27,8 +27,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.runtime import Agent  # noqa: E402
+from fleet.compose import SimField, simulate  # noqa: E402
 from mission import dsl  # noqa: E402
-from mission.simulate import SimField, simulate  # noqa: E402
 from sim.world import World  # noqa: E402
 
 PATROL = """

@@ -28,14 +28,14 @@ from litestar.response import ServerSentEvent, ServerSentEventMessage
 from bus.port import QueryRefused, Unreachable
 from ground.describe import Level
 from ground.eventlog import format_line
-from ground.registry import DroneInfo, DroneState
-from ground.station import CommandRejected, GroundStation, WatchEvent
+from ground.station import GroundStation
 from mission.manager import MissionEnded, MissionManager, UnknownMission
 from mission.mission import MissionLogLine, MissionRecord
 from mission.plugins import PluginListing
 from mission.sandbox import ScriptError
 from schemas.commands import Command, CommandReply
-from schemas.errors import InvalidMessage
+from schemas.errors import CommandRejected, InvalidMessage
+from schemas.fleet import DroneInfo, DroneState, WatchEvent
 from schemas.telemetry import SensorReading, Telemetry
 
 log = logging.getLogger(__name__)

@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     import httpx
 
 from ground.describe import Level
-from ground.registry import DRONE_STATES
+from schemas.fleet import DRONE_STATES
 
 DEFAULT_URL = "http://127.0.0.1:8001"
 FOLLOW_PERIOD_S = 0.5

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated
 
 import msgspec
 from msgspec import Meta
 
+from schemas.config import MissionSettings
 from schemas.endpoints import check_endpoints
 
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
@@ -29,12 +30,6 @@ def default_data_dir() -> str:
 class BatteryLevels(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     critical: Fraction = 0.05  # at or below: the drone is in error and cannot be used
     low: Fraction = 0.15  # at or below: warn the operator
-
-
-class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    return_on_critical_battery: bool = True  # a mission drone at critical battery is sent home
-    end_action: Literal["hold", "return"] = "hold"  # what flying drones do when their mission ends
-    link_grace_s: Annotated[float, Meta(ge=0, le=3600)] = 30.0  # how long a mission waits for a drone whose link is lost
 
 
 class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

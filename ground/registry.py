@@ -11,45 +11,25 @@ reads a clock or touches I/O, so the whole table is tested without an event loop
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, get_args
 
 import msgspec
 
 from ground.config import GroundConfig
 from ground.describe import Described, Level, describe_start, status_line, system_line
-from schemas.status import CommandStatus, Coords, SystemStatus
+from schemas.fleet import (
+    CRITICAL_BATTERY,
+    FC_DISCONNECTED,
+    HEALTH_PREFIX,
+    LINK_DEGRADED,
+    LINK_LOST,
+    LINK_RESTORED,
+    LOW_BATTERY,
+    CurrentCommand,
+    DroneInfo,
+    DroneState,
+)
+from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import GROUND_PEER, MANUAL_MODES, LinkQuality, SensorReading, Telemetry
-
-DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
-DRONE_STATES: tuple[str, ...] = get_args(DroneState)
-
-CRITICAL_BATTERY = "Critical battery level"
-LOW_BATTERY = "Low battery level"
-FC_DISCONNECTED = "Flight controller disconnected"
-HEALTH_PREFIX = "Failed health check"
-LINK_DEGRADED = "Link degraded"
-LINK_LOST = "Link lost"
-LINK_RESTORED = "Link restored"
-
-
-class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):
-    description: str
-    timestamp: int  # ms since the epoch, when it started (ground clock)
-    command: str
-    command_id: str
-    coords: Coords | None = None  # goto/move: the target
-    altitude: float | None = None  # takeoff/return: the altitude it climbs to
-
-
-class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
-    drone_id: str
-    state: DroneState
-    current_command: CurrentCommand | None
-    sensors: list[str]
-    mission: str | None
-    errors: list[str]
-    warns: list[str]
-    link: LinkQuality | None = None  # the drone's measured link to the ground
 
 
 class LogLine(msgspec.Struct, frozen=True, kw_only=True):

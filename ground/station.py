@@ -26,7 +26,8 @@ from ground.eventlog import EventLog
 from ground.registry import Event, InfoChanged, LogLine, Registry
 from schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command, new_command_id
-from schemas.errors import FleetError, InvalidMessage
+from schemas.errors import CommandRejected, InvalidMessage
+from schemas.fleet import WatchEvent
 from schemas.keys import Keys
 from schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
@@ -34,21 +35,6 @@ log = logging.getLogger(__name__)
 TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late
 WATCH_QUEUE = 2048
 _reply_decoder = msgspec.json.Decoder(CommandReply)
-
-
-class CommandRejected(FleetError):
-    """The ground or the agent will not run a command now; `status` is the HTTP code."""
-
-    def __init__(self, status: int, reason: str) -> None:
-        super().__init__(reason)
-        self.status = status
-        self.reason = reason
-
-
-class WatchEvent(msgspec.Struct, frozen=True):
-    kind: str  # telemetry | status | drone | log | end
-    data: Any
-    id: int | None = None  # log lines: their row id in the event log
 
 
 class Watcher:

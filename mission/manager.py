@@ -22,11 +22,12 @@ from typing import Any
 import msgspec
 
 from bus.clock import Clock
-from ground.station import GroundStation, WatchEvent
 from mission.mission import CommandResult, Mission, MissionLogLine, MissionRecord
 from mission.plugins import PluginLibrary
+from mission.port import FleetPort
 from mission.sandbox import compile_mission
 from schemas.errors import FleetError
+from schemas.fleet import WatchEvent
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +114,7 @@ class MissionStore:
 class MissionManager:
     def __init__(
         self,
-        station: GroundStation,
+        station: FleetPort,
         store: MissionStore,
         clock: Clock,
         *,

@@ -23,15 +23,14 @@ import msgspec
 
 from bus.clock import Clock
 from bus.port import Unreachable
-from ground.config import GroundConfig
-from ground.registry import CRITICAL_BATTERY, DroneInfo
-from ground.station import CommandRejected, GroundStation, WatchEvent
 from mission import assignment as a
 from mission.plugins import MissionPlugins, PluginLibrary
+from mission.port import FleetPort, MissionConfig
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
 from schemas.commands import new_command_id
-from schemas.errors import FleetError, InvalidMessage
+from schemas.errors import CommandRejected, FleetError, InvalidMessage
+from schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
 
@@ -114,7 +113,7 @@ class Mission:
         self,
         record: MissionRecord,
         code: Any,
-        station: GroundStation,
+        station: FleetPort,
         clock: Clock,
         *,
         deterministic: bool = False,
@@ -127,7 +126,7 @@ class Mission:
         self.record = record
         self.code = code
         self.station = station
-        self.config: GroundConfig = station.config
+        self.config: MissionConfig = station.config
         self.clock = clock
         self.deterministic = deterministic
         self.seed = seed

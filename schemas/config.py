@@ -10,14 +10,22 @@ from __future__ import annotations
 import re
 import typing
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import msgspec
 import yaml
+from msgspec import Meta
 
 from schemas.errors import ConfigError
 
 _UNKNOWN = re.compile(r"unknown field `([^`]*)`(?: - at `\$\.?([^`]*)`)?")
+
+
+class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    return_on_critical_battery: bool = True  # a mission drone at critical battery is sent home
+    end_action: Literal["hold", "return"] = "hold"  # what flying drones do when their mission ends
+    link_grace_s: Annotated[float, Meta(ge=0, le=3600)] = 30.0  # how long a mission waits for a drone whose link is lost
+
 
 
 def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[str, Any]) -> Any:

@@ -9,6 +9,7 @@ import re
 from schemas.errors import ConfigError
 
 # Zenoh's link protocols (zenoh 1.10): `<protocol>/<address>[?<metadata>][#<config>]`.
+AGENT_PORT = 7448  # an agent's own router: on-board programs and neighbours connect here
 IP_PROTOCOLS = frozenset({"tcp", "udp", "tls", "quic", "ws"})
 OTHER_PROTOCOLS = frozenset({"unixsock-stream", "unixpipe", "serial", "vsock"})
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<address>[^?#]+)(?:\?[^#]*)?(?:#.*)?$")

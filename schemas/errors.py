@@ -31,3 +31,12 @@ class ConfigError(FleetError):
     """A configuration file or flag that cannot be used; the message names the key."""
 
     exit_code = 2
+
+
+class CommandRejected(FleetError):
+    """The ground or the agent will not run a command now; `status` is the HTTP code."""
+
+    def __init__(self, status: int, reason: str) -> None:
+        super().__init__(reason)
+        self.status = status
+        self.reason = reason

@@ -124,7 +124,7 @@ async def run_sim(
                 if field is not None:
                     args = field.agent_args(v.spec.id, fc, agent_config)
                 else:
-                    args = [sys.executable, "-m", "fleet_cli", "agent", "--id", v.spec.id, "--fc", fc,
+                    args = [sys.executable, "-m", "fleet", "agent", "--id", v.spec.id, "--fc", fc,
                             "--listen", "tcp/127.0.0.1:0"]
                     for ep in connect or []:
                         args += ["--connect", ep]

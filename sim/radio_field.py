@@ -19,7 +19,7 @@ from pathlib import Path
 import msgspec
 import yaml
 
-from agent.config import AGENT_PORT
+from schemas.endpoints import AGENT_PORT
 from sim.radio import GROUND, Spot3, distance_3d, link_losses
 from sim.radio_net import RadioNet
 from sim.world import World
@@ -62,7 +62,7 @@ class RadioField:
             await asyncio.sleep(period)
 
     def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None) -> list[str]:
-        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet_cli", "agent", "--id", drone_id,
+        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "agent", "--id", drone_id,
                 "--fc", fc, "--connect", self.ground_endpoint, "--listen", f"tcp/0.0.0.0:{AGENT_PORT}",
                 "--mesh-interface", RADIO_INTERFACE]
         return args + (["--config", str(agent_config)] if agent_config is not None else [])
@@ -73,7 +73,7 @@ class RadioField:
             return None
         heat = config_dir / f"{drone_id}-heat.yml"
         heat.write_text(yaml.safe_dump(msgspec.to_builtins(self.world.heat_config())))
-        return [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet_cli", "sensor", "temperature",
+        return [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "sensor", "temperature",
                 "--drone", drone_id, "--config", str(heat), "--connect", f"tcp/127.0.0.1:{AGENT_PORT}"]
 
     def describe(self) -> list[str]:

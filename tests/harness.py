@@ -31,7 +31,7 @@ REPO = Path(__file__).resolve().parents[1]
 def fleet_command(*args: str) -> list[str]:
     """`fleet …` through the installed console script next to this interpreter."""
     script = Path(sys.executable).with_name("fleet")
-    return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet_cli", *args]
+    return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet", *args]
 
 
 async def open_ground_router(endpoint: str) -> ZenohBus:

@@ -16,7 +16,7 @@ from typing import Any
 import msgspec
 import pytest
 
-from mission.simulate import SimField, simulate
+from fleet.compose import SimField, simulate
 from schemas.geo import bearing_deg, distance_m
 from sim.world import World, load_world
 

@@ -18,8 +18,8 @@ from typing import Any
 import msgspec
 import pytest
 
+from fleet.compose import SimField
 from mission.mission import MissionRecord
-from mission.simulate import SimField
 from sim.projection import LocalFrame
 from sim.world import Fault, World
 
@@ -80,7 +80,7 @@ def test_mapping_visits_the_thesis_waypoints_and_replays_identically(tmp_path: P
     for run in ("a", "b"):
         out = tmp_path / run
         done = subprocess.run(
-            [sys.executable, "-m", "fleet_cli", "mission", "simulate", str(EXAMPLES / "mapping.py"),
+            [sys.executable, "-m", "fleet", "mission", "simulate", str(EXAMPLES / "mapping.py"),
              "--drones", "1", "--seed", "7", "--out", str(out)],
             capture_output=True, text=True, timeout=120, cwd=ROOT,
         )

@@ -11,9 +11,9 @@ from pathlib import Path
 import httpx
 import pytest
 
+from fleet.compose import SimField
 from mission.mission import MissionRecord
 from mission.plugins import BUNDLED_DIR, PluginLibrary
-from mission.simulate import SimField
 from sim.world import World
 from tests.harness import GroundProcess, fleet_command
 

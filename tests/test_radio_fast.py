@@ -19,8 +19,8 @@ import pytest
 from agent.config import AgentConfig
 from agent.link import LostLinkPolicy
 from bus.port import BusError
-from ground.station import CommandRejected
-from mission.simulate import SimField
+from fleet.compose import SimField
+from schemas.errors import CommandRejected
 from schemas.geo import destination, distance_m
 from schemas.keys import Keys
 from sim.radio import GROUND, RadioModel

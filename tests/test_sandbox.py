@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from fleet.compose import SimField
 from mission.sandbox import ScriptError, check_mission, compile_mission
-from mission.simulate import SimField
 from sim.world import World
 
 MARK = "MARKFILE"

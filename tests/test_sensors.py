@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from bus.zenoh_bus import ZenohBus
-from mission.simulate import SimField
+from fleet.compose import SimField
 from schemas.codec import decode_sensor, encode
 from schemas.geo import destination
 from schemas.keys import Keys

@@ -41,9 +41,9 @@ import httpx
 import fleet_examples
 from bus.port import Bus, Sample
 from bus.zenoh_bus import ZenohBus
+from fleet.compose import run_ground
+from fleet.mission_cli import outcome
 from ground.config import GroundConfig
-from ground.lifecycle import run_ground
-from mission.cli import outcome
 from mission.simulate import telemetry_sample
 from schemas.codec import decode_sensor, decode_telemetry
 from schemas.config import writable_dir
@@ -231,7 +231,7 @@ class Demo:
         log_file = open(log_path, "wb")  # noqa: SIM115 - closed in _stop, after the process ends
         fc = f"sim://?lat={spec.lat!r}&lon={spec.lon!r}&alt={spec.alt!r}"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "fleet_cli", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
+            [sys.executable, "-m", "fleet", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
              # three agents share this host: each router on its own ephemeral loopback port
              "--listen", "tcp/127.0.0.1:0", "--telemetry-rate-ms", str(TELEMETRY_RATE_MS)],
             stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,

@@ -127,7 +127,8 @@ def log_levels(command: str | None, verbose: int) -> tuple[str, str]:
     return fleet, "DEBUG" if verbose >= 2 else "WARNING"
 
 
-@click.group(cls=FleetGroup, help=__doc__.split("\n")[0].removeprefix("`fleet`: "))
+@click.group(cls=FleetGroup, help="Fleets of connected drones: the on-board agent, the ground station, missions, "
+             "simulation. `fleet COMMAND --help` for each; README for the whole picture.")
 @click.option("-v", "--verbose", count=True,
               help="More log output: -v Fleet's next level (services: debug; clients: info), -vv debug for everything.")
 @click.pass_context
@@ -167,8 +168,8 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
 @click.option("--data-dir", help="Where the event log and mission records live; default ~/.local/share/fleet.")
 def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None) -> None:
     """Run the ground station: Zenoh router, fleet registry, event log, HTTP API."""
+    from fleet.compose import run_ground
     from ground.config import GroundConfig
-    from ground.lifecycle import run_ground
     from schemas.config import load_config
 
     config = load_config(
@@ -273,7 +274,7 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
 def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float,
          radio: bool) -> None:
     """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
-    from sim.demo import DEFAULT_WORLD, Demo, DemoOptions
+    from fleet.demo import DEFAULT_WORLD, Demo, DemoOptions
 
     if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the demo prints its own progress; -v shows the rest
         for name in ("ground", "mission", "agent", "bus", "sim", "matplotlib"):
@@ -290,8 +291,8 @@ def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_don
 
 
 def _add_http_clients() -> None:
+    from fleet.mission_cli import mission
     from ground.cli import drone, logs
-    from mission.cli import mission
 
     main.add_command(drone)
     main.add_command(logs)
@@ -299,6 +300,3 @@ def _add_http_clients() -> None:
 
 
 _add_http_clients()
-
-if __name__ == "__main__":
-    main()

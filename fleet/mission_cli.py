@@ -183,9 +183,9 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     or, with a single --enable, as key=value words after it (SPEC §5)."""
     import logging
 
+    from fleet.compose import simulate as run
     from mission.plugins import PluginLibrary, parse_enable, plugin_summary
     from mission.sandbox import ScriptError, compile_mission
-    from mission.simulate import simulate as run
     from schemas.config import writable_dir
     from sim.world import load_world
 

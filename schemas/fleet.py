@@ -1,0 +1,53 @@
+"""What the ground knows about a drone, as the ground and the missions share it.
+
+The registry (ground/) derives these; missions (mission/) read them through their
+port. Plain data, no I/O: the one vocabulary both sides import from below.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, get_args
+
+import msgspec
+
+from schemas.status import Coords
+from schemas.telemetry import LinkQuality
+
+DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
+DRONE_STATES: tuple[str, ...] = get_args(DroneState)
+
+CRITICAL_BATTERY = "Critical battery level"
+LOW_BATTERY = "Low battery level"
+FC_DISCONNECTED = "Flight controller disconnected"
+HEALTH_PREFIX = "Failed health check"
+LINK_DEGRADED = "Link degraded"
+LINK_LOST = "Link lost"
+LINK_RESTORED = "Link restored"
+
+
+class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):
+    description: str
+    timestamp: int  # ms since the epoch, when it started (ground clock)
+    command: str
+    command_id: str
+    coords: Coords | None = None  # goto/move: the target
+    altitude: float | None = None  # takeoff/return: the altitude it climbs to
+
+
+class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
+    drone_id: str
+    state: DroneState
+    current_command: CurrentCommand | None
+    sensors: list[str]
+    mission: str | None
+    errors: list[str]
+    warns: list[str]
+    link: LinkQuality | None = None  # the drone's measured link to the ground
+
+
+class WatchEvent(msgspec.Struct, frozen=True):
+    """One thing that happened, as the ground hands it to watchers and missions."""
+
+    kind: str  # telemetry | status | drone | log | mission | mission_log | end
+    data: Any
+    id: int | None = None  # log lines: their row id in the event log
