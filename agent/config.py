@@ -7,6 +7,8 @@ naming the file and the key.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Annotated
 
 import msgspec
@@ -32,6 +34,15 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = 15.0
     max_speed: Annotated[float, Meta(gt=0.0, le=50.0)] = 5.0
     namespace: str = ""
+    # Where the agent keeps what must outlive it (task bundle records, SPEC §6);
+    # `fleet agent` defaults to $XDG_STATE_HOME/fleet/<drone id>. None: memory only.
+    state_dir: str | None = None
 
     def __post_init__(self) -> None:
         check_endpoints(connect=self.connect, listen=self.listen)
+
+
+def default_state_dir(drone_id: str) -> str:
+    """$XDG_STATE_HOME/fleet/<drone id>, i.e. ~/.local/state/fleet/drone01."""
+    base = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return str(Path(base) / "fleet" / drone_id)

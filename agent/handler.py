@@ -82,6 +82,10 @@ class CommandHandler:
         self._armed_belief: tuple[bool, float] | None = None
         self._prev = FcState()
 
+    @property
+    def connected(self) -> bool:
+        return self._fc.state().connected
+
     # ----- decisions (synchronous: this is the queryable's answer) -------------------
 
     def submit(self, cmd: Command) -> CommandReply:

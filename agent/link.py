@@ -119,6 +119,12 @@ class LostLink:
         summary = f"after {silent_s:.1f} s without the ground; failsafe: {', '.join(self.actions) or 'none'}"
         return [("link_restored", summary)]
 
+    def acted_alone(self, action: LostLinkAction) -> None:
+        """The drone already did `action` for this outage (a bundle's own link-loss
+        policy): no failsafe repeats it, and a hold still turns into a return later."""
+        self.acted = action
+        self.actions.append(action)
+
     def tick(self, now: float, flying: bool) -> list[Decision]:
         p = self.policy
         decisions: list[Decision] = []

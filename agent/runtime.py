@@ -14,9 +14,11 @@ import json
 import logging
 import uuid
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import msgspec
 
+from agent.bundle import BundleRunner, BundleStore
 from agent.config import AgentConfig
 from agent.fc_port import FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
@@ -25,12 +27,14 @@ from agent.link import LostLink, LostLinkAction
 from agent.prober import LinkProber
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
-from bus.port import Bus, echo
-from schemas.codec import encode
+from bus.port import Bus, Sample, echo
+from schemas.bundles import BundleReply, BundleStatus, parse_bundle
+from schemas.codec import decode_sensor, encode
 from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from schemas.errors import InvalidMessage
 from schemas.keys import Keys, check_id
 from schemas.status import CommandStatus, SystemStatus
+from schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
@@ -67,6 +71,8 @@ class Agent:
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
         self._seq = 0
+        store = BundleStore(Path(config.state_dir) / "bundles.json" if config.state_dir else None)
+        self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -92,12 +98,19 @@ class Agent:
         while True:
             state = self.fc.state()
             flying = state.armed and state.landed_state not in ("on_ground", "unknown")
-            for decision, action in self.lost_link.tick(self.clock.monotonic(), flying):
+            # While a bundle runs, its own on_link_loss decides (below); the agent's
+            # failsafe waits until the bundle has ended.
+            alone = flying and not self.bundles.running
+            for decision, action in self.lost_link.tick(self.clock.monotonic(), alone):
                 if decision == "failsafe":
                     self._failsafe(action)  # type: ignore[arg-type]
                 else:
                     log.warning("%s: no answer from the ground for %g s", self.drone_id, self.config.lost_link.timeout_s)
                     self._system(decision, f"no answer from the ground for {self.config.lost_link.timeout_s:g} s")
+                    policy = self.bundles.end_for_link_loss()
+                    if policy is not None:  # the bundle's own policy, instead of the agent's
+                        self.lost_link.acted_alone(policy)  # type: ignore[arg-type]
+                        self._system("failsafe", policy)
             await self.clock.sleep(LOST_LINK_TICK_S)
 
     def _failsafe(self, action: LostLinkAction) -> None:
@@ -109,21 +122,56 @@ class Agent:
                     "accepted" if reply.accepted else f"refused: {reply.reason}")
         self._system("failsafe", action)
 
-    def _publish_status(self, status: CommandStatus | SystemStatus) -> None:
+    def _publish_status(self, status: CommandStatus | SystemStatus | BundleStatus) -> None:
         self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
+        if isinstance(status, CommandStatus):
+            self.bundles.on_status(status)
+
+    def _telemetry_now(self) -> Telemetry | None:
+        state = self.fc.state()
+        return to_telemetry(self.drone_id, self._seq, self.clock.time_ms(), state) if state.position is not None else None
+
+    def _on_sensor(self, sample: Sample) -> None:
+        """On-board sensor readings: the bundle guards' `sensor.<type>` values."""
+        try:
+            reading = decode_sensor(sample.payload)
+        except InvalidMessage:
+            return
+        self.bundles.sensors[sample.key.rsplit("/", 1)[-1]] = reading.value
+
+    async def _on_bundle(self, selector: str, payload: bytes) -> bytes:
+        """A TaskBundle to run, or (no payload, `?id=…`) the record of one."""
+        if not payload:
+            params = dict(p.split("=", 1) for p in selector.partition("?")[2].split(";") if "=" in p)
+            bundle_id = params.get("id", "")
+            record = self.bundles.store.get(bundle_id)
+            if record is None:
+                raise LookupError(f"no bundle {bundle_id!r} on {self.drone_id}" if bundle_id else "give ?id=<bundle_id>")
+            return encode(record)
+        try:
+            bundle = parse_bundle(payload)
+        except InvalidMessage as exc:
+            log.warning("%s: refused a bundle: %s", self.drone_id, exc)
+            return encode(BundleReply(bundle_id=_peek(payload, "bundle_id"), accepted=False, reason=str(exc)))
+        if bundle.wire.drone_id and bundle.wire.drone_id != self.drone_id:
+            return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=f"drone_id: this is {self.drone_id}, not {bundle.wire.drone_id}"))
+        return encode(self.bundles.submit(bundle))
 
     async def _on_command(self, key: str, payload: bytes) -> bytes:
         try:
             cmd = decode_command(payload)
         except InvalidMessage as exc:
             log.warning("%s: refused a malformed command: %s", self.drone_id, exc)
-            return encode(CommandReply(command_id=_peek_command_id(payload), accepted=False, reason=str(exc)))
+            return encode(CommandReply(command_id=_peek(payload, "command_id"), accepted=False, reason=str(exc)))
         if cmd.drone_id and cmd.drone_id != self.drone_id:
             reason = f"drone_id: this is {self.drone_id}, not {cmd.drone_id}"
             return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=reason))
         if not cmd.command_id:
             cmd = msgspec.structs.replace(cmd, command_id=str(uuid.uuid4()))
-        return encode(self.handler.submit(cmd))
+        reply = self.handler.submit(cmd)
+        if reply.accepted and self.bundles.running:  # the ground takes over
+            self.bundles.interrupt(f"{cmd.name} from the ground")
+        return encode(reply)
 
     async def _telemetry_loop(self) -> None:
         period = self.config.telemetry_rate_ms / 1000
@@ -142,9 +190,12 @@ class Agent:
         """Serve until cancelled. The caller owns (and closes) fc and bus."""
         # Queryable first: once the liveliness token is visible, commands are served.
         queryable = self.bus.serve(self.keys.cmd(self.drone_id), self._on_command)
+        bundles = self.bus.serve(self.keys.bundle(self.drone_id), self._on_bundle)
+        sensors = self.bus.subscribe(self.keys.sensor(self.drone_id), self._on_sensor, latest_only=True)
         ping = self.bus.serve(self.keys.ping(self.drone_id), echo)
         token = self.bus.announce(self.keys.alive(self.drone_id))
         log.info("%s: serving commands on %s", self.drone_id, self.keys.cmd(self.drone_id))
+        self.bundles.recover()
         try:
             async with asyncio.TaskGroup() as tg:
                 tg.create_task(self.handler.run(), name=f"{self.drone_id} handler")
@@ -152,8 +203,11 @@ class Agent:
                 tg.create_task(self.prober.run(), name=f"{self.drone_id} link probe")
                 tg.create_task(self._lost_link_loop(), name=f"{self.drone_id} lost link")
         finally:
+            await self.bundles.close()
             token.close()
             ping.close()
+            sensors.close()
+            bundles.close()
             queryable.close()
 
 
@@ -172,9 +226,10 @@ async def _join(bus: Bus, keys: Keys, drone_id: str) -> None:
         watch.close()
 
 
-def _peek_command_id(payload: bytes) -> str:
+def _peek(payload: bytes, field: str) -> str:
+    """A string field of a payload that did not decode (for the refusal's id)."""
     try:
-        value = json.loads(payload).get("command_id", "")
+        value = json.loads(payload).get(field, "")
         return value if isinstance(value, str) else ""
     except (ValueError, AttributeError, TypeError):
         return ""

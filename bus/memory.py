@@ -179,6 +179,8 @@ class MemoryBus:
             raise Unreachable(f"no queryable for {key}")
         decl, handler = matches[0]
         name = decl.keyexpr if "*" not in decl.keyexpr else key
+        if "?" in selector:  # the handler sees the parameters, as Zenoh's query.selector
+            name += selector[selector.index("?"):]
         if net.medium is None or decl.owner.node == self.node:
             try:
                 async with asyncio.timeout(timeout_s):

@@ -61,7 +61,8 @@ class Bus(Protocol):
     ) -> Declaration: ...
 
     def serve(self, keyexpr: str, handler: QueryHandler) -> Declaration:
-        """Answer queries on `keyexpr`; the handler's return value is the reply."""
+        """Answer queries on `keyexpr`; the handler gets the query's key (with
+        `?parameters` when the selector had any) and payload, and returns the reply."""
 
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
         """The first reply, or Unreachable / QueryTimeout / QueryRefused."""

@@ -203,7 +203,8 @@ class ZenohBus:
     async def _answer(self, query: zenoh.Query, handler: QueryHandler) -> None:
         try:
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            reply = await handler(str(query.key_expr), payload)
+            params = str(query.parameters)
+            reply = await handler(f"{query.key_expr}?{params}" if params else str(query.key_expr), payload)
             query.reply(query.key_expr, reply, encoding=zenoh.Encoding.APPLICATION_JSON)
         except asyncio.CancelledError:
             raise

@@ -147,17 +147,22 @@ def main(ctx: click.Context, verbose: int) -> None:
 @click.option("--listen", multiple=True, type=ENDPOINT, help="Zenoh endpoint of this agent's own router (repeatable; default tcp/0.0.0.0:7448): on-board programs and neighbouring drones connect here.")
 @click.option("--mesh-interface", help="Radio interface on which to find neighbouring drones (multicast scouting), e.g. wlan0.")
 @click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
+@click.option("--state-dir", help="Where task bundle records outlive the agent; default ~/.local/state/fleet/<id>.")
 def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
-          mesh_interface: str | None, telemetry_rate_ms: int | None) -> None:
+          mesh_interface: str | None, telemetry_rate_ms: int | None, state_dir: str | None) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
-    from agent.config import AgentConfig
+    from agent.config import AgentConfig, default_state_dir
     from agent.runtime import run_agent
     from schemas.config import load_config
     config = load_config(
         AgentConfig, config_path,
         {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
-         "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms},
+         "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms, "state_dir": state_dir},
     )
+    if config.state_dir is None:
+        import msgspec
+
+        config = msgspec.structs.replace(config, state_dir=default_state_dir(drone_id))
     run_async(run_agent(drone_id, config))
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Awaitable
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -33,6 +33,7 @@ from mission.manager import MissionEnded, MissionManager, UnknownMission
 from mission.mission import MissionLogLine, MissionRecord
 from mission.plugins import PluginListing
 from mission.sandbox import ScriptError
+from schemas.bundles import BundleRecord, BundleReply, TaskBundle
 from schemas.commands import Command, CommandReply
 from schemas.errors import CommandRejected, InvalidMessage
 from schemas.fleet import DroneInfo, DroneState, WatchEvent
@@ -104,6 +105,18 @@ def _command_body_schema() -> tuple[dict[str, Any], dict[str, Any]]:
 _BODY_SCHEMA, _BODY_COMPONENTS = _command_body_schema()
 
 
+def _bundle_body_schema() -> dict[str, Any]:
+    schema = msgspec.json.schema(TaskBundle)
+    body = schema["$defs"]["TaskBundle"] if "$defs" in schema else schema
+    for name in ("drone_id", "timestamp"):
+        body["properties"].pop(name, None)
+    body["required"] = ["steps"]
+    return body
+
+
+_BUNDLE_SCHEMA = _bundle_body_schema()
+
+
 @dataclass
 class _CommandOperation(Operation):
     def __post_init__(self) -> None:
@@ -173,19 +186,49 @@ def show_drone(
     responses=_errors(400, 404, 409, 502, 504), summary="Send a command; 200 when the agent accepted it",
 )
 async def send_command(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[CommandReply]:
-    body = await request.body()
+    return await _to_drone(drone_id, station.command(drone_id, await request.body()))
+
+
+async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
+    """One request to a drone's agent, its failures as the API's errors."""
     try:
-        reply = await station.command(drone_id, body)
+        reply = await sending
     except InvalidMessage as exc:
         field = exc.field.removeprefix("$.") if exc.field else None
-        return _error(400, str(exc), {"field": field})  # type: ignore[return-value]
+        return _error(400, str(exc), {"field": field})
     except CommandRejected as exc:
-        return _error(exc.status, exc.reason, {"drone_id": drone_id})  # type: ignore[return-value]
+        return _error(exc.status, exc.reason, {"drone_id": drone_id})
     except QueryRefused as exc:
-        return _error(502, f"the agent of {drone_id} answered with an error: {exc}", {"drone_id": drone_id})  # type: ignore[return-value]
+        return _error(502, f"the agent of {drone_id} answered with an error: {exc}", {"drone_id": drone_id})
     except Unreachable as exc:
-        return _error(504, f"{drone_id} did not answer: {exc}", {"drone_id": drone_id})  # type: ignore[return-value]
+        return _error(504, f"{drone_id} did not answer: {exc}", {"drone_id": drone_id})
     return Response(reply)
+
+
+@dataclass
+class _BundleOperation(Operation):
+    def __post_init__(self) -> None:
+        self.request_body = RequestBody(
+            content={"application/json": OpenAPIMediaType(schema=_BUNDLE_SCHEMA)},  # type: ignore[arg-type]
+            required=True,
+            description="A task bundle (SPEC §6) without drone_id and timestamp; the ground adds them and a bundle_id if absent.",
+        )
+
+
+@post(
+    "/drone/{drone_id:str}/bundle", status_code=200, operation_class=_BundleOperation,
+    responses=_errors(400, 404, 409, 502, 504), summary="Send a task bundle; 200 when the agent accepted it",
+)
+async def push_bundle(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[BundleReply]:
+    return await _to_drone(drone_id, station.push(drone_id, await request.body()))
+
+
+@get(
+    "/drone/{drone_id:str}/bundle/{bundle_id:str}", responses=_errors(404, 502, 504),
+    summary="What the drone did with a bundle, asked of the drone itself",
+)
+async def show_bundle(station: GroundStation, drone_id: str, bundle_id: str) -> Response[BundleRecord]:
+    return await _to_drone(drone_id, station.bundle_record(drone_id, bundle_id))
 
 
 # ---- missions ---------------------------------------------------------------------
@@ -345,7 +388,7 @@ def _add_command_components(app: Litestar) -> None:
 def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     return Litestar(
         [
-            list_drones, drone_logs, show_drone, send_command, submit_mission, list_missions, show_mission, list_plugins,
+            list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
             cancel_mission, events, index, openapi_json,
         ],
         dependencies={

@@ -12,6 +12,7 @@ from typing import Literal
 
 import msgspec
 
+from schemas.bundles import BundleStatus, Step
 from schemas.status import CommandStatus, SystemStatus
 
 Level = Literal["info", "warn", "error"]
@@ -69,3 +70,48 @@ _SYSTEM: dict[str, tuple[Level, str]] = {
 def system_line(status: SystemStatus) -> tuple[Level, str]:
     level, message = _SYSTEM.get(status.state, ("info", f"System event {status.state}"))
     return level, f"{message}: {status.reason}" if status.reason else message
+
+
+def describe_step(step: Step) -> str:
+    """A bundle step as a person reads it: "Go to 40.633700, -8.660500 at 10.0m", "Wait 5 s"."""
+    if step.command is None:
+        text = f"Wait {step.wait_s:g} s"
+    else:
+        cmd = step.command
+        name = _NAMES.get(cmd.name, cmd.name.replace("_", " "))
+        lat, lon, alt = (getattr(cmd, f, None) for f in ("lat", "lon", "alt"))
+        if lat is not None and lon is not None:
+            text = f"{name} {lat:.6f}, {lon:.6f}" + (f" at {_metres(alt)}" if alt is not None else "")
+        elif alt is not None:
+            text = f"{name} with altitude {_metres(alt)}"
+        elif cmd.name == "move":
+            parts = [f"{abs(v):g} m {pos if v > 0 else neg}" for v, pos, neg in (
+                (getattr(cmd, "y", 0), "forward", "backward"), (getattr(cmd, "x", 0), "right", "left"),
+                (getattr(cmd, "z", 0), "up", "down")) if v]
+            text = "move " + (", ".join(parts) or "nowhere")
+        else:
+            text = name
+        text = text[0].upper() + text[1:]
+    return f"{text} until {step.until}" if step.until is not None else text
+
+
+def bundle_line(status: BundleStatus, description: str | None) -> tuple[Level, str] | None:
+    """The thesis-style line for a bundle event (None: the step's command says it)."""
+    b, n = f"Bundle {status.bundle_id}", status.steps or 0
+    at = f"step {status.step + 1}/{n}" if n else f"step {status.step + 1}"
+    why = f": {status.reason}" if status.reason else ""
+    match status.state:
+        case "start":
+            return "info", f"{b} {at}: {description or status.command or 'step'}"
+        case "finish":
+            return None
+        case "guard":
+            return "info", f"{b} {at} ended by {status.reason}"
+        case "ended":
+            return "info", f"{b} ended by {status.reason} at step {status.step + 1}"
+        case "done":
+            return "info", f"{b} done ({n} steps)"
+        case "failure":
+            return "warn", f"{b} failed at {at}{why}"
+        case _:
+            return "warn", f"{b} cancelled at {at}{why}"

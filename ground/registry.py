@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 import msgspec
 
 from ground.config import GroundConfig
-from ground.describe import Described, Level, describe_start, status_line, system_line
+from ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
+from schemas.bundles import BundleStatus
 from schemas.fleet import (
     CRITICAL_BATTERY,
     FC_DISCONNECTED,
@@ -24,6 +25,7 @@ from schemas.fleet import (
     LINK_LOST,
     LINK_RESTORED,
     LOW_BATTERY,
+    BundleInfo,
     CurrentCommand,
     DroneInfo,
     DroneState,
@@ -70,6 +72,8 @@ class _Drone:
     sensors: dict[str, _Sensor] = field(default_factory=dict)
     mission: str | None = None
     link: LinkQuality | None = None
+    bundle: BundleInfo | None = None
+    bundle_steps: dict[str, list[str]] = field(default_factory=dict)  # bundle id → step descriptions (pushed here)
     info: DroneInfo | None = None
 
 
@@ -159,10 +163,18 @@ class Registry:
             out.append(self._line(now_ms, "info", d, "Errors cleared"))
         return out + self._publish(d, info)
 
-    def on_status(self, status: CommandStatus | SystemStatus, now_ms: int) -> list[Event]:
+    def note_bundle(self, drone_id: str, bundle_id: str, descriptions: list[str]) -> None:
+        """A bundle the ground sent: its steps, to describe them as they start."""
+        d = self._drones.get(drone_id)
+        if d is not None:
+            d.bundle_steps[bundle_id] = descriptions
+
+    def on_status(self, status: CommandStatus | SystemStatus | BundleStatus, now_ms: int) -> list[Event]:
         d = self._drones.get(status.drone_id)
         if d is None:
             return []  # registration happens on telemetry; the agent repeats nothing we need
+        if isinstance(status, BundleStatus):
+            return self._on_bundle(d, status, now_ms)
         if isinstance(status, SystemStatus):
             if status.state == "disconnect":
                 d.fc_disconnected = True
@@ -185,6 +197,20 @@ class Registry:
                 d.current = None
         level, message = status_line(status, described)
         return [self._line(now_ms, level, d, message), *self._publish(d, self._derive(d))]
+
+    def _on_bundle(self, d: _Drone, status: BundleStatus, now_ms: int) -> list[Event]:
+        known = d.bundle_steps.get(status.bundle_id, [])
+        description = known[status.step] if status.step < len(known) else None
+        if status.state == "start":
+            d.bundle = BundleInfo(bundle_id=status.bundle_id, step=status.step, steps=status.steps or len(known),
+                                  description=description or status.command or "step")
+        elif status.state in ("done", "ended", "failure", "cancel"):
+            d.bundle_steps.pop(status.bundle_id, None)
+            if d.bundle is not None and d.bundle.bundle_id == status.bundle_id:
+                d.bundle = None
+        line = bundle_line(status, description)
+        out: list[Event] = [self._line(now_ms, line[0], d, line[1])] if line is not None else []
+        return [*out, *self._publish(d, self._derive(d))]
 
     def on_sensor(self, reading: SensorReading, now_ms: int) -> list[Event]:
         d = self._drones.get(reading.drone_id)
@@ -284,7 +310,7 @@ class Registry:
             state = "ready"
         return DroneInfo(
             drone_id=d.drone_id, state=state, current_command=d.current, sensors=sorted(d.sensors),
-            mission=d.mission, errors=errors, warns=warns, link=d.link,
+            mission=d.mission, errors=errors, warns=warns, link=d.link, bundle=d.bundle,
         )
 
     def _publish(self, d: _Drone, info: DroneInfo) -> list[Event]:

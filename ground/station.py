@@ -20,11 +20,13 @@ from typing import Any
 import msgspec
 
 from bus.clock import Clock, SystemClock
-from bus.port import Bus, Declaration, Sample, echo
+from bus.port import Bus, Declaration, QueryRefused, Sample, echo
 from ground.config import GroundConfig
+from ground.describe import describe_step
 from ground.eventlog import EventLog
 from ground.registry import Event, InfoChanged, LogLine, Registry
-from schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry, encode
+from schemas.bundles import BundleRecord, BundleReply, new_bundle_id, parse_bundle, sensor_guards
+from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command, new_command_id
 from schemas.errors import CommandRejected, InvalidMessage
 from schemas.fleet import WatchEvent
@@ -35,6 +37,7 @@ log = logging.getLogger(__name__)
 TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late
 WATCH_QUEUE = 2048
 _reply_decoder = msgspec.json.Decoder(CommandReply)
+_bundle_reply_decoder = msgspec.json.Decoder(BundleReply)
 
 
 class Watcher:
@@ -145,20 +148,74 @@ class GroundStation:
             raise CommandRejected(409, reply.reason or "refused by the agent")
         return reply
 
-    def _stamp(self, drone_id: str, body: bytes) -> Command:
-        """The request body plus drone_id, timestamp and (unless given) command_id."""
+    async def push(self, drone_id: str, body: bytes, mission_id: str | None = None) -> BundleReply:
+        """Validate, check and send one task bundle (SPEC §6; POST /drone/{id}/bundle).
+
+        The whole bundle is checked here first (400 naming the step and field), then
+        by the agent. Raises InvalidMessage, CommandRejected (404/409) or Unreachable.
+        """
+        if drone_id not in self.registry:
+            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+        obj = self._body(drone_id, body)
+        obj.setdefault("bundle_id", "")
+        if not obj["bundle_id"]:
+            obj["bundle_id"] = new_bundle_id()
+        bundle = parse_bundle(json.dumps(obj).encode())
+        carried = self.registry.info(drone_id).sensors
+        for path, label, kind in sensor_guards(bundle.wire):
+            if kind not in carried:
+                raise InvalidMessage(f"{label}: {drone_id} carries no {kind} sensor (it has: {', '.join(carried) or 'none'})", field=path)
+        refusal = self.registry.check_command(drone_id, "bundle", mission_id)
+        if refusal is not None:
+            self._emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
+                                message=f"Refused bundle {bundle.bundle_id}: {refusal.reason}")])
+            raise CommandRejected(refusal.status, refusal.reason)
+        self.registry.note_bundle(drone_id, bundle.bundle_id, [describe_step(step) for step in bundle.steps])
+        raw = await self.bus.query(
+            self.keys.bundle(drone_id), encode(bundle.wire), timeout_s=self.config.command_timeout_ms / 1000
+        )
+        try:
+            reply = _bundle_reply_decoder.decode(raw)
+        except msgspec.MsgspecError as exc:
+            raise CommandRejected(502, f"the agent answered something that is not a BundleReply: {exc}") from None
+        if not reply.accepted:
+            raise CommandRejected(409, reply.reason or "refused by the agent")
+        return reply
+
+    async def bundle_record(self, drone_id: str, bundle_id: str) -> BundleRecord:
+        """What the agent did with a bundle (SPEC §6): asked of the agent itself, so a
+        ground that was out of range catches up. Raises CommandRejected 404 or Unreachable."""
+        if drone_id not in self.registry:
+            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+        try:
+            raw = await self.bus.query(f"{self.keys.bundle(drone_id)}?id={bundle_id}",
+                                       timeout_s=self.config.command_timeout_ms / 1000)
+        except QueryRefused as exc:
+            raise CommandRejected(404, str(exc).split(": ", 1)[-1]) from None
+        try:
+            return decode_bundle_record(raw)
+        except InvalidMessage as exc:
+            raise CommandRejected(502, f"the agent answered something that is not a bundle record: {exc}") from None
+
+    def _body(self, drone_id: str, body: bytes) -> dict[str, Any]:
+        """A JSON object body for `drone_id`, with drone_id and timestamp set."""
         try:
             obj = msgspec.json.decode(body)
         except msgspec.DecodeError:
-            try:  # NaN/Infinity tokens: decode_command then names the field
+            try:  # NaN/Infinity tokens: the decoder then names the field
                 obj = json.loads(body)
             except (ValueError, UnicodeDecodeError) as exc:
                 raise InvalidMessage(f"malformed JSON: {exc}") from None
         if not isinstance(obj, dict):
-            raise InvalidMessage(f"the body must be a JSON object (a command), got {type(obj).__name__}", field="$")
+            raise InvalidMessage(f"the body must be a JSON object, got {type(obj).__name__}", field="$")
         if obj.get("drone_id", drone_id) != drone_id:
             raise InvalidMessage(f"drone_id: the path names {drone_id!r}, the body {obj['drone_id']!r}", field="$.drone_id")
         obj.update(drone_id=drone_id, timestamp=self.clock.time_ms())
+        return obj
+
+    def _stamp(self, drone_id: str, body: bytes) -> Command:
+        """The request body plus drone_id, timestamp and (unless given) command_id."""
+        obj = self._body(drone_id, body)
         if not obj.get("command_id"):
             obj["command_id"] = new_command_id()
         return decode_command(json.dumps(obj))

@@ -32,6 +32,7 @@ MIN_HANDOVER_HEIGHT_M = 2.0
 # An idle drone this close to its last target (by telemetry up to a period old, at
 # cruise speed) plans from that target.
 ANCHOR_RADIUS_M = 10.0
+DEFAULT_BUNDLE_TIMEOUT_S = 600.0  # push(timeout=…): how long a bundle may run before the drone gives up
 
 
 class _AnyDrone:
@@ -286,6 +287,142 @@ class Channel:
         return _call(object.__getattribute__(self, "_m"), fut)
 
 
+class GuardSpec:
+    """A bundle guard as data (SPEC §6): `when.sensor.temperature > 37`, combined with
+    `&` (all) and `|` (any). The drone compares; nothing here runs on the drone."""
+
+    def __init__(self, data: dict[str, Any]) -> None:
+        self.data = data
+
+    def __and__(self, other: GuardSpec) -> GuardSpec:
+        return GuardSpec({"all": [self.data, _guard(other)]})
+
+    def __or__(self, other: GuardSpec) -> GuardSpec:
+        return GuardSpec({"any": [self.data, _guard(other)]})
+
+    def __ror__(self, other: Any) -> GuardSpec:
+        raise TypeError("guards: put each comparison in parentheses, e.g. (when.sensor.temperature > 37) | (when.battery.remaining_percent < 0.3)")
+
+    __rand__ = __ror__
+
+    def __repr__(self) -> str:
+        return f"GuardSpec({self.data})"
+
+
+def _guard(value: Any) -> dict[str, Any]:
+    if not isinstance(value, GuardSpec):
+        raise TypeError(f"until: expected a guard such as when.sensor.temperature > 37, got {value!r}")
+    return value.data
+
+
+class When:
+    """`when.<dotted telemetry field>` or `when.sensor.<type>`, compared to a value."""
+
+    def __init__(self, path: tuple[str, ...] = ()) -> None:
+        object.__setattr__(self, "_path", path)
+
+    def __getattr__(self, name: str) -> When:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return When((*object.__getattribute__(self, "_path"), name))
+
+    def _compare(self, op: str, value: Any) -> GuardSpec:
+        path = object.__getattribute__(self, "_path")
+        if not path:
+            raise TypeError("when: name a field, e.g. when.battery.remaining_percent < 0.3")
+        plain = value.value if isinstance(value, units.Quantity) else value
+        return GuardSpec({"field": ".".join(path), "op": op, "value": plain})
+
+    def __lt__(self, value: Any) -> GuardSpec:
+        return self._compare("<", value)
+
+    def __le__(self, value: Any) -> GuardSpec:
+        return self._compare("<=", value)
+
+    def __gt__(self, value: Any) -> GuardSpec:
+        return self._compare(">", value)
+
+    def __ge__(self, value: Any) -> GuardSpec:
+        return self._compare(">=", value)
+
+    def __eq__(self, value: Any) -> GuardSpec:  # type: ignore[override]
+        return self._compare("==", value)
+
+    def __ne__(self, value: Any) -> GuardSpec:  # type: ignore[override]
+        return self._compare("!=", value)
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+class Steps:
+    """`step.move(...)`, `step.wait(...)`…: the steps of a bundle, built with the verbs'
+    helpers (units, positions, directions). Each takes `until=` to end it early."""
+
+    @staticmethod
+    def _step(body: dict[str, Any], until: Any) -> dict[str, Any]:
+        if until is not None:
+            body["until"] = _guard(until)
+        return body
+
+    def arm(self, until: Any = None) -> dict[str, Any]:
+        return self._step({"cmd": "arm"}, until)
+
+    def disarm(self, until: Any = None) -> dict[str, Any]:
+        return self._step({"cmd": "disarm"}, until)
+
+    def takeoff(self, alt: Any = None, until: Any = None) -> dict[str, Any]:
+        body: dict[str, Any] = {"cmd": "takeoff"}
+        if alt is not None:
+            body["alt"] = units.length(alt, "takeoff altitude")
+        return self._step(body, until)
+
+    def land(self, until: Any = None) -> dict[str, Any]:
+        return self._step({"cmd": "land"}, until)
+
+    def home(self, alt: Any = None, until: Any = None) -> dict[str, Any]:
+        body: dict[str, Any] = {"cmd": "return"}
+        if alt is not None:
+            body["alt"] = units.length(alt, "return altitude")
+        return self._step(body, until)
+
+    def hold(self, until: Any = None) -> dict[str, Any]:
+        return self._step({"cmd": "cancel"}, until)
+
+    def turn(self, by: Any, until: Any = None) -> dict[str, Any]:
+        return self._step({"cmd": "turn", "deg": units.angle(by, "turn by")}, until)
+
+    def wait(self, duration: Any, until: Any = None) -> dict[str, Any]:
+        return self._step({"wait_s": units.duration(duration, "wait")}, until)
+
+    def move(self, *, forward: Any = 0, backward: Any = 0, right: Any = 0, left: Any = 0, up: Any = 0, down: Any = 0,
+             to: Any = None, lat: Any = None, lon: Any = None, alt: Any = None, yaw: Any = None, speed: Any = None,
+             until: Any = None) -> dict[str, Any]:
+        """To a position (to=, lat=/lon=, alt=) — or by offsets from wherever the drone
+        is when the step starts (forward=, right=, up=, …: relative to its heading)."""
+        relative = any(v != 0 for v in (forward, backward, right, left, up, down))
+        body: dict[str, Any]
+        if to is not None or lat is not None or lon is not None:
+            if relative:
+                raise TypeError("step.move: give either a position (to=/lat=/lon=) or directions, not both")
+            goal = as_position(to) if to is not None else Position(lat, lon)
+            body = {"cmd": "goto", "lat": goal.lat, "lon": goal.lon}
+            height = alt if alt is not None else goal.alt
+            if height is not None:
+                body["alt"] = units.length(height, "alt")
+            if yaw is not None:
+                body["yaw"] = normalize_deg(units.angle(yaw, "yaw"))
+        elif relative:
+            body = {"cmd": "move",
+                    "x": units.length(right, "right") - units.length(left, "left"),
+                    "y": units.length(forward, "forward") - units.length(backward, "backward"),
+                    "z": units.length(up, "up") - units.length(down, "down")}
+        else:
+            raise TypeError("step.move: give a destination (to=, lat=/lon=) or a direction (forward=, right=, up=, …)")
+        if speed is not None:
+            body["speed"] = units.speed(speed)
+        return self._step(body, until)
+
+
 def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     """The globals one mission script runs with."""
     m = mission
@@ -463,6 +600,27 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         send(d, body)
         d._anchor = Position(goal.lat, goal.lon, goal.alt, heading)
 
+    # ---- task bundles (SPEC §6) ------------------------------------------------------
+
+    def push(d: Drone, steps: Any, on_link_loss: str = "continue", timeout: Any = DEFAULT_BUNDLE_TIMEOUT_S,
+             until: Any = None) -> Any:
+        """Hand `d` a list of steps (from `step.…`) to run on its own; block until the
+        bundle has ended and return the drone's record of it (`.state` done | ended |
+        failed | cancelled, `.step`, `.steps_done`, `.ended_by`, `.reason`, `.history`).
+        While the drone is out of reach the mission waits for it: working alone is
+        not a failure until `timeout` plus mission.link_grace_s have passed."""
+        if not isinstance(steps, (list, tuple)) or not steps:
+            raise TypeError("push: steps is a non-empty list of step.…(…) items")
+        body: dict[str, Any] = {"steps": list(steps), "on_link_loss": on_link_loss}
+        if timeout is not None:
+            body["timeout_s"] = units.duration(timeout, "timeout")
+        if until is not None:
+            body["until"] = _guard(until)
+        record = _call(m, m.push(drone_id(d), body))
+        d._anchor = None
+        _call(m, m.next_telemetry(d._live()))
+        return record
+
     # ---- time and concurrency ------------------------------------------------------
 
     def sleep(duration: Any) -> None:
@@ -506,7 +664,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     verbs: dict[str, Any] = {name: guarded(defined[name]) for name in VERBS}
     base = common_names(guards)  # what a plugin enabled by this mission sees
     base.update(verbs)
-    base.update(channel=Channel(m), mission_id=m.id)
+    base.update(channel=Channel(m), mission_id=m.id, step=Steps(), when=When())
     namespace = dict(base)  # the script's globals
     return namespace
 
@@ -515,9 +673,9 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
 # function of that name it defines, so a verb cannot be listed without existing.
 VERBS = (
     "assign", "revoke", "replace", "arm", "disarm", "takeoff", "land", "home", "cancel", "turn",
-    "move", "sleep", "run", "wait", "stop", "enable", "disable",
+    "move", "push", "sleep", "run", "wait", "stop", "enable", "disable",
 )
-VERB_NAMES = (*VERBS, "channel", "mission_id")  # every name a mission script gets from its mission
+VERB_NAMES = (*VERBS, "channel", "mission_id", "step", "when")  # every name a mission script gets from its mission
 
 
 def common_names(guards: Guards) -> dict[str, Any]:

@@ -17,6 +17,7 @@ import json
 import logging
 import traceback
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal
 
 import msgspec
@@ -28,6 +29,7 @@ from mission.plugins import MissionPlugins, PluginLibrary
 from mission.port import FleetPort, MissionConfig
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
+from schemas.bundles import BundleRecord, BundleStatus, new_bundle_id
 from schemas.commands import new_command_id
 from schemas.errors import CommandRejected, FleetError, InvalidMessage
 from schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
@@ -67,6 +69,17 @@ CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "time_limit": ("cancelled", "time limit reached"),  # fast-time simulation's --max-time
 }
 TERMINAL_COMMAND_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})
+BUNDLE_RECORD_STATES: dict[str, Any] = {"done": "done", "ended": "ended", "failure": "failed", "cancel": "cancelled"}
+BUNDLE_ENDS = frozenset(BUNDLE_RECORD_STATES)
+BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
+
+
+@dataclass
+class _PendingBundle:
+    drone_id: str
+    bundle_id: str
+    deadline: float  # clock.monotonic() by which the bundle should have ended
+    done: asyncio.Future[BundleRecord]
 INSTANT_COMMANDS = frozenset({"arm", "disarm", "cancel"})
 STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
@@ -136,6 +149,8 @@ class Mission:
         self.requests: dict[str, a.Request] = {}  # drone id → how it was assigned
         self.commands: list[CommandResult] = []
         self._pending: dict[str, asyncio.Future[CommandStatus]] = {}  # command id → its terminal status
+        self._bundles: dict[str, _PendingBundle] = {}  # bundle id → the push waiting for it
+        self._pushed = 0
         self._pulses: dict[str, list[asyncio.Future[None]]] = {}
         self._ended = asyncio.Event()
         self._stop_listening: Callable[[], None] | None = None
@@ -239,6 +254,9 @@ class Mission:
         for fut in self._pending.values():
             if not fut.done():
                 fut.cancel()
+        for pending in self._bundles.values():
+            if not pending.done.done():
+                pending.done.cancel()
         for drone_id in sorted(self.requests):
             await self._leave(drone_id)
         self.requests.clear()
@@ -292,6 +310,8 @@ class Mission:
         elif event.kind == "status":
             if isinstance(data, CommandStatus):
                 self._on_command_status(data)
+            elif isinstance(data, BundleStatus):
+                self._on_bundle_status(data)
             elif isinstance(data, SystemStatus) and data.drone_id in self.requests:
                 self._on_system_status(data)
         elif event.kind == "drone" and data.drone_id in self.requests:
@@ -307,6 +327,31 @@ class Mission:
         fut = self._pending.get(status.command_id)
         if fut is not None and status.state in TERMINAL_COMMAND_STATES and not fut.done():
             fut.set_result(status)
+
+    def _on_bundle_status(self, status: BundleStatus) -> None:
+        pending = self._bundles.get(status.bundle_id)
+        if pending is not None and status.state in BUNDLE_ENDS:
+            self._catch_up(pending, status)
+
+    def _catch_up(self, pending: _PendingBundle, status: BundleStatus | None = None) -> None:
+        """Ask the agent for the bundle's record (its whole history); resolve the push
+        if the bundle has ended. Statuses sent while the link was down never arrived."""
+        async def ask() -> None:
+            try:
+                record = await self.station.bundle_record(pending.drone_id, pending.bundle_id)
+            except (CommandRejected, Unreachable) as exc:
+                if status is None:
+                    self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
+                    return
+                record = BundleRecord(  # the end was heard; only its history is missing
+                    bundle_id=status.bundle_id, state=BUNDLE_RECORD_STATES[status.state], step=status.step,
+                    steps=status.steps or 0, ended_by=status.reason if status.state == "ended" else None,
+                    reason=status.reason if status.state in ("failure", "cancel") else None,
+                )
+            if record.finished and not pending.done.done():
+                pending.done.set_result(record)
+
+        asyncio.get_running_loop().create_task(ask(), name=f"mission {self.id} bundle {pending.bundle_id}")
 
     def _on_system_status(self, status: SystemStatus) -> None:
         if status.state == "return":
@@ -338,7 +383,14 @@ class Mission:
         if drone_id in self._link_waits or self.ending:
             return
         grace = self.config.mission.link_grace_s
-        self.log("warn", f"{drone_id}: link lost; waiting up to {grace:g} s for it to come back")
+        alone = [b for b in self._bundles.values() if b.drone_id == drone_id]
+        if alone:  # working alone is not a failure: the grace counts from the bundle's end
+            ends_in = max(0.0, max(b.deadline for b in alone) - self.clock.monotonic())
+            self.log("info", f"{drone_id}: link lost while it runs bundle {alone[0].bundle_id}; waiting up to "
+                             f"{ends_in + grace:g} s (its timeout, then mission.link_grace_s)")
+            grace += ends_in
+        else:
+            self.log("warn", f"{drone_id}: link lost; waiting up to {grace:g} s for it to come back")
         self._link_waits[drone_id] = asyncio.get_running_loop().create_task(
             self._link_grace(drone_id, grace), name=f"mission {self.id} link grace {drone_id}",
         )
@@ -353,6 +405,9 @@ class Mission:
         if wait is not None:
             wait.cancel()
             self.log("info", f"{drone_id}: link restored, the mission goes on")
+            for pending in list(self._bundles.values()):
+                if pending.drone_id == drone_id:
+                    self._catch_up(pending)
 
     # ---- what verbs call (on the loop) ----------------------------------------------
 
@@ -479,6 +534,33 @@ class Mission:
         if status.state == "failure":
             raise self.fail("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
+
+    async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
+        """Send a task bundle as this mission and wait until it has ended (SPEC §6);
+        the agent's record is the outcome. Refusals end the mission as `execute`'s do."""
+        self.check_assigned(drone_id)
+        self._pushed += 1  # fast time replays exactly: its ids come from the mission
+        bundle_id = f"b-{self.id}-{self._pushed}" if self.deterministic else new_bundle_id()
+        timeout_s = body.get("timeout_s")
+        deadline = self.clock.monotonic() + (timeout_s if timeout_s is not None else BUNDLE_NO_TIMEOUT_S)
+        pending = _PendingBundle(drone_id, bundle_id, deadline, asyncio.get_running_loop().create_future())
+        self._bundles[bundle_id] = pending
+        try:
+            await self.station.push(drone_id, json.dumps({**body, "bundle_id": bundle_id}).encode(), self.id)
+            try:
+                return await pending.done
+            except asyncio.CancelledError:
+                if not self.ending:  # the subroutine was stopped: so is the bundle
+                    await asyncio.shield(self._cancel_quietly(drone_id))
+                raise
+        except InvalidMessage as exc:
+            raise self.fail("cmd_parse", f"push {drone_id}: {exc}") from None
+        except CommandRejected as exc:
+            raise self.fail("cmd_exec", f"push {drone_id} refused: {exc.reason}") from None
+        except Unreachable as exc:
+            raise self.fail("cmd_exec", f"push {drone_id}: no answer from the drone ({exc})") from None
+        finally:
+            self._bundles.pop(bundle_id, None)
 
     async def _cancel_quietly(self, drone_id: str) -> None:
         try:

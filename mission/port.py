@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Protocol
 
+from schemas.bundles import BundleRecord, BundleReply
 from schemas.commands import CommandReply
 from schemas.config import MissionSettings
 from schemas.fleet import DroneInfo, WatchEvent
@@ -51,6 +52,14 @@ class FleetPort(Protocol):
     async def command(self, drone_id: str, body: bytes, mission_id: str | None = None) -> CommandReply:
         """Send one command (SPEC §2 JSON) as mission `mission_id`; raises
         CommandRejected (404/409), InvalidMessage (400) or bus Unreachable (504)."""
+        ...
+
+    async def push(self, drone_id: str, body: bytes, mission_id: str | None = None) -> BundleReply:
+        """Send one task bundle (SPEC §6 JSON); raises as `command`."""
+        ...
+
+    async def bundle_record(self, drone_id: str, bundle_id: str) -> BundleRecord:
+        """The agent's record of a bundle; raises CommandRejected or Unreachable."""
         ...
 
     def log_ground(self, level: str, message: str) -> None: ...

@@ -11,6 +11,7 @@ from typing import Any
 
 import msgspec
 
+from schemas.bundles import BundleRecord, BundleStatus
 from schemas.commands import decode_command
 from schemas.errors import InvalidMessage
 from schemas.status import CommandStatus, Status, SystemStatus
@@ -23,11 +24,12 @@ encode = _encoder.encode
 class _StatusShape(msgspec.Struct):
     command: str | None = None
     component: str | None = None
+    bundle_id: str | None = None
 
 
 _decoders: dict[type, msgspec.json.Decoder] = {
     t: msgspec.json.Decoder(t)
-    for t in (Telemetry, SensorReading, LinkQuality, CommandStatus, SystemStatus, _StatusShape)
+    for t in (Telemetry, SensorReading, LinkQuality, CommandStatus, SystemStatus, BundleStatus, BundleRecord, _StatusShape)
 }
 
 
@@ -52,9 +54,12 @@ def decode_link(payload: bytes) -> LinkQuality:
     return _decode(payload, LinkQuality)
 
 
-def decode_status(payload: bytes) -> Status:
-    """CommandStatus when the payload has `command`, SystemStatus when it has `component`."""
+def decode_status(payload: bytes) -> Status | BundleStatus:
+    """BundleStatus when the payload has `bundle_id`, CommandStatus when it has
+    `command`, SystemStatus when it has `component`."""
     shape = _decode(payload, _StatusShape)
+    if shape.bundle_id is not None:
+        return _decode(payload, BundleStatus)
     if shape.command is not None:
         return _decode(payload, CommandStatus)
     if shape.component is not None:
@@ -62,4 +67,8 @@ def decode_status(payload: bytes) -> Status:
     raise InvalidMessage("status has neither `command` nor `component`", field="$.command")
 
 
-__all__ = ["decode_command", "decode_link", "decode_sensor", "decode_status", "decode_telemetry", "encode"]
+def decode_bundle_record(payload: bytes) -> BundleRecord:
+    return _decode(payload, BundleRecord)
+
+
+__all__ = ["decode_bundle_record", "decode_command", "decode_link", "decode_sensor", "decode_status", "decode_telemetry", "encode"]

@@ -34,6 +34,15 @@ class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):
     altitude: float | None = None  # takeoff/return: the altitude it climbs to
 
 
+class BundleInfo(msgspec.Struct, frozen=True, kw_only=True):
+    """The task bundle a drone is running (SPEC §6), as the ground last heard of it."""
+
+    bundle_id: str
+    step: int  # index of the current step
+    steps: int
+    description: str  # the current step, e.g. "Go to 40.633700, -8.660500"
+
+
 class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
     drone_id: str
     state: DroneState
@@ -43,6 +52,7 @@ class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
     errors: list[str]
     warns: list[str]
     link: LinkQuality | None = None  # the drone's measured link to the ground
+    bundle: BundleInfo | None = None  # the task bundle it is running
 
 
 class WatchEvent(msgspec.Struct, frozen=True):

@@ -65,6 +65,7 @@ def test_generated_requests_never_5xx_and_always_match_the_schema(ground: Ground
     operations = [result.ok() for result in schema.get_all_operations()]
     assert {op.label for op in operations} == {
         "GET /drone", "GET /drone/logs", "GET /drone/{drone_id}", "POST /drone/{drone_id}/cmd",
+        "POST /drone/{drone_id}/bundle", "GET /drone/{drone_id}/bundle/{bundle_id}",
         "POST /mission", "GET /mission", "GET /mission/{mission_id}", "DELETE /mission/{mission_id}",
         "GET /plugin",
     }

@@ -1,0 +1,233 @@
+"""Task bundles (issue 14, SPEC §6): validation, the agent's runner, the ground's view,
+the mission's `push` — in fast time (the real GroundStation, agents and mission runtime
+on the memory bus and the virtual clock; the radio model where the link matters).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import pytest
+
+from agent.config import AgentConfig
+from agent.link import LostLinkPolicy
+from fleet.compose import SimField
+from schemas.bundles import MAX_STEPS, parse_bundle
+from schemas.errors import CommandRejected, InvalidMessage
+from schemas.geo import destination
+from sim.radio import RadioModel
+from sim.world import DroneSpec, HeatSource, Spot, World
+
+BASE = (40.633490, -8.660815)
+
+
+def bundle(*steps: dict[str, Any], **fields: Any) -> bytes:
+    return json.dumps({"drone_id": "drone01", "timestamp": 1, "bundle_id": "b1", "steps": list(steps), **fields}).encode()
+
+
+# ---- validation: the whole bundle, refusals name the step and field ------------------
+
+
+@pytest.mark.parametrize(("steps", "fields", "reason", "field"), [
+    ([{"cmd": "takeoff"}, {"cmd": "fly"}], {}, "step 1: unknown command 'fly'", "$.steps[1].cmd"),
+    ([{"cmd": "goto", "lat": 40.6, "lon": -8.6}] * 4 + [{"cmd": "goto", "lat": 95, "lon": -8.6}], {},
+     "step 4: lat: Expected `float` <= 90.0", "$.steps[4].lat"),
+    ([{"cmd": "takeoff", "alt": "high"}], {}, "step 0: alt: Expected `float | null`, got `str`", "$.steps[0].alt"),
+    ([{"wait_s": -1}], {}, "step 0: wait_s: seconds between 0 and 86400", "$.steps[0].wait_s"),
+    ([{"cmd": "land", "until": {"field": "sensor.temperature", "op": "~", "value": 3}}], {},
+     "step 0: until.op: '~' is not one of", "$.steps[0].until.op"),
+    ([{"cmd": "land", "until": {"any": [{"field": "battery", "op": "<", "value": 0.3}]}}], {},
+     "step 0: until.any[0].field: no field 'battery'; did you mean battery.remaining_percent", "$.steps[0].until.any[0].field"),
+    ([{"cmd": "land", "until": {"field": "speed", "op": ">"}}], {}, "step 0: until: missing value", "$.steps[0].until"),
+    ([{"cmd": "land", "command_id": "x"}], {}, "step 0: command_id: set by the bundle", "$.steps[0].command_id"),
+    ([{"cmd": "land"}] * (MAX_STEPS + 1), {}, f"steps: at most {MAX_STEPS}", "$.steps"),
+    ([], {}, "steps: a bundle needs at least one step", "$.steps"),
+    ([{"cmd": "land"}], {"until": {"field": "armed", "op": "==", "value": 1}}, "until.value: armed is a bool", "$.until.value"),
+    ([{"cmd": "land"}], {"on_link_loss": "panic"}, "Expected `str` matching regex", None),
+])
+def test_an_invalid_bundle_is_refused_whole_naming_step_and_field(
+    steps: list[dict[str, Any]], fields: dict[str, Any], reason: str, field: str | None
+) -> None:
+    with pytest.raises(InvalidMessage) as caught:
+        parse_bundle(bundle(*steps, **fields))
+    if "regex" in reason:  # msgspec's enum wording: only check that the field is named
+        assert "on_link_loss" in caught.value.reason
+        return
+    assert caught.value.reason.startswith(reason), caught.value.reason
+    assert caught.value.field == field
+
+
+def test_the_spec_example_parses_with_its_guards() -> None:
+    parsed = parse_bundle(bundle(
+        {"cmd": "takeoff", "alt": 10},
+        {"cmd": "goto", "lat": 40.6337, "lon": -8.6605, "until": {"any": [
+            {"field": "sensor.temperature", "op": ">", "value": 37}, {"field": "position.rel_alt", "op": "<", "value": 2}]}},
+        {"wait_s": 5}, {"cmd": "return"},
+        on_link_loss="continue", timeout_s=600, until={"field": "battery.remaining_percent", "op": "<", "value": 0.3},
+    ))
+    assert [s.name for s in parsed.steps] == ["takeoff", "goto", "wait", "return"]
+    assert str(parsed.steps[1].until) == "(sensor.temperature > 37 or position.rel_alt < 2)"
+    assert str(parsed.until) == "battery.remaining_percent < 0.3"
+    values = {"sensor.temperature": 39.5, "position.rel_alt": 10.0}
+    assert parsed.steps[1].until is not None and parsed.steps[1].until.holds(values.get)
+    assert not parsed.steps[1].until.holds({"position.rel_alt": 10.0}.get)  # no reading yet: not hot
+
+
+# ---- fast time ------------------------------------------------------------------------
+
+
+def fire_world(radio: RadioModel | None = None) -> World:
+    """drone01 (temperature) at BASE; a fire 150 m north whose 37 °C edge is ~110 m out."""
+    lat, lon = destination(*BASE, 150, 0.0)
+    return World(
+        origin=Spot(lat=BASE[0], lon=BASE[1], alt=8.2), ground_station=Spot(lat=BASE[0], lon=BASE[1]),
+        drones=[DroneSpec(id="drone01", lat=BASE[0], lon=BASE[1], sensors=["temperature"]),
+                DroneSpec(id="drone02", lat=BASE[0], lon=destination(*BASE, 6, 90.0)[1])],
+        environment_temp=20, heat_sources=[HeatSource(lat=lat, lon=lon, radius=100, temp=60)], radio=radio,
+    )
+
+
+async def fly(script: str, world: World | None = None, max_s: float = 900, **agent: Any) -> tuple[SimField, Any, list[str]]:
+    sim = SimField(world or fire_world(), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200, **agent))
+    await sim.start()
+    try:
+        record = await sim.run_mission(script, max_s=max_s)
+        log = [line.message for line in sim.mission_log(record.mission_id)]
+        ground = [f"{line.drone_id}: {line.message}" for _, line in sim.events.query()]
+        return sim, (record, log), ground
+    finally:
+        await sim.close()
+
+
+PATROL = """
+d = assign("drone01")
+arm(d)
+r = push(d, [step.takeoff(10*m),
+             step.move(forward=400*m, speed=8*m/s, until=when.sensor.temperature > 37),
+             step.wait(2*s),
+             step.move(backward=20*m)],
+         timeout=300*s)
+assert r.state == "done", r
+assert r.steps_done == 4
+guarded = [e for e in r.history if e.state == "guard"]
+assert len(guarded) == 1 and guarded[0].step == 1 and guarded[0].reason.startswith("sensor.temperature > 37"), r.history
+assert d.sensor.temperature > 30
+home(d)
+"""
+
+
+async def test_a_patrol_bundle_ends_its_sweep_on_the_guard_and_the_mission_gets_the_record() -> None:
+    _, (record, log), ground = await fly(PATROL)
+    assert record.status == "finished", (record, log)
+    starts = [g for g in ground if "Bundle b-" in g and " step " in g and "/4: " in g]
+    assert [s.split(":", 2)[1].split()[-1] for s in starts] == ["1/4", "2/4", "3/4", "4/4"], starts
+    assert "Takeoff with altitude 10.0m" in starts[0] and "Move 20 m backward" in starts[3] and "Wait 2 s" in starts[2], starts
+    assert any("step 2/4 ended by sensor.temperature > 37" in g for g in ground), ground
+    assert any(g.endswith("done (4 steps)") for g in ground), ground
+
+
+async def test_the_bundles_own_guard_ends_it_and_says_which() -> None:
+    script = """
+d = assign("drone01")
+arm(d)
+r = push(d, [step.takeoff(10*m), step.move(forward=400*m, speed=8*m/s), step.move(forward=10*m)],
+         until=(when.sensor.temperature > 45) | (when.battery.remaining_percent < 0.01))
+assert r.state == "ended" and r.step == 1, r
+assert r.ended_by.startswith("sensor.temperature > 45"), r.ended_by
+assert r.steps_done == 1
+home(d)
+"""
+    _, (record, log), ground = await fly(script)
+    assert record.status == "finished", (record, log)
+    assert any("ended by sensor.temperature > 45" in g and "at step 2" in g for g in ground), ground
+
+
+async def test_a_command_from_the_ground_cancels_the_bundle_mid_step() -> None:
+    sim = SimField(fire_world(), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200))
+    await sim.start()
+    try:
+        await sim.station.command("drone01", b'{"cmd": "arm"}')
+        reply = await sim.station.push("drone01", bundle({"cmd": "takeoff", "alt": 10}, {"cmd": "move", "y": 300}, bundle_id="b7"))
+        assert reply.accepted and reply.bundle_id == "b7"
+        registry = sim.station.registry
+        await advance_until(sim, lambda: (registry.info("drone01").bundle or _NO).step == 1, 120)
+        info = registry.info("drone01").bundle
+        assert info is not None and info.steps == 2 and info.description == "Move 300 m forward"
+        await sim.station.command("drone01", b'{"cmd": "cancel"}')
+        await advance_until(sim, lambda: registry.info("drone01").bundle is None, 10)
+        record = await sim.station.bundle_record("drone01", "b7")
+        assert record.state == "cancelled" and record.step == 1 and record.reason == "cancel from the ground", record
+        assert [e.state for e in record.history] == ["start", "finish", "start", "cancel"]
+        with pytest.raises(CommandRejected) as unknown:
+            await sim.station.bundle_record("drone01", "nope")
+        assert unknown.value.status == 404 and "no bundle 'nope'" in unknown.value.reason
+        with pytest.raises(CommandRejected) as twice:  # ids are the drone's record: never reused
+            await sim.station.push("drone01", bundle({"cmd": "land"}, bundle_id="b7"))
+        assert twice.value.status == 409 and "exists already" in twice.value.reason
+    finally:
+        await sim.close()
+
+
+class _No:
+    step = -1
+
+
+_NO = _No()
+
+
+async def advance_until(sim: SimField, predicate: Any, max_s: float) -> None:
+    for _ in range(round(max_s * 10)):
+        if predicate():
+            return
+        await sim.clock.advance(0.1)
+    raise AssertionError(f"not within {max_s:g} simulated seconds")
+
+
+async def test_a_guard_on_a_sensor_the_drone_does_not_carry_is_refused_at_the_ground() -> None:
+    sim = SimField(fire_world(), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200))
+    await sim.start()
+    try:
+        with pytest.raises(InvalidMessage) as caught:
+            await sim.station.push("drone02", bundle(
+                {"cmd": "takeoff"}, {"cmd": "move", "y": 10, "until": {"field": "sensor.temperature", "op": ">", "value": 37}},
+                drone_id="drone02"))
+        assert caught.value.reason.startswith("step 1: until.field: drone02 carries no temperature sensor"), caught.value.reason
+        assert caught.value.field == "$.steps[1].until.field"
+    finally:
+        await sim.close()
+
+
+SURVEY = """
+d = assign("drone01")
+arm(d)
+r = push(d, [step.takeoff(10*m), step.move(forward=160*m, speed=8*m/s), step.wait(3*s), step.move(backward=160*m, speed=8*m/s)],
+         on_link_loss=POLICY, timeout=200*s)
+print_state = (r.state, r.steps_done, [(e.step, e.state) for e in r.history])
+assert r.state == WANT, print_state
+assert [e.state for e in r.history] == HISTORY, print_state  # every event, also those sent out of reach
+home(d)
+"""
+
+
+@pytest.mark.parametrize(("policy", "want", "history"), [
+    ("continue", "done", ["start", "finish"] * 4 + ["done"]),
+    ("return", "ended", ["start", "finish", "start", "ended"]),
+])
+async def test_a_survey_beyond_radio_range_runs_alone_and_the_mission_catches_up(policy: str, want: str, history: list[str]) -> None:
+    script = SURVEY.replace("POLICY", repr(policy)).replace("WANT", repr(want)).replace("HISTORY", repr(history))
+    runs = []
+    for _ in range(2):  # deterministic per seed
+        sim, (record, log), ground = await fly(script, fire_world(RadioModel()), lost_link=LostLinkPolicy(timeout_s=3, action="hold"))
+        assert record.status == "finished", (record, log, ground)
+        runs.append((record.status, log, ground))
+        assert any("Lost link to ground station" in g for g in ground), ground  # the drone noticed
+        if policy == "continue":  # it flew on, out of reach: the ground lost it, the mission waited
+            assert any("Link lost" in g for g in ground), ground
+            assert any("link lost while it runs bundle" in line for line in log), log
+            assert any("link restored" in line for line in log), log
+            assert any("Bundle b-m1-1 done (4 steps)" in g for g in ground), ground
+        else:  # it turned home at once
+            assert any("Bundle b-m1-1 ended by link lost (on_link_loss=return) at step 2" in g for g in ground), ground
+            assert any("Start return to launch" in g for g in ground), ground
+    assert runs[0] == runs[1]
