@@ -233,7 +233,8 @@ class Demo:
         proc = subprocess.Popen(
             [sys.executable, "-m", "fleet", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
              # three agents share this host: each router on its own ephemeral loopback port
-             "--listen", "tcp/127.0.0.1:0", "--telemetry-rate-ms", str(TELEMETRY_RATE_MS)],
+             "--listen", "tcp/127.0.0.1:0", "--telemetry-rate-ms", str(TELEMETRY_RATE_MS),
+             "--state-dir", str(self.options.out_dir / "state" / spec.id)],
             stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
         )
         self.agents.append(_Agent(spec, proc, log_path, log_file))

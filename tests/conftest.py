@@ -3,6 +3,7 @@ and agent subprocesses that are always stopped."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -12,6 +13,19 @@ import pytest
 from bus.zenoh_bus import ZenohBus
 from tests.harness import AgentProcess, Operator, open_ground_router
 from tests.helpers import free_port
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _agent_state_outside_home(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Agents started by tests (and by the `fleet` processes they start) keep their
+    bundle records under the test run's temporary directory, never in ~/.local/state."""
+    before = os.environ.get("XDG_STATE_HOME")
+    os.environ["XDG_STATE_HOME"] = str(tmp_path_factory.mktemp("state"))
+    yield
+    if before is None:
+        os.environ.pop("XDG_STATE_HOME", None)
+    else:
+        os.environ["XDG_STATE_HOME"] = before
 
 
 @pytest.fixture
