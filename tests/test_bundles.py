@@ -231,3 +231,22 @@ async def test_a_survey_beyond_radio_range_runs_alone_and_the_mission_catches_up
             assert any("Bundle b-m1-1 ended by link lost (on_link_loss=return) at step 2" in g for g in ground), ground
             assert any("Start return to launch" in g for g in ground), ground
     assert runs[0] == runs[1]
+
+
+async def test_the_fire_patrol_example_sweeps_as_a_bundle_then_traces_from_the_ground() -> None:
+    import fleet_examples
+    from sim.world import load_world
+
+    source = (fleet_examples.DIR / "fire_patrol_bundle.py").read_text()
+    sim = SimField(load_world(fleet_examples.WORLDS / "fire.yml"), seed=1)
+    await sim.start()
+    try:
+        record = await sim.run_mission(source, max_s=1200)
+        log = [line.message for line in sim.mission_log(record.mission_id)]
+        ground = [line.message for _, line in sim.events.query()]
+    finally:
+        await sim.close()
+    assert record.status == "finished", log
+    assert any(m.startswith("the drone ended its sweep at step") and m.endswith("sensor.temperature > 37") for m in log), log
+    assert "perimeter traced: back where it reached the contour" in log, log
+    assert any("Bundle b-m1-1 ended by sensor.temperature > 37" in m for m in ground), ground
