@@ -250,3 +250,25 @@ async def test_the_fire_patrol_example_sweeps_as_a_bundle_then_traces_from_the_g
     assert any(m.startswith("the drone ended its sweep at step") and m.endswith("sensor.temperature > 37") for m in log), log
     assert "perimeter traced: back where it reached the contour" in log, log
     assert any("Bundle b-m1-1 ended by sensor.temperature > 37" in m for m in ground), ground
+
+
+async def test_the_missions_own_command_during_a_bundle_supersedes_its_step_and_cancels_it() -> None:
+    script = """
+d = assign("drone01")
+arm(d)
+outcome = {}
+def patrol():
+    outcome["r"] = push(d, [step.takeoff(10*m), step.move(forward=300*m, speed=5*m/s), step.home()])
+p = run(patrol)
+while d.cmd is None or d.cmd.name != "move":  # the bundle's second step is flying
+    wait(d)
+cancel(d)  # as SPEC §2: a cancel supersedes the running move - and ends the bundle
+wait(p)
+r = outcome["r"]
+assert r.state == "cancelled" and r.step == 1 and r.reason == "cancel from the ground", r
+assert [e.state for e in r.history] == ["start", "finish", "start", "cancel"], r.history
+home(d)
+"""
+    _, (record, log), ground = await fly(script)
+    assert record.status == "finished", (record, log)
+    assert any("Bundle b-m1-1 cancelled at step 2/3: cancel from the ground" in g for g in ground), ground
