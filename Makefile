@@ -57,6 +57,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/agent_mavsdk.py
 	$(BIN)/python bench/ground_fanin.py
 	$(BIN)/python bench/ground_command.py
+	$(BIN)/python bench/bundles.py
 	$(BIN)/python bench/mission_sim.py
 	$(BIN)/python bench/zenoh_modes.py
 	$(BIN)/python bench/mesh.py  # needs CAP_NET_ADMIN (root), as fleet sim --radio
