@@ -32,6 +32,7 @@ from schemas.bundles import (
     BundleRecord,
     BundleReply,
     BundleStatus,
+    Guard,
     Step,
     StepEvent,
     describe_guard,
@@ -102,7 +103,6 @@ class BundleRunner:
         self.current: Bundle | None = None
         self._task: asyncio.Task[None] | None = None
         self._commands: dict[str, asyncio.Future[CommandStatus]] = {}
-        self._ignore: set[str] = set()  # command ids the runner itself ended
 
     # ---- start-up: bundles a previous run left unfinished ----------------------------
 
@@ -156,7 +156,7 @@ class BundleRunner:
     def on_status(self, status: CommandStatus) -> None:
         """Every status the handler emits: completes the step that sent the command."""
         future = self._commands.get(status.command_id)
-        if future is None or future.done() or status.command_id in self._ignore:
+        if future is None or future.done():
             return
         if status.state in DONE_STATES or status.state in FAILED_STATES:
             future.set_result(status)
@@ -173,18 +173,27 @@ class BundleRunner:
     def _bundle_id(self) -> str:
         return self.current.bundle_id if self.current is not None else "?"
 
-    def value(self, field: str) -> Any:
-        if field.startswith("sensor."):
-            return self.sensors.get(field.removeprefix("sensor."))
-        value: Any = self.telemetry()
-        for part in field.split("."):
-            value = getattr(value, part, None)
-            if value is None:
-                return None
+    def _values(self) -> Callable[[str], Any]:
+        """The drone as it is now — one telemetry snapshot, the latest sensor readings —
+        as the lookup every guard of one poll reads its fields from."""
+        telemetry = self.telemetry()
+        sensors = dict(self.sensors)
+
+        def value(field: str) -> Any:
+            if field.startswith("sensor."):
+                return sensors.get(field.removeprefix("sensor."))
+            found: Any = telemetry
+            for part in field.split("."):
+                found = getattr(found, part, None)
+                if found is None:
+                    return None
+            return found
+
         return value
 
-    def _guard_hit(self, guard: Any) -> str | None:
-        return describe_guard(guard, self.value) if guard is not None and guard.holds(self.value) else None
+    @staticmethod
+    def _guard_hit(guard: Guard | None, values: Callable[[str], Any]) -> str | None:
+        return describe_guard(guard, values) if guard is not None and guard.holds(values) else None
 
     async def _run(self, bundle: Bundle, record: BundleRecord) -> None:
         n = len(bundle.steps)
@@ -206,7 +215,6 @@ class BundleRunner:
                     return
                 elif outcome == "timeout":
                     self._finish(record, "failed", "failure", f"timeout: not done within {bundle.timeout_s:g} s")
-                    self._hold()
                     return
                 else:
                     self._finish(record, "failed", "failure", f"step {i}: {detail}")
@@ -233,16 +241,17 @@ class BundleRunner:
         wait_until = self.clock.monotonic() + step.wait_s if step.wait_s is not None else None
         try:
             while True:
-                hit = self._guard_hit(bundle.until)
+                values = self._values()
+                hit = self._guard_hit(bundle.until, values)
                 if hit is not None:
-                    self._end_command(command_id, future)
+                    self._end_command(future)
                     return "bundle_guard", hit
-                hit = self._guard_hit(step.until)
+                hit = self._guard_hit(step.until, values)
                 if hit is not None:
-                    self._end_command(command_id, future)
+                    self._end_command(future)
                     return "step_guard", hit
                 if deadline is not None and self.clock.monotonic() >= deadline:
-                    self._end_command(command_id, future)
+                    self._hold()
                     return "timeout", None
                 if future is not None and future.done():
                     status = future.result()
@@ -255,11 +264,10 @@ class BundleRunner:
         finally:
             self._commands.pop(command_id, None)
 
-    def _end_command(self, command_id: str, future: asyncio.Future[CommandStatus] | None) -> None:
+    def _end_command(self, future: asyncio.Future[CommandStatus] | None) -> None:
         """A guard ended the step: a command still running there is stopped (the drone
-        holds) and its own cancel is not taken for a failure."""
+        holds). Its cancel status resolves a future nobody reads any more."""
         if future is not None and not future.done():
-            self._ignore.add(command_id)
             self._hold()
 
     def _hold(self) -> None:

@@ -139,6 +139,10 @@ class Agent:
             return
         self.bundles.sensors[sample.key.rsplit("/", 1)[-1]] = reading.value
 
+    def _not_mine(self, drone_id: str) -> str | None:
+        """Why a request naming another drone is refused (no name: it is for us)."""
+        return f"drone_id: this is {self.drone_id}, not {drone_id}" if drone_id and drone_id != self.drone_id else None
+
     async def _on_bundle(self, selector: str, payload: bytes) -> bytes:
         """A TaskBundle to run, or (no payload, `?id=…`) the record of one."""
         if not payload:
@@ -153,8 +157,9 @@ class Agent:
         except InvalidMessage as exc:
             log.warning("%s: refused a bundle: %s", self.drone_id, exc)
             return encode(BundleReply(bundle_id=_peek(payload, "bundle_id"), accepted=False, reason=str(exc)))
-        if bundle.wire.drone_id and bundle.wire.drone_id != self.drone_id:
-            return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=f"drone_id: this is {self.drone_id}, not {bundle.wire.drone_id}"))
+        wrong = self._not_mine(bundle.wire.drone_id)
+        if wrong is not None:
+            return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong))
         return encode(self.bundles.submit(bundle))
 
     async def _on_command(self, key: str, payload: bytes) -> bytes:
@@ -163,9 +168,9 @@ class Agent:
         except InvalidMessage as exc:
             log.warning("%s: refused a malformed command: %s", self.drone_id, exc)
             return encode(CommandReply(command_id=_peek(payload, "command_id"), accepted=False, reason=str(exc)))
-        if cmd.drone_id and cmd.drone_id != self.drone_id:
-            reason = f"drone_id: this is {self.drone_id}, not {cmd.drone_id}"
-            return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=reason))
+        wrong = self._not_mine(cmd.drone_id)
+        if wrong is not None:
+            return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong))
         if not cmd.command_id:
             cmd = msgspec.structs.replace(cmd, command_id=str(uuid.uuid4()))
         reply = self.handler.submit(cmd)

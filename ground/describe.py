@@ -30,13 +30,25 @@ def _metres(value: float) -> str:
     return f"{round(value, 2)}m"
 
 
+def _verb(command: str) -> str:
+    return _NAMES.get(command, command.replace("_", " "))
+
+
+def _at(lat: float, lon: float, alt: float | None) -> str:
+    return f"{lat:.6f}, {lon:.6f}" + (f" at {_metres(alt)}" if alt is not None else "")
+
+
+def _capital(text: str) -> str:
+    return text[0].upper() + text[1:]
+
+
 def describe_start(status: CommandStatus) -> Described:
-    name = _NAMES.get(status.command, status.command.replace("_", " "))
+    name = _verb(status.command)
     if status.coords is not None:
         c = status.coords
-        name = f"{name} {c.lat:.6f}, {c.lon:.6f} at {_metres(c.alt)}"
-        return Described(name, name[0].upper() + name[1:])
-    current = name[0].upper() + name[1:]
+        name = f"{name} {_at(c.lat, c.lon, c.alt)}"
+        return Described(name, _capital(name))
+    current = _capital(name)
     if status.altitude is not None:
         current = f"{current} with altitude {_metres(status.altitude)}"
     return Described(name, current)
@@ -78,10 +90,10 @@ def describe_step(step: Step) -> str:
         text = f"Wait {step.wait_s:g} s"
     else:
         cmd = step.command
-        name = _NAMES.get(cmd.name, cmd.name.replace("_", " "))
+        name = _verb(cmd.name)
         lat, lon, alt = (getattr(cmd, f, None) for f in ("lat", "lon", "alt"))
         if lat is not None and lon is not None:
-            text = f"{name} {lat:.6f}, {lon:.6f}" + (f" at {_metres(alt)}" if alt is not None else "")
+            text = f"{name} {_at(lat, lon, alt)}"
         elif alt is not None:
             text = f"{name} with altitude {_metres(alt)}"
         elif cmd.name == "move":
@@ -91,7 +103,7 @@ def describe_step(step: Step) -> str:
             text = "move " + (", ".join(parts) or "nowhere")
         else:
             text = name
-        text = text[0].upper() + text[1:]
+        text = _capital(text)
     return f"{text} until {step.until}" if step.until is not None else text
 
 

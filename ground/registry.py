@@ -169,6 +169,12 @@ class Registry:
         if d is not None:
             d.bundle_steps[bundle_id] = descriptions
 
+    def forget_bundle(self, drone_id: str, bundle_id: str) -> None:
+        """A noted bundle that never reached the drone."""
+        d = self._drones.get(drone_id)
+        if d is not None:
+            d.bundle_steps.pop(bundle_id, None)
+
     def on_status(self, status: CommandStatus | SystemStatus | BundleStatus, now_ms: int) -> list[Event]:
         d = self._drones.get(status.drone_id)
         if d is None:

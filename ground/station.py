@@ -127,25 +127,10 @@ class GroundStation:
 
         Raises InvalidMessage (400), CommandRejected (404/409) or bus Unreachable (504).
         """
-        if drone_id not in self.registry:
-            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+        self._registered(drone_id)
         command = self._stamp(drone_id, body)
-        refusal = self.registry.check_command(drone_id, command.name, mission_id)
-        if refusal is not None:
-            self._emit([LogLine(
-                timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
-                message=f"Refused {command.name}: {refusal.reason}",
-            )])
-            raise CommandRejected(refusal.status, refusal.reason)
-        raw = await self.bus.query(
-            self.keys.cmd(drone_id), encode(command), timeout_s=self.config.command_timeout_ms / 1000
-        )
-        try:
-            reply = _reply_decoder.decode(raw)
-        except msgspec.MsgspecError as exc:
-            raise CommandRejected(502, f"the agent answered something that is not a CommandReply: {exc}") from None
-        if not reply.accepted:
-            raise CommandRejected(409, reply.reason or "refused by the agent")
+        self._check(drone_id, command.name, command.name, mission_id)
+        reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(command), _reply_decoder, "CommandReply")
         return reply
 
     async def push(self, drone_id: str, body: bytes, mission_id: str | None = None) -> BundleReply:
@@ -154,8 +139,7 @@ class GroundStation:
         The whole bundle is checked here first (400 naming the step and field), then
         by the agent. Raises InvalidMessage, CommandRejected (404/409) or Unreachable.
         """
-        if drone_id not in self.registry:
-            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+        self._registered(drone_id)
         obj = self._body(drone_id, body)
         obj.setdefault("bundle_id", "")
         if not obj["bundle_id"]:
@@ -165,28 +149,20 @@ class GroundStation:
         for path, label, kind in sensor_guards(bundle.wire):
             if kind not in carried:
                 raise InvalidMessage(f"{label}: {drone_id} carries no {kind} sensor (it has: {', '.join(carried) or 'none'})", field=path)
-        refusal = self.registry.check_command(drone_id, "bundle", mission_id)
-        if refusal is not None:
-            self._emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
-                                message=f"Refused bundle {bundle.bundle_id}: {refusal.reason}")])
-            raise CommandRejected(refusal.status, refusal.reason)
+        self._check(drone_id, "bundle", f"bundle {bundle.bundle_id}", mission_id)
+        # Noted before sending: the agent's first status may arrive before its reply.
         self.registry.note_bundle(drone_id, bundle.bundle_id, [describe_step(step) for step in bundle.steps])
-        raw = await self.bus.query(
-            self.keys.bundle(drone_id), encode(bundle.wire), timeout_s=self.config.command_timeout_ms / 1000
-        )
         try:
-            reply = _bundle_reply_decoder.decode(raw)
-        except msgspec.MsgspecError as exc:
-            raise CommandRejected(502, f"the agent answered something that is not a BundleReply: {exc}") from None
-        if not reply.accepted:
-            raise CommandRejected(409, reply.reason or "refused by the agent")
+            reply: BundleReply = await self._deliver(self.keys.bundle(drone_id), encode(bundle.wire), _bundle_reply_decoder, "BundleReply")
+        except BaseException:
+            self.registry.forget_bundle(drone_id, bundle.bundle_id)
+            raise
         return reply
 
     async def bundle_record(self, drone_id: str, bundle_id: str) -> BundleRecord:
         """What the agent did with a bundle (SPEC §6): asked of the agent itself, so a
         ground that was out of range catches up. Raises CommandRejected 404 or Unreachable."""
-        if drone_id not in self.registry:
-            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+        self._registered(drone_id)
         try:
             raw = await self.bus.query(f"{self.keys.bundle(drone_id)}?id={bundle_id}",
                                        timeout_s=self.config.command_timeout_ms / 1000)
@@ -196,6 +172,31 @@ class GroundStation:
             return decode_bundle_record(raw)
         except InvalidMessage as exc:
             raise CommandRejected(502, f"the agent answered something that is not a bundle record: {exc}") from None
+
+    def _registered(self, drone_id: str) -> None:
+        if drone_id not in self.registry:
+            raise CommandRejected(404, f"no drone {drone_id!r} is registered")
+
+    def _check(self, drone_id: str, name: str, label: str, mission_id: str | None) -> None:
+        """The registry's refusal of `name` now (thesis §4.2.4), logged as "Refused <label>: …"."""
+        refusal = self.registry.check_command(drone_id, name, mission_id)
+        if refusal is not None:
+            self._emit([LogLine(
+                timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
+                message=f"Refused {label}: {refusal.reason}",
+            )])
+            raise CommandRejected(refusal.status, refusal.reason)
+
+    async def _deliver(self, key: str, payload: bytes, decoder: msgspec.json.Decoder[Any], kind: str) -> Any:
+        """Query the agent's queryable and hold it to its reply (`accepted`, `reason`)."""
+        raw = await self.bus.query(key, payload, timeout_s=self.config.command_timeout_ms / 1000)
+        try:
+            reply = decoder.decode(raw)
+        except msgspec.MsgspecError as exc:
+            raise CommandRejected(502, f"the agent answered something that is not a {kind}: {exc}") from None
+        if not reply.accepted:
+            raise CommandRejected(409, reply.reason or "refused by the agent")
+        return reply
 
     def _body(self, drone_id: str, body: bytes) -> dict[str, Any]:
         """A JSON object body for `drone_id`, with drone_id and timestamp set."""

@@ -354,6 +354,26 @@ class When:
     __hash__ = None  # type: ignore[assignment]
 
 
+def move_goal(verb: str, forward: Any, backward: Any, right: Any, left: Any, up: Any, down: Any,
+              to: Any, lat: Any, lon: Any) -> Position | tuple[float, float, float]:
+    """What `move` / `step.move` was asked: a destination (a Position), or offsets in
+    metres (forward, right, up) relative to the drone's heading."""
+    relative = any(v != 0 for v in (forward, backward, right, left, up, down))
+    if to is not None or lat is not None or lon is not None:
+        if relative:
+            raise TypeError(f"{verb}: give either a position (to=/lat=/lon=) or directions, not both")
+        if to is not None:
+            return as_position(to)
+        if lat is None or lon is None:
+            raise TypeError(f"{verb}: lat= and lon= go together")
+        return Position(lat, lon)
+    if relative:
+        return (units.length(forward, "forward") - units.length(backward, "backward"),
+                units.length(right, "right") - units.length(left, "left"),
+                units.length(up, "up") - units.length(down, "down"))
+    raise TypeError(f"{verb}: give a destination (to=, lat=/lon=) or a direction (forward=, right=, up=, …)")
+
+
 class Steps:
     """`step.move(...)`, `step.wait(...)`…: the steps of a bundle, built with the verbs'
     helpers (units, positions, directions). Each takes `until=` to end it early."""
@@ -399,25 +419,18 @@ class Steps:
              until: Any = None) -> dict[str, Any]:
         """To a position (to=, lat=/lon=, alt=) — or by offsets from wherever the drone
         is when the step starts (forward=, right=, up=, …: relative to its heading)."""
-        relative = any(v != 0 for v in (forward, backward, right, left, up, down))
+        goal = move_goal("step.move", forward, backward, right, left, up, down, to, lat, lon)
         body: dict[str, Any]
-        if to is not None or lat is not None or lon is not None:
-            if relative:
-                raise TypeError("step.move: give either a position (to=/lat=/lon=) or directions, not both")
-            goal = as_position(to) if to is not None else Position(lat, lon)
+        if isinstance(goal, tuple):
+            fwd, rgt, vertical = goal
+            body = {"cmd": "move", "x": rgt, "y": fwd, "z": vertical}
+        else:
             body = {"cmd": "goto", "lat": goal.lat, "lon": goal.lon}
             height = alt if alt is not None else goal.alt
             if height is not None:
                 body["alt"] = units.length(height, "alt")
             if yaw is not None:
                 body["yaw"] = normalize_deg(units.angle(yaw, "yaw"))
-        elif relative:
-            body = {"cmd": "move",
-                    "x": units.length(right, "right") - units.length(left, "left"),
-                    "y": units.length(forward, "forward") - units.length(backward, "backward"),
-                    "z": units.length(up, "up") - units.length(down, "down")}
-        else:
-            raise TypeError("step.move: give a destination (to=, lat=/lon=) or a direction (forward=, right=, up=, …)")
         if speed is not None:
             body["speed"] = units.speed(speed)
         return self._step(body, until)
@@ -566,28 +579,13 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
              up: Any = 0, down: Any = 0, to: Any = None, lat: Any = None, lon: Any = None,
              alt: Any = None, yaw: Any = None, speed: Any = None) -> None:
         base = d._plan_base()
-        relative = any(v != 0 for v in (forward, backward, right, left, up, down))
-        if to is not None or lat is not None or lon is not None:
-            if relative:
-                raise TypeError("move: give either a position (to=/lat=/lon=) or directions, not both")
-            if to is not None:
-                goal = as_position(to)
-            else:
-                if lat is None or lon is None:
-                    raise TypeError("move: lat= and lon= go together")
-                goal = Position(lat, lon)
-            if alt is not None:
-                goal = Position(goal.lat, goal.lon, alt, goal.heading)
-        elif relative:
-            fwd = units.length(forward, "forward") - units.length(backward, "backward")
-            rgt = units.length(right, "right") - units.length(left, "left")
-            vertical = units.length(up, "up") - units.length(down, "down")
-            goal = base.forward(fwd).right(rgt) if (fwd or rgt) else base
-            goal = Position(goal.lat, goal.lon, (base.alt or 0.0) + vertical, base.heading)
-            if alt is not None:
-                goal = Position(goal.lat, goal.lon, alt, goal.heading)
-        else:
-            raise TypeError("move: give a destination (to=, lat=/lon=) or a direction (forward=, right=, up=, …)")
+        goal = move_goal("move", forward, backward, right, left, up, down, to, lat, lon)
+        if isinstance(goal, tuple):
+            fwd, rgt, vertical = goal
+            moved = base.forward(fwd).right(rgt) if (fwd or rgt) else base
+            goal = Position(moved.lat, moved.lon, (base.alt or 0.0) + vertical, base.heading)
+        if alt is not None:
+            goal = Position(goal.lat, goal.lon, alt, goal.heading)
         body: dict[str, Any] = {"cmd": "goto", "lat": goal.lat, "lon": goal.lon}
         if goal.alt is not None:
             body["alt"] = goal.alt

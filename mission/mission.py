@@ -13,12 +13,13 @@ releases all of them.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 import msgspec
 
@@ -69,6 +70,7 @@ CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "time_limit": ("cancelled", "time limit reached"),  # fast-time simulation's --max-time
 }
 TERMINAL_COMMAND_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})
+T = TypeVar("T")
 BUNDLE_RECORD_STATES: dict[str, Any] = {"done": "done", "ended": "ended", "failure": "failed", "cancel": "cancelled"}
 BUNDLE_ENDS = frozenset(BUNDLE_RECORD_STATES)
 BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
@@ -504,22 +506,11 @@ class Mission:
             self._pending[command_id] = fut
         sent = self.clock.time_ms()
         try:
-            await self.station.command(drone_id, json.dumps({**body, "command_id": command_id}).encode(), self.id)
-            if not wait:
-                return None
-            try:
-                status = await fut
-            except asyncio.CancelledError:
-                if not self.ending:  # the subroutine was stopped: so is its command,
-                    # before whoever waits on the subroutine sends the next one
-                    await asyncio.shield(self._cancel_quietly(drone_id))
-                raise
-        except InvalidMessage as exc:
-            raise self.fail("cmd_parse", f"{name} {drone_id}: {exc}") from None
-        except CommandRejected as exc:
-            raise self.fail("cmd_exec", f"{name} {drone_id} refused: {exc.reason}") from None
-        except Unreachable as exc:
-            raise self.fail("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
+            with self._sending(name, drone_id):
+                await self.station.command(drone_id, json.dumps({**body, "command_id": command_id}).encode(), self.id)
+                if not wait:
+                    return None
+                status = await self._outcome(fut, drone_id)
         except (asyncio.CancelledError, MissionOver):
             raise
         except Exception as exc:  # noqa: BLE001
@@ -546,21 +537,34 @@ class Mission:
         pending = _PendingBundle(drone_id, bundle_id, deadline, asyncio.get_running_loop().create_future())
         self._bundles[bundle_id] = pending
         try:
-            await self.station.push(drone_id, json.dumps({**body, "bundle_id": bundle_id}).encode(), self.id)
-            try:
-                return await pending.done
-            except asyncio.CancelledError:
-                if not self.ending:  # the subroutine was stopped: so is the bundle
-                    await asyncio.shield(self._cancel_quietly(drone_id))
-                raise
-        except InvalidMessage as exc:
-            raise self.fail("cmd_parse", f"push {drone_id}: {exc}") from None
-        except CommandRejected as exc:
-            raise self.fail("cmd_exec", f"push {drone_id} refused: {exc.reason}") from None
-        except Unreachable as exc:
-            raise self.fail("cmd_exec", f"push {drone_id}: no answer from the drone ({exc})") from None
+            with self._sending("push", drone_id):
+                await self.station.push(drone_id, json.dumps({**body, "bundle_id": bundle_id}).encode(), self.id)
+                return await self._outcome(pending.done, drone_id)
         finally:
             self._bundles.pop(bundle_id, None)
+
+    @contextlib.contextmanager
+    def _sending(self, name: str, drone_id: str) -> Iterator[None]:
+        """What a failed send means for the mission: the ground's 400 → cmd_parse, a
+        refusal or no answer from the drone → cmd_exec."""
+        try:
+            yield
+        except InvalidMessage as exc:
+            raise self.fail("cmd_parse", f"{name} {drone_id}: {exc}") from None
+        except CommandRejected as exc:
+            raise self.fail("cmd_exec", f"{name} {drone_id} refused: {exc.reason}") from None
+        except Unreachable as exc:
+            raise self.fail("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
+
+    async def _outcome(self, fut: asyncio.Future[T], drone_id: str) -> T:
+        """Wait for a command's or bundle's end. A stopped subroutine stops what it
+        sent too, before whoever waits on the subroutine sends the next thing."""
+        try:
+            return await fut
+        except asyncio.CancelledError:
+            if not self.ending:
+                await asyncio.shield(self._cancel_quietly(drone_id))
+            raise
 
     async def _cancel_quietly(self, drone_id: str) -> None:
         try:
