@@ -43,11 +43,12 @@ def _capital(text: str) -> str:
 
 
 def describe_start(status: CommandStatus) -> Described:
-    name = _verb(status.command)
     if status.coords is not None:
         c = status.coords
-        name = f"{name} {_at(c.lat, c.lon, c.alt)}"
+        name = f"{_verb(status.command)} {_at(c.lat, c.lon, c.alt)}"
         return Described(name, _capital(name))
+    # No target known (a status whose start was not heard): "Finish move", not "… move to".
+    name = _verb(status.command) if status.command not in ("goto", "move") else status.command
     current = _capital(name)
     if status.altitude is not None:
         current = f"{current} with altitude {_metres(status.altitude)}"

@@ -16,7 +16,7 @@ import msgspec
 
 from ground.config import GroundConfig
 from ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
-from schemas.bundles import BundleStatus
+from schemas.bundles import BundleRecord, BundleStatus
 from schemas.fleet import (
     CRITICAL_BATTERY,
     FC_DISCONNECTED,
@@ -53,6 +53,9 @@ class Refusal(msgspec.Struct, frozen=True, kw_only=True):
     reason: str
 
 
+BUNDLES_REMEMBERED = 16  # per drone: which events of its latest bundles the ground heard
+
+
 @dataclass
 class _Sensor:
     reading: SensorReading
@@ -74,6 +77,7 @@ class _Drone:
     link: LinkQuality | None = None
     bundle: BundleInfo | None = None
     bundle_steps: dict[str, list[str]] = field(default_factory=dict)  # bundle id → step descriptions (pushed here)
+    bundle_heard: dict[str, set[tuple[int, str]]] = field(default_factory=dict)  # bundle id → (step, state) heard
     info: DroneInfo | None = None
 
 
@@ -204,7 +208,30 @@ class Registry:
         level, message = status_line(status, described)
         return [self._line(now_ms, level, d, message), *self._publish(d, self._derive(d))]
 
+    def on_bundle_record(self, record: BundleRecord, drone_id: str, now_ms: int) -> list[Event]:
+        """Catch up with a bundle record read from the agent: the events it published
+        while out of reach are logged now (and `info.bundle` follows them), once."""
+        d = self._drones.get(drone_id)
+        if d is None:
+            return []
+        heard = d.bundle_heard.get(record.bundle_id, set())
+        missed = [e for e in record.history if (e.step, e.state) not in heard]
+        if not missed:
+            return []
+        out: list[Event] = [self._line(now_ms, "info", d, f"Bundle {record.bundle_id}: caught up on {len(missed)} "
+                                       f"event{'s' if len(missed) != 1 else ''} sent while out of reach")]
+        for e in missed:
+            out += self._on_bundle(d, BundleStatus(drone_id=drone_id, timestamp=e.timestamp, bundle_id=record.bundle_id,
+                                                   step=e.step, state=e.state, reason=e.reason, steps=record.steps), now_ms)
+        return out
+
     def _on_bundle(self, d: _Drone, status: BundleStatus, now_ms: int) -> list[Event]:
+        heard = d.bundle_heard.setdefault(status.bundle_id, set())
+        if (status.step, status.state) in heard:
+            return []  # already caught up from the record (it overtook this status)
+        heard.add((status.step, status.state))
+        while len(d.bundle_heard) > BUNDLES_REMEMBERED:  # oldest first (insertion order)
+            del d.bundle_heard[next(iter(d.bundle_heard))]
         known = d.bundle_steps.get(status.bundle_id, [])
         description = known[status.step] if status.step < len(known) else None
         if status.state == "start":

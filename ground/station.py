@@ -169,9 +169,11 @@ class GroundStation:
         except QueryRefused as exc:
             raise CommandRejected(404, str(exc).split(": ", 1)[-1]) from None
         try:
-            return decode_bundle_record(raw)
+            record = decode_bundle_record(raw)
         except InvalidMessage as exc:
             raise CommandRejected(502, f"the agent answered something that is not a bundle record: {exc}") from None
+        self._emit(self.registry.on_bundle_record(record, drone_id, self.clock.time_ms()))
+        return record
 
     def _registered(self, drone_id: str) -> None:
         if drone_id not in self.registry:

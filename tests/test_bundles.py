@@ -226,7 +226,11 @@ async def test_a_survey_beyond_radio_range_runs_alone_and_the_mission_catches_up
             assert any("Link lost" in g for g in ground), ground
             assert any("link lost while it runs bundle" in line for line in log), log
             assert any("link restored" in line for line in log), log
+            # The ground's log catches up with what it did not hear, and is not left at step 2.
+            caught = next(i for i, g in enumerate(ground) if "Bundle b-m1-1: caught up on" in g)
+            assert any("Bundle b-m1-1 step 3/4: Wait 3 s" in g for g in ground[caught:]), ground
             assert any("Bundle b-m1-1 done (4 steps)" in g for g in ground), ground
+            assert caught > next(i for i, g in enumerate(ground) if "Link lost" in g)
         else:  # it turned home at once
             assert any("Bundle b-m1-1 ended by link lost (on_link_loss=return) at step 2" in g for g in ground), ground
             assert any("Start return to launch" in g for g in ground), ground

@@ -166,3 +166,37 @@ def test_mission_assignment_guards_commands(reg: Registry) -> None:
     reg.release("drone01", 2)
     assert reg.check_command("drone01", "arm", mission_id="m1") is not None
     assert reg.check_command("drone01", "arm") is None
+
+
+def test_a_finish_whose_start_was_not_heard_names_the_verb_alone(reg: Registry) -> None:
+    reg.on_telemetry(telem(), 0)
+    assert lines(reg.on_status(cmd_status("finish", command="move"), 10)) == ["INFO Finish move"]
+    assert lines(reg.on_status(cmd_status("finish", command="return", command_id="c2"), 20)) == ["INFO Finish return to launch"]
+
+
+def test_a_bundle_record_catches_the_ground_up_once_and_clears_the_stale_step(reg: Registry) -> None:
+    """Statuses the drone published out of reach come back with its record: logged
+    then, in order, and never twice (neither from a second read nor a late status)."""
+    from schemas.bundles import BundleRecord, BundleStatus, StepEvent
+
+    def status(step: int, state: str) -> BundleStatus:
+        return BundleStatus(drone_id="drone01", timestamp=step, bundle_id="b3", step=step, state=state, steps=3)  # type: ignore[arg-type]
+
+    reg.on_telemetry(telem(), 0)
+    reg.note_bundle("drone01", "b3", ["Takeoff", "Wait 3 s", "Return to launch"])
+    reg.on_status(status(0, "start"), 1)
+    reg.on_status(status(0, "finish"), 2)
+    reg.on_status(status(1, "start"), 3)
+    assert reg.info("drone01").bundle is not None and reg.info("drone01").bundle.step == 1  # type: ignore[union-attr]
+    # Out of reach: step 1 finishes, step 2 runs, the bundle is done; nothing heard.
+    history = [StepEvent(step=s, state=st, timestamp=s) for s, st in  # type: ignore[arg-type]
+               [(0, "start"), (0, "finish"), (1, "start"), (1, "finish"), (2, "start"), (2, "finish"), (2, "done")]]
+    record = BundleRecord(bundle_id="b3", state="done", step=2, steps=3, steps_done=3, history=history)
+    assert lines(reg.on_bundle_record(record, "drone01", 100)) == [
+        "INFO Bundle b3: caught up on 4 events sent while out of reach",
+        "INFO Bundle b3 step 3/3: Return to launch",
+        "INFO Bundle b3 done (3 steps)",
+    ]
+    assert reg.info("drone01").bundle is None  # not stuck at step 2/3
+    assert lines(reg.on_bundle_record(record, "drone01", 200)) == []
+    assert lines(reg.on_status(status(2, "done"), 300)) == []  # the late status itself
