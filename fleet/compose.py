@@ -138,7 +138,8 @@ DEFAULT_MAX_S = 3600.0
 
 @dataclass
 class Track:
-    samples: list[dict[str, Any]] = field(default_factory=list)
+    samples: list[dict[str, Any]] = field(default_factory=list)  # what the ground heard
+    flown: list[dict[str, Any]] = field(default_factory=list)  # on the radio: where the drone was, heard or not
 
 
 class SimField:
@@ -266,6 +267,14 @@ class SimField:
             sensors = {r.type: r.value for r in registry.sensor_readings(t.drone_id)}
             track.samples.append(telemetry_sample(t, self.clock.monotonic(), info.state, sensors, info.link))
 
+    def _fly_log(self) -> None:
+        """On the radio the ground may not hear a drone: keep its true path beside."""
+        if self.air is None:
+            return
+        for drone_id, track in self.tracks.items():
+            p = self.vehicles[drone_id].position()
+            track.flown.append({"t_s": round(self.clock.monotonic(), 3), "lat": p.lat, "lon": p.lon, "rel_alt": p.rel_alt})
+
     async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S,
                           enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
         assert self.manager is not None
@@ -284,6 +293,7 @@ class SimField:
                 message = f"simulation time limit of {max_s:g} s reached"
                 self.station.log_ground("warn", message)
                 self.manager.cancel(mission_id, "time_limit", message)
+            self._fly_log()
             await self.clock.advance(STEP_S)
         # One more telemetry period so the series shows the state the mission left.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000)
@@ -314,6 +324,7 @@ class SimField:
             "drones": {
                 drone_id: {
                     "samples": track.samples,
+                    **({"flown": track.flown} if track.flown else {}),
                     "commands": [msgspec.to_builtins(c) for c in self.manager.commands if c.drone_id == drone_id],
                 }
                 for drone_id, track in sorted(self.tracks.items())

@@ -389,7 +389,7 @@ class Mission:
         if alone:  # working alone is not a failure: the grace counts from the bundle's end
             ends_in = max(0.0, max(b.deadline for b in alone) - self.clock.monotonic())
             self.log("info", f"{drone_id}: link lost while it runs bundle {alone[0].bundle_id}; waiting up to "
-                             f"{ends_in + grace:g} s (its timeout, then mission.link_grace_s)")
+                             f"{ends_in + grace:.0f} s (its timeout, then mission.link_grace_s)")
             grace += ends_in
         else:
             self.log("warn", f"{drone_id}: link lost; waiting up to {grace:g} s for it to come back")

@@ -32,7 +32,12 @@ def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
     for drone_id, samples in drones.items():
         north_east = [frame.to_local(s["lat"], s["lon"]) for s in samples]
         ax.plot([e for _, e in north_east], [n for n, _ in north_east], label=drone_id, linewidth=1.5)
-        ax.plot(north_east[0][1], north_east[0][0], "o", color=ax.lines[-1].get_color())
+        colour = ax.lines[-1].get_color()
+        ax.plot(north_east[0][1], north_east[0][0], "o", color=colour)
+        flown = [frame.to_local(s["lat"], s["lon"]) for s in result["drones"][drone_id].get("flown", ())]
+        if flown:  # on the radio: the path flown, also where the ground did not hear it
+            ax.plot([e for _, e in flown], [n for n, _ in flown], linestyle=":", color=colour, linewidth=1,
+                    label=f"{drone_id} flown (heard or not)")
     ax.plot(0, 0, "k^", markersize=10, label="ground station")
     ax.set(xlabel="east (m)", ylabel="north (m)", title=f"paths - {title}")
     ax.set_aspect("equal", adjustable="datalim")

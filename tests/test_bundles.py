@@ -15,7 +15,7 @@ from agent.link import LostLinkPolicy
 from fleet.compose import SimField
 from schemas.bundles import MAX_STEPS, parse_bundle
 from schemas.errors import CommandRejected, InvalidMessage
-from schemas.geo import destination
+from schemas.geo import destination, distance_m
 from sim.radio import RadioModel
 from sim.world import DroneSpec, HeatSource, Spot, World
 
@@ -254,6 +254,29 @@ async def test_the_fire_patrol_example_sweeps_as_a_bundle_then_traces_from_the_g
     assert any(m.startswith("the drone ended its sweep at step") and m.endswith("sensor.temperature > 37") for m in log), log
     assert "perimeter traced: back where it reached the contour" in log, log
     assert any("Bundle b-m1-1 ended by sensor.temperature > 37" in m for m in ground), ground
+
+
+async def test_the_survey_example_flies_beyond_radio_range_and_the_mission_gets_every_step() -> None:
+    import fleet_examples
+    from sim.world import load_world
+
+    source = (fleet_examples.DIR / "survey_bundle.py").read_text()
+    sim = SimField(load_world(fleet_examples.WORLDS / "survey.yml"), seed=3)
+    await sim.start()
+    try:
+        record = await sim.run_mission(source, max_s=600)
+        log = [line.message for line in sim.mission_log(record.mission_id)]
+        result = sim.result(record)
+    finally:
+        await sim.close()
+    assert record.status == "finished", log
+    assert "survey done: 11 of 11 steps, 23 events in the drone's record" in log, log
+    assert any("link lost while it runs bundle b-m1-1" in m for m in log), log
+    track = result["drones"]["drone01"]
+    far = max(distance_m(*BASE, s["lat"], s["lon"]) for s in track["flown"])
+    heard = max(distance_m(*BASE, s["lat"], s["lon"]) for s in track["samples"])
+    assert far > 150 and heard < 100, (far, heard)  # it surveyed where the ground could not hear it
+    assert distance_m(*BASE, track["flown"][-1]["lat"], track["flown"][-1]["lon"]) < 3  # and came home
 
 
 async def test_the_missions_own_command_during_a_bundle_supersedes_its_step_and_cancels_it() -> None:
