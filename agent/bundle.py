@@ -20,7 +20,7 @@ import logging
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import msgspec
 
@@ -148,7 +148,7 @@ class BundleRunner:
         policy = self.on_link_loss
         if policy is None or policy == "continue":
             return None
-        self._stop("ended", "ended", f"link lost (on_link_loss={policy})", ended_by="link_lost")
+        self._stop("ended", "guard", f"link lost (on_link_loss={policy})", ended_by="link_lost")
         command = (Cancel if policy == "hold" else Return)(drone_id=self.drone_id, command_id=f"{self._bundle_id}/{policy}", timestamp=self.clock.time_ms())
         self.handler.submit(command)
         return policy
@@ -211,7 +211,7 @@ class BundleRunner:
                     self._emit(bundle.bundle_id, i, "guard", detail, n, step.name, record=record)
                     log.info("%s: bundle %s step %d/%d ended by %s", self.drone_id, bundle.bundle_id, i + 1, n, detail)
                 elif outcome == "bundle_guard":
-                    self._finish(record, "ended", "ended", detail, ended_by=detail)
+                    self._finish(record, "ended", "guard", detail, ended_by=detail)
                     return
                 elif outcome == "timeout":
                     self._finish(record, "failed", "failure", f"timeout: not done within {bundle.timeout_s:g} s")
@@ -287,14 +287,15 @@ class BundleRunner:
         record.reason = reason if state in ("failed", "cancelled") else None
         record.ended_by = ended_by
         record.ended = self.clock.time_ms()
-        self._emit(record.bundle_id, record.step, event, reason, record.steps, record=record)
+        self._emit(record.bundle_id, record.step, event, reason, record.steps, record=record,
+                   scope="bundle" if event == "guard" else None)
         log.info("%s: bundle %s %s at step %d/%d%s", self.drone_id, record.bundle_id, state, record.step + 1, record.steps,
                  f": {reason}" if reason else "")
 
     def _emit(self, bundle_id: str, step: int, state: BundleEvent, reason: str | None, steps: int | None = None,
-              command: str | None = None, *, record: BundleRecord) -> None:
+              command: str | None = None, *, record: BundleRecord, scope: Literal["bundle"] | None = None) -> None:
         """Publish one event and keep it in the record (written through to disk first)."""
-        record.history.append(StepEvent(step=step, state=state, timestamp=self.clock.time_ms(), reason=reason))
+        record.history.append(StepEvent(step=step, state=state, timestamp=self.clock.time_ms(), reason=reason, scope=scope))
         self.store.put(record)
         self.emit(BundleStatus(drone_id=self.drone_id, timestamp=self.clock.time_ms(), bundle_id=bundle_id, step=step,
-                               state=state, reason=reason, steps=steps, command=command))
+                               state=state, reason=reason, scope=scope, steps=steps, command=command))

@@ -118,10 +118,10 @@ def bundle_line(status: BundleStatus, description: str | None) -> tuple[Level, s
             return "info", f"{b} {at}: {description or status.command or 'step'}"
         case "finish":
             return None
+        case "guard" if status.scope == "bundle":
+            return "info", f"{b} ended by {status.reason} at step {status.step + 1}"
         case "guard":
             return "info", f"{b} {at} ended by {status.reason}"
-        case "ended":
-            return "info", f"{b} ended by {status.reason} at step {status.step + 1}"
         case "done":
             return "info", f"{b} done ({n} steps)"
         case "failure":

@@ -222,7 +222,8 @@ class Registry:
                                        f"event{'s' if len(missed) != 1 else ''} sent while out of reach")]
         for e in missed:
             out += self._on_bundle(d, BundleStatus(drone_id=drone_id, timestamp=e.timestamp, bundle_id=record.bundle_id,
-                                                   step=e.step, state=e.state, reason=e.reason, steps=record.steps), now_ms)
+                                                   step=e.step, state=e.state, reason=e.reason, scope=e.scope,
+                                                   steps=record.steps), now_ms)
         return out
 
     def _on_bundle(self, d: _Drone, status: BundleStatus, now_ms: int) -> list[Event]:
@@ -237,7 +238,7 @@ class Registry:
         if status.state == "start":
             d.bundle = BundleInfo(bundle_id=status.bundle_id, step=status.step, steps=status.steps or len(known),
                                   description=description or status.command or "step")
-        elif status.state in ("done", "ended", "failure", "cancel"):
+        elif status.ends_bundle:
             d.bundle_steps.pop(status.bundle_id, None)
             if d.bundle is not None and d.bundle.bundle_id == status.bundle_id:
                 d.bundle = None

@@ -30,7 +30,7 @@ from mission.plugins import MissionPlugins, PluginLibrary
 from mission.port import FleetPort, MissionConfig
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
-from schemas.bundles import BundleRecord, BundleStatus, new_bundle_id
+from schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
 from schemas.commands import new_command_id
 from schemas.errors import CommandRejected, FleetError, InvalidMessage
 from schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
@@ -71,8 +71,6 @@ CAUSES: dict[str, tuple[MissionStatus, str]] = {
 }
 TERMINAL_COMMAND_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})
 T = TypeVar("T")
-BUNDLE_RECORD_STATES: dict[str, Any] = {"done": "done", "ended": "ended", "failure": "failed", "cancel": "cancelled"}
-BUNDLE_ENDS = frozenset(BUNDLE_RECORD_STATES)
 BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
 
 
@@ -332,7 +330,7 @@ class Mission:
 
     def _on_bundle_status(self, status: BundleStatus) -> None:
         pending = self._bundles.get(status.bundle_id)
-        if pending is not None and status.state in BUNDLE_ENDS:
+        if pending is not None and status.ends_bundle:
             self._catch_up(pending, status)
 
     def _catch_up(self, pending: _PendingBundle, status: BundleStatus | None = None) -> None:
@@ -346,8 +344,8 @@ class Mission:
                     self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
                     return
                 record = BundleRecord(  # the end was heard; only its history is missing
-                    bundle_id=status.bundle_id, state=BUNDLE_RECORD_STATES[status.state], step=status.step,
-                    steps=status.steps or 0, ended_by=status.reason if status.state == "ended" else None,
+                    bundle_id=status.bundle_id, state=BUNDLE_ENDS[status.state], step=status.step,
+                    steps=status.steps or 0, ended_by=status.reason if status.state == "guard" else None,
                     reason=status.reason if status.state in ("failure", "cancel") else None,
                 )
             if record.finished and not pending.done.done():

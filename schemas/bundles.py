@@ -35,7 +35,8 @@ LinkLossPolicy = Literal["continue", "hold", "return"]
 BundleState = Literal["running", "done", "ended", "failed", "cancelled"]
 # Progress on drone/<id>/status: a step starts, finishes or is ended by its guard; the
 # bundle is done, ended (by its guard, its link-loss policy), failed or cancelled.
-BundleEvent = Literal["start", "finish", "guard", "done", "ended", "failure", "cancel"]
+BundleEvent = Literal["start", "finish", "guard", "done", "failure", "cancel"]  # SPEC §6
+BUNDLE_ENDS: dict[str, BundleState] = {"done": "done", "guard": "ended", "failure": "failed", "cancel": "cancelled"}
 MAX_STEPS = 1000
 OPS: dict[str, Callable[[Any, Any], bool]] = {
     "<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge, "==": operator.eq, "!=": operator.ne,
@@ -75,9 +76,14 @@ class BundleStatus(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True
     bundle_id: str
     step: int  # index into steps; for the bundle's own end, the step it was at
     state: BundleEvent
-    reason: str | None = None  # guard: which guard; failure/cancel/ended: why
+    reason: str | None = None  # guard: which guard (or "link lost (on_link_loss=…)"); failure/cancel: why
+    scope: Literal["bundle"] | None = None  # a guard that ended the whole bundle, not just its step
     steps: int | None = None  # how many steps the bundle has
     command: str | None = None  # the step's cmd, or "wait"
+
+    @property
+    def ends_bundle(self) -> bool:
+        return self.scope == "bundle" if self.state == "guard" else self.state in BUNDLE_ENDS
 
 
 class StepEvent(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
@@ -85,10 +91,12 @@ class StepEvent(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     state: BundleEvent
     timestamp: int  # ms since the epoch (the drone's clock)
     reason: str | None = None
+    scope: Literal["bundle"] | None = None
 
 
-class BundleRecord(msgspec.Struct, kw_only=True, omit_defaults=True):
-    """What the agent keeps of a bundle and answers `drone/<id>/bundle?id=…` with."""
+class BundleRecord(msgspec.Struct, kw_only=True):
+    """What the agent keeps of a bundle and answers `drone/<id>/bundle?id=…` with (every
+    field, also a 0 or null: SPEC §6 lists them)."""
 
     bundle_id: str
     state: BundleState

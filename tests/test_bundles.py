@@ -212,7 +212,7 @@ home(d)
 
 @pytest.mark.parametrize(("policy", "want", "history"), [
     ("continue", "done", ["start", "finish"] * 4 + ["done"]),
-    ("return", "ended", ["start", "finish", "start", "ended"]),
+    ("return", "ended", ["start", "finish", "start", "guard"]),
 ])
 async def test_a_survey_beyond_radio_range_runs_alone_and_the_mission_catches_up(policy: str, want: str, history: list[str]) -> None:
     script = SURVEY.replace("POLICY", repr(policy)).replace("WANT", repr(want)).replace("HISTORY", repr(history))

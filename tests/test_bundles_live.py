@@ -5,12 +5,17 @@ bundle as failed — to the ground's log and in its record — instead of forget
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
 
-from tests.harness import AgentProcess, GroundFleet
+from bus.zenoh_bus import ZenohBus
+from schemas.bundles import BundleStatus
+from tests.harness import AgentProcess, GroundFleet, Operator
 from tests.helpers import until
 
 pytestmark = pytest.mark.integration
@@ -62,3 +67,31 @@ async def test_an_agent_restarted_mid_bundle_reports_it_failed(tmp_path: Path) -
             assert missing.status_code == 404 and "no bundle 'nope'" in missing.json()["error"]
     finally:
         fleet.stop()
+
+
+async def test_the_spec_wire_shape_over_zenoh_with_a_bundle_guard(
+    agents: Callable[..., AgentProcess], operator: Callable[[str], Operator], client: ZenohBus,
+) -> None:
+    """SPEC §6 as another implementation's test would hold us to it: the bundle as a raw
+    query on drone/<id>/bundle, progress on drone/<id>/status with only the states §6
+    names (a bundle's own guard is `guard` with its reason), the record on `?id=`."""
+    agents("drone01", fc=SPAWN)
+    op = operator("drone01")
+    await op.next_telemetry(timeout_s=30, what="first telemetry")
+    await op.expect(await op.accepted("arm"), "success", 10)
+    bundle = {"drone_id": "drone01", "timestamp": 1, "bundle_id": "b-wire", "on_link_loss": "continue", "timeout_s": 120,
+              "until": {"field": "position.rel_alt", "op": ">", "value": 4},
+              "steps": [{"cmd": "takeoff", "alt": 8}, {"wait_s": 5}, {"cmd": "return"}]}
+    raw = await client.query("drone/drone01/bundle", json.dumps(bundle).encode(), timeout_s=5)
+    assert json.loads(raw) == {"bundle_id": "b-wire", "accepted": True}
+
+    def is_bundle(s: Any) -> bool:
+        return isinstance(s, BundleStatus) and s.bundle_id == "b-wire"
+    end = await op.status.wait_for(lambda s: is_bundle(s) and s.state != "start", 60, "the bundle's end")
+    assert (end.state, end.step, end.reason, end.scope) == ("guard", 0, "position.rel_alt > 4", "bundle"), end
+    states = [s.state for s in op.status.items if is_bundle(s)]
+    assert states == ["start", "guard"], states  # SPEC §6's words only: no "ended"
+    record = json.loads(await client.query("drone/drone01/bundle?id=b-wire", timeout_s=5))
+    assert {k: record[k] for k in ("bundle_id", "state", "step", "steps_done")} == {
+        "bundle_id": "b-wire", "state": "ended", "step": 0, "steps_done": 0}, record
+    assert record["ended_by"] == "position.rel_alt > 4", record

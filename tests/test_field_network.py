@@ -276,7 +276,7 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
     await sim.up()
     cases = {
         "drone01": ("forward", "backward", "continue", ["start", "finish"] * 4 + ["done"]),
-        "drone02": ("backward", "forward", "return", ["start", "finish", "start", "ended"]),
+        "drone02": ("backward", "forward", "return", ["start", "finish", "start", "guard"]),
     }
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         for d in cases:
