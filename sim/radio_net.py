@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import fcntl
 import ipaddress
 import logging
 import os
@@ -30,7 +31,7 @@ import signal
 import socket
 import subprocess
 import threading
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 
 from schemas.errors import FleetError
 from sim.radio import GROUND, LOSS_STEPS, RadioModel
@@ -43,6 +44,7 @@ CAP_NET_ADMIN = 12
 CLONE_NEWNET = 0x40000000
 PR_SET_PDEATHSIG = 1
 SUBNET_BASE = ipaddress.ip_network("10.231.0.0/16")  # one /24 per run, inside namespaces only
+SUBNET_LOCK = "/run/fleet-radio.lock"  # root's tmpfs: radio runs need root anyway
 TABLE = "fleet_radio"
 
 
@@ -126,6 +128,18 @@ def remove_leftovers() -> list[str]:
     return namespaces + links
 
 
+@contextlib.contextmanager
+def _subnet_lock() -> Iterator[None]:
+    """Held from picking a free /24 until its first address is on the laptop link, so
+    radio runs started together (parallel tests, two operators) never pick the same."""
+    with open(SUBNET_LOCK, "a") as fd:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+
+
 def _pick_subnet() -> ipaddress.IPv4Network:
     used = _run("ip", "-o", "-4", "addr", "show", check=False).stdout
     for subnet in SUBNET_BASE.subnets(new_prefix=24):
@@ -174,17 +188,18 @@ class RadioNet:
     def up(self) -> RadioNet:
         require_net_admin()
         remove_leftovers()
-        self.subnet = _pick_subnet()
-        hosts = self.subnet.hosts()
         try:
             self._add_netns(self.air)
             self._air("ip", "link", "add", "br0", "type", "bridge")
             self._air("ip", "link", "set", "br0", "up")
             # The laptop: a veth from here to the bridge, carrying the ground's address.
-            self._addresses[GROUND] = str(next(hosts))
             _run("ip", "link", "add", self.laptop_link, "type", "veth", "peer", "name", "g", "netns", self.air)
             self._made.append(lambda: _run("ip", "link", "del", self.laptop_link, check=False))
-            _run("ip", "addr", "add", f"{self._addresses[GROUND]}/24", "dev", self.laptop_link)
+            with _subnet_lock():
+                self.subnet = _pick_subnet()
+                hosts = self.subnet.hosts()
+                self._addresses[GROUND] = str(next(hosts))
+                _run("ip", "addr", "add", f"{self._addresses[GROUND]}/24", "dev", self.laptop_link)
             _run("ip", "link", "set", self.laptop_link, "up")
             self._attach("g", GROUND)
             for i, drone_id in enumerate(self.drone_ids):

@@ -15,6 +15,17 @@ from tests.harness import AgentProcess, Operator, open_ground_router
 from tests.helpers import free_port
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Longest first (the `slow` marker's estimate): with xdist's round-robin start,
+    the long real-time tests begin at once, one per worker, and the many short ones
+    fill in around them. The sort is stable and the same on every worker."""
+    def seconds(item: pytest.Item) -> float:
+        marker = item.get_closest_marker("slow")
+        return float(marker.args[0]) if marker is not None else 0.0
+
+    items.sort(key=seconds, reverse=True)
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _agent_state_outside_home(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """Agents started by tests (and by the `fleet` processes they start) keep their

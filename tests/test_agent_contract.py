@@ -46,6 +46,7 @@ def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterato
         sim.stop()
 
 
+@pytest.mark.slow(50)
 async def test_flight_contract(
     agents: Callable[..., AgentProcess], operator: Callable[[str], Operator], flight_controller: str
 ) -> None:

@@ -71,6 +71,7 @@ def run_demo(*args: str, timeout_s: float, fleet: list[str] | None = None, cwd: 
             os.killpg(proc.pid, signal.SIGKILL)
 
 
+@pytest.mark.slow(75)
 @pytest.mark.timeout(480)
 def test_bounded_demo_traces_the_fire_and_writes_its_plots(tmp_path: Path) -> None:
     zenoh_port, http_port = free_port(), free_port()

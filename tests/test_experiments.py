@@ -150,6 +150,7 @@ def three_drones() -> World:
     return World(origin=world.origin, ground_station=world.ground_station, drones=[*world.drones, spare], battery=world.battery)
 
 
+@pytest.mark.slow(12)
 async def test_replacement_plugin_swaps_at_the_first_sample_past_the_threshold() -> None:
     async def drain_second_on_its_way_home(field: SimField) -> None:
         """When drone02 heads home (a goto to its home), its battery drops to 27 %:

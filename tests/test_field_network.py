@@ -148,6 +148,7 @@ def index_of(lines: list[str], text: str, start: int = 0) -> int:
     raise AssertionError(f"no line with {text!r} after line {start}:\n" + "\n".join(lines[-40:]))
 
 
+@pytest.mark.slow(70)
 async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """A drone flies from 20 m towards 150 m and is brought home by its lost-link policy;
     its sensor keeps feeding its agent while the ground is out of reach."""
@@ -168,7 +169,7 @@ async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProces
         await command(http, "drone01", cmd="takeoff", alt=10)
         await until(lambda: state_is(http, "drone01", "hold"), 60, "drone01 hovering")
         far = north(150)
-        await command(http, "drone01", cmd="goto", lat=far[0], lon=far[1], speed=2)
+        await command(http, "drone01", cmd="goto", lat=far[0], lon=far[1], speed=4)
 
         await until(lambda: _has(http, "Link lost"), 90, "the ground's 'Link lost'")
         await until(lambda: _has(http, "Link restored"), 120, "the ground's 'Link restored'")
@@ -212,6 +213,7 @@ async def _has(http: httpx.AsyncClient, text: str) -> bool:
     return any(text in line for line in await log_lines(http, "drone01"))
 
 
+@pytest.mark.slow(20)
 async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """Ground, A at 50 m, B at 105 m: B is reachable only through A; A leaves, B is
     lost; A comes back, B is reachable again within 5 s."""
@@ -261,6 +263,7 @@ home(d)
 """
 
 
+@pytest.mark.slow(60)
 async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """Issue 14 on real packets: two drones take survey bundles past the radio's 100 m,
     drone01 north with on_link_loss=continue, drone02 south with return. The ground
@@ -349,6 +352,25 @@ def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -
     assert fleet_resources(second.pid) == []
 
 
+def test_radio_runs_started_together_get_their_own_subnets() -> None:
+    """Parallel radio runs (these tests under xdist, two operators on one laptop) must
+    not pick the same /24: the pick holds a lock until the address is taken."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from sim.radio import RadioModel
+    from sim.radio_net import RadioNet
+
+    nets = [RadioNet(["d1"], RadioModel(), run=pid) for pid in (os.getpid(), os.getppid())]
+    try:
+        with ThreadPoolExecutor(2) as pool:
+            list(pool.map(RadioNet.up, nets))
+        assert nets[0].subnet != nets[1].subnet, [n.subnet for n in nets]
+    finally:
+        for net in nets:
+            net.close()
+    assert not [ns for ns in list_netns() if ns.startswith((f"fleet-{os.getpid()}-", f"fleet-{os.getppid()}-"))]
+
+
 def test_without_net_admin_the_radio_says_so_and_exits_2(tmp_path: Path) -> None:
     world = tmp_path / "world.yml"
     world.write_text(yaml.safe_dump({"drones": [{"id": "drone01"}]}))
@@ -368,6 +390,7 @@ def _wait_sync(predicate: Any, timeout_s: float, what: str) -> None:
         time.sleep(0.1)
 
 
+@pytest.mark.slow(80)
 @pytest.mark.timeout(480)
 def test_the_demo_on_the_radio_traces_the_fire_and_leaves_nothing(tmp_path: Path) -> None:
     """`fleet demo --radio`: the fire world with the laptop beside the fire (every point

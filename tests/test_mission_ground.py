@@ -66,6 +66,7 @@ async def telemetry_seq(http: httpx.AsyncClient, drone_id: str) -> int:
     return int(response.json()["telem"]["seq"])
 
 
+@pytest.mark.slow(45)
 async def test_examples_fly_while_a_spinning_mission_is_cancelled_within_a_second(http: httpx.AsyncClient) -> None:
     sync = await submit(http, (EXAMPLES / "synchronisation.py").read_text(), "5.4")
     two = await submit(http, (EXAMPLES / "two_drones.py").read_text(), "5.3")

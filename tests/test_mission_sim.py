@@ -203,6 +203,7 @@ async def test_unexpected(monkeypatch: pytest.MonkeyPatch) -> None:
 # ---- runtime behaviour -----------------------------------------------------------------
 
 
+@pytest.mark.slow(14)
 async def test_two_hundred_subroutines_channels_and_stop() -> None:
     script = (
         "hs = [run(lambda i=i: sleep(1 + i % 3)) for i in range(200)]\n"
