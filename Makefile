@@ -47,9 +47,10 @@ demo: $(STAMP)
 	$(BIN)/fleet demo $(ARGS)
 
 # Four workers on the 2 cores: most tests wait on real time (drones flying), not CPU.
-# The longest start first (the `slow` marker); each run prints its 25 slowest tests.
+# The longest start first (the `slow` marker, tests/conftest.py), handed out one at a
+# time; each run prints its 25 slowest tests.
 test: $(STAMP) sysdeps lint
-	$(BIN)/python -m pytest -q -n 4
+	$(BIN)/python -m pytest -q -n 4 --maxschedchunk 1
 
 # ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)

@@ -16,14 +16,20 @@ from tests.helpers import free_port
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Longest first (the `slow` marker's estimate): with xdist's round-robin start,
-    the long real-time tests begin at once, one per worker, and the many short ones
-    fill in around them. The sort is stable and the same on every worker."""
+    """Longest first (the `slow` marker's estimate), each followed by a short test.
+
+    `make test` runs xdist with `--maxschedchunk 1`: a worker holds the test it runs and
+    one more, and takes the next in this order when it finishes one. So the long
+    real-time tests start at once, one per worker, and never wait queued behind
+    another long one. The order is the same on every worker (a stable sort)."""
     def seconds(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return float(marker.args[0]) if marker is not None else 0.0
 
-    items.sort(key=seconds, reverse=True)
+    long = sorted((i for i in items if seconds(i)), key=seconds, reverse=True)
+    short = [i for i in items if not seconds(i)]
+    order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
+    items[:] = order
 
 
 @pytest.fixture(autouse=True, scope="session")
