@@ -63,6 +63,7 @@ class GroundStation:
         self.keys = Keys(config.namespace)
         self.registry = Registry(config)
         self._watchers: set[Watcher] = set()
+        self._watches_ended = False
         self._listeners: list[Callable[[WatchEvent], None]] = []
         self._last_telem_event: dict[str, float] = {}
 
@@ -97,6 +98,8 @@ class GroundStation:
     @contextmanager
     def watch(self) -> Iterator[Watcher]:
         watcher = Watcher()
+        if self._watches_ended:  # a stream that starts while the ground stops ends at once
+            watcher.put(WatchEvent("end", None))
         self._watchers.add(watcher)
         try:
             yield watcher
@@ -289,7 +292,9 @@ class GroundStation:
                 self._tell(changed)
 
     def end_watches(self) -> None:
-        """Tell every watcher the ground is stopping (event streams then close)."""
+        """Tell every watcher the ground is stopping (event streams then close), also
+        those that register from now on (a request already accepted by the server)."""
+        self._watches_ended = True
         self.broadcast(WatchEvent("end", None))
 
     def _offer_telemetry(self, telem: Telemetry) -> None:

@@ -44,7 +44,7 @@ CAP_NET_ADMIN = 12
 CLONE_NEWNET = 0x40000000
 PR_SET_PDEATHSIG = 1
 SUBNET_BASE = ipaddress.ip_network("10.231.0.0/16")  # one /24 per run, inside namespaces only
-SUBNET_LOCK = "/run/fleet-radio.lock"  # root's tmpfs: radio runs need root anyway
+HOST_LOCK = "/run/fleet-radio.lock"  # root's tmpfs: radio runs need root anyway
 TABLE = "fleet_radio"
 
 
@@ -129,10 +129,11 @@ def remove_leftovers() -> list[str]:
 
 
 @contextlib.contextmanager
-def _subnet_lock() -> Iterator[None]:
-    """Held from picking a free /24 until its first address is on the laptop link, so
-    radio runs started together (parallel tests, two operators) never pick the same."""
-    with open(SUBNET_LOCK, "a") as fd:
+def host_lock() -> Iterator[None]:
+    """Radio runs started together (parallel tests, two operators) change the laptop's
+    shared state one at a time: removing what killed runs left, and picking a free /24
+    (held until its first address is on the laptop link, so no two pick the same)."""
+    with open(HOST_LOCK, "a") as fd:
         fcntl.flock(fd, fcntl.LOCK_EX)
         try:
             yield
@@ -187,7 +188,8 @@ class RadioNet:
 
     def up(self) -> RadioNet:
         require_net_admin()
-        remove_leftovers()
+        with host_lock():
+            remove_leftovers()
         try:
             self._add_netns(self.air)
             self._air("ip", "link", "add", "br0", "type", "bridge")
@@ -195,7 +197,7 @@ class RadioNet:
             # The laptop: a veth from here to the bridge, carrying the ground's address.
             _run("ip", "link", "add", self.laptop_link, "type", "veth", "peer", "name", "g", "netns", self.air)
             self._made.append(lambda: _run("ip", "link", "del", self.laptop_link, check=False))
-            with _subnet_lock():
+            with host_lock():
                 self.subnet = _pick_subnet()
                 hosts = self.subnet.hosts()
                 self._addresses[GROUND] = str(next(hosts))

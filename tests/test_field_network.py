@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import time
@@ -21,7 +22,7 @@ import pytest
 import yaml
 
 from schemas.geo import destination, distance_m
-from sim.radio_net import has_net_admin, leftovers, list_netns
+from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, fleet_command
 from tests.helpers import free_port, free_udp_base, until
 
@@ -337,9 +338,10 @@ def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -
     try:
         _wait_sync(lambda: f"fleet-{killed.pid}-air" in list_netns(), 30, "the first run's namespaces")
     finally:
-        killed.kill()
-        killed.wait()
-    namespaces, _ = leftovers()
+        with host_lock():  # no radio run of a parallel test cleans up before we look
+            killed.kill()
+            killed.wait()
+            namespaces, _ = leftovers()
     assert f"fleet-{killed.pid}-air" in namespaces
     second = subprocess.Popen(fleet_command("sim", str(world), "--radio", "--base-port", str(free_udp_base(2) + 1)),
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -417,4 +419,5 @@ def test_the_demo_on_the_radio_traces_the_fire_and_leaves_nothing(tmp_path: Path
     temperatures = [s["sensors"].get("temperature") for s in result["drones"]["drone01"]["samples"]]
     assert max(t for t in temperatures if t is not None) > 37  # the sensor program in drone01's namespace
     assert "drone01 system connect" in (out / "logs" / "drone01.log").read_text()
-    assert not [ns for ns in list_netns() if ns.startswith("fleet-")]  # all removed on exit
+    run = re.search(r"in namespace (fleet-\d+-)", stdout).group(1)  # type: ignore[union-attr]
+    assert not [ns for ns in list_netns() if ns.startswith(run)]  # all removed on exit (other runs may go on)

@@ -112,6 +112,24 @@ async def test_sigterm_stops_the_ground_cleanly_even_with_an_open_event_stream(t
         restarted.stop()
 
 
+async def test_an_event_stream_that_registers_while_the_ground_stops_still_ends() -> None:
+    """The race behind a flaky SIGTERM test: the server accepted /events, sent its
+    headers, and the stream's watcher registered only after end_watches() — it waited
+    for uvicorn's grace and was cut. Now it ends at once."""
+    from fleet.compose import SimField
+    from sim.world import DroneSpec, World
+
+    sim = SimField(World(drones=[DroneSpec(id="drone01", lat=40.63, lon=-8.66)]))
+    try:
+        with sim.station.watch() as early:
+            sim.station.end_watches()
+            with sim.station.watch() as late:
+                assert late.queue.get_nowait().kind == "end"
+            assert early.queue.get_nowait().kind == "end"
+    finally:
+        await sim.close()
+
+
 def test_bad_ground_config_is_a_clear_error_at_start(tmp_path: Path) -> None:
     import subprocess
 
