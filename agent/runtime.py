@@ -10,6 +10,7 @@ probe and the lost-link watch. Shutdown runs in reverse, in `finally`.
 from __future__ import annotations
 
 import asyncio
+import collections
 import json
 import logging
 import uuid
@@ -39,6 +40,7 @@ from schemas.telemetry import Telemetry
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
+RECENT_STATUSES = 64  # command statuses kept to repeat to a ground that was out of reach
 NEIGHBOUR_SCOUT_PERIOD_S = 1.0
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
@@ -73,6 +75,8 @@ class Agent:
         self._seq = 0
         store = BundleStore(Path(config.state_dir) / "bundles.json" if config.state_dir else None)
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
+        self._recent_statuses: collections.deque[CommandStatus] = collections.deque(maxlen=RECENT_STATUSES)
+        self._silent_since_ms: int | None = None
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -93,6 +97,18 @@ class Agent:
         for decision, summary in self.lost_link.contact(now):
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)
+            if decision == "link_restored" and self._silent_since_ms is not None:
+                self._tell_what_happened_alone(self._silent_since_ms)
+                self._silent_since_ms = None
+
+    def _tell_what_happened_alone(self, since_ms: int) -> None:
+        """Command statuses published while the ground could not hear them, again: a
+        mission waiting for a command's end (sent before the link dropped) learns it."""
+        missed = [s for s in self._recent_statuses if s.timestamp >= since_ms]
+        if missed:
+            log.info("%s: repeating %d command statuses sent out of the ground's reach", self.drone_id, len(missed))
+        for status in missed:
+            self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
 
     async def _lost_link_loop(self) -> None:
         while True:
@@ -106,6 +122,8 @@ class Agent:
                     self._failsafe(action)  # type: ignore[arg-type]
                 else:
                     log.warning("%s: no answer from the ground for %g s", self.drone_id, self.config.lost_link.timeout_s)
+                    # The silence began timeout_s ago: statuses since then may not have arrived.
+                    self._silent_since_ms = self.clock.time_ms() - round(self.config.lost_link.timeout_s * 1000)
                     self._system(decision, f"no answer from the ground for {self.config.lost_link.timeout_s:g} s")
                     policy = self.bundles.end_for_link_loss()
                     if policy is not None:  # the bundle's own policy, instead of the agent's
@@ -125,6 +143,7 @@ class Agent:
     def _publish_status(self, status: CommandStatus | SystemStatus | BundleStatus) -> None:
         self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
         if isinstance(status, CommandStatus):
+            self._recent_statuses.append(status)
             self.bundles.on_status(status)
 
     def _telemetry_now(self) -> Telemetry | None:

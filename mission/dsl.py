@@ -22,6 +22,7 @@ from mission import assignment as a
 from mission import geo, units
 from mission.geo import Position, as_position
 from mission.mission import Mission, MissionOver
+from mission.relaying import Relays
 from mission.runtime import Stopped, Subroutine, await_
 from mission.sandbox import Guards
 from schemas.geo import angle_diff_deg, normalize_deg
@@ -695,6 +696,7 @@ def common_names(guards: Guards) -> dict[str, Any]:
         "south": 180 * units.deg,
         "west": 270 * units.deg,
         "pi": math.pi,
+        "relays": Relays(),
     }
     namespace.update(units.UNITS)
     return namespace

@@ -52,6 +52,7 @@ VERBS = "verbs"
 PLUGIN_TYPES = (MONITORING, VERBS)
 INPUT_TYPES: dict[type, str] = {float: "float", int: "int", str: "str", bool: "bool", list: "list", dict: "dict"}
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+SHADOWABLE = frozenset({"step", "when"})
 LOAD_TICKS = 1_000_000  # a plugin's top level that computes longer than this is refused
 
 
@@ -217,7 +218,9 @@ def validate(decl: dict[str, Any], namespace: dict[str, Any], path: str, code: t
     kind = decl["type"]
     if kind not in PLUGIN_TYPES:
         raise PluginError(f"type must be monitoring or verbs, got {kind!r}")
-    inputs = _inputs(decl["input"], reserved)
+    # An input may shadow the bundle builders' names (`step`, `when`) in its own plugin:
+    # SPEC §5 enables the relay with `step=4*m`. Verbs and the rest stay reserved.
+    inputs = _inputs(decl["input"], reserved - SHADOWABLE)
     variables = decl["vars"] or {}
     if not isinstance(variables, dict):
         raise PluginError("vars= must be a dict of name: initial value")

@@ -299,3 +299,20 @@ home(d)
     _, (record, log), ground = await fly(script)
     assert record.status == "finished", (record, log)
     assert any("Bundle b-m1-1 cancelled at step 2/3: cancel from the ground" in g for g in ground), ground
+
+
+async def test_a_command_that_ends_out_of_reach_reaches_the_mission_when_the_link_is_back() -> None:
+    """Not a bundle: a single move whose `finish` the drone publishes beyond radio range.
+    Back in range (its lost-link failsafe brings it home) the agent repeats the statuses
+    the ground missed, so the verb returns instead of waiting for ever."""
+    script = """
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=115*m, speed=8*m/s)
+print("the move returned")
+"""
+    _, (record, log), ground = await fly(script, fire_world(RadioModel()), max_s=300,
+                                         lost_link=LostLinkPolicy(timeout_s=3, action="hold", return_after_s=4))
+    assert any("Link lost" in g for g in ground), ground  # the finish was published out of reach
+    assert "the move returned" in log, (record, log)

@@ -1,0 +1,106 @@
+"""`relays`, what the bundled `relay` plugin (and any script) uses to ask the pure
+planner of `relay/` where relay drones go: the drone wrappers become points in metres
+around the ground station, the plan's points become positions again.
+
+    plan = relays.plan(served_drones, on_duty, ground, min_quality=0.6, …)
+    plan.moves     # [(relay_id, position, duty altitude above home)]
+    plan.dispatch  # [(position, duty altitude)]: new relays needed
+    plan.home      # [relay_id]: no longer needed
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from mission import units
+from mission.geo import Position, as_position
+from relay import distance as baseline
+from relay import planner
+from schemas.geo import bearing_deg, destination, distance_m
+
+
+class Frame:
+    """Metres north/east of the ground station."""
+
+    def __init__(self, ground: Any) -> None:
+        self.ground = as_position(ground)
+
+    def local(self, p: Any) -> planner.Point:
+        p = as_position(p)
+        d = distance_m(self.ground.lat, self.ground.lon, p.lat, p.lon)
+        b = math.radians(bearing_deg(self.ground.lat, self.ground.lon, p.lat, p.lon))
+        return d * math.cos(b), d * math.sin(b)
+
+    def world(self, pt: planner.Point, alt: float | None = None) -> Position:
+        d = math.hypot(*pt)
+        lat, lon = destination(self.ground.lat, self.ground.lon, d, math.degrees(math.atan2(pt[1], pt[0])) % 360.0)
+        return Position(lat, lon, alt)
+
+
+@dataclass(frozen=True)
+class RelayPlan:
+    moves: list[tuple[str, Position, float]]
+    dispatch: list[tuple[Position, float]]
+    home: list[str]
+    scale: float
+    notes: list[str]
+
+
+def _goal(drone: Any) -> Position | None:
+    cmd = drone.cmd
+    return cmd.target if cmd is not None and cmd.name in ("goto", "move") and isinstance(cmd.target, Position) else None
+
+
+class Relays:
+    """The `relays` name in scripts."""
+
+    def params(self, **inputs: Any) -> planner.Params:
+        lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
+        return planner.Params(**{**inputs, **lengths})
+
+    def plan(self, served: Sequence[Any], on_duty: Mapping[str, Mapping[str, Any]], drones: Mapping[str, Any], ground: Any,
+             scale: float = 1.0, **inputs: Any) -> RelayPlan:
+        """`served`: the mission's drones to keep connected; `on_duty`: relay id →
+        {"target": position or None, "alt": duty altitude, "serving": bool};
+        `drones`: relay id → its wrapper (for where it is now)."""
+        frame = Frame(ground)
+        params = self.params(**inputs)
+        mine = []
+        for d in served:
+            t = d._telem()
+            goal = _goal(d)
+            link = d.link
+            mine.append(planner.Drone(
+                d.id, frame.local(d.position), (t.velocity.north, t.velocity.east),
+                frame.local(goal) if goal is not None else None, link.quality if link is not None else None,
+            ))
+        relays = [planner.Relay(rid, frame.local(drones[rid].position),
+                                frame.local(duty["target"]) if duty.get("target") is not None else None,
+                                float(duty.get("alt", 0.0)), bool(duty.get("serving", True)))
+                  for rid, duty in on_duty.items()]
+        result = planner.plan(mine, relays, params, scale)
+        return RelayPlan(
+            moves=[(m.relay, frame.world(m.to), m.alt) for m in result.moves],
+            dispatch=[(frame.world(pt), alt) for pt, alt in result.dispatch],
+            home=result.home, scale=result.scale, notes=result.notes,
+        )
+
+    # ---- the thesis's baseline (mode="distance") ------------------------------------
+
+    def needs_follower(self, drone: Any, ground: Any, n_relays: int, target_dist: Any) -> bool:
+        frame = Frame(ground)
+        goal = _goal(drone)
+        return baseline.requires_relay(frame.local(drone.position), frame.local(goal) if goal else None, drone.speed,
+                                       n_relays, units.length(target_dist, "target_dist"))
+
+    def follow_step(self, other: Any, me: Any, ground: Any, target_dist: Any) -> tuple[Position, float, float, bool]:
+        """Where the follower `me` goes now: (target, speed, bearing, other returning)."""
+        frame = Frame(ground)
+        goal = _goal(other)
+        o, g, m = frame.local(other.position), (frame.local(goal) if goal else None), frame.local(me.position)
+        td = units.length(target_dist, "target_dist")
+        to = baseline.new_target(o, g, m, td)
+        return frame.world(to), baseline.new_speed(other.speed), baseline.new_bearing(o, g, m), baseline.returning(o, g, td)

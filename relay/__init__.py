@@ -1,0 +1,2 @@
+"""Relays (SPEC §8): where relay drones go, on measured link quality (`relay.planner`),
+and the thesis's distance-only baseline (`relay.distance`). Pure code: no I/O, no clock."""
