@@ -237,19 +237,23 @@ async def test_a_survey_beyond_radio_range_runs_alone_and_the_mission_catches_up
     assert runs[0] == runs[1]
 
 
-async def test_the_fire_patrol_example_sweeps_as_a_bundle_then_traces_from_the_ground() -> None:
+async def example(script: str, world: str, seed: int, max_s: float) -> tuple[Any, list[str], list[str], dict[str, Any]]:
+    """An example script on its world in fast time: record, mission log, ground log, result."""
     import fleet_examples
     from sim.world import load_world
 
-    source = (fleet_examples.DIR / "fire_patrol_bundle.py").read_text()
-    sim = SimField(load_world(fleet_examples.WORLDS / "fire.yml"), seed=1)
+    sim = SimField(load_world(fleet_examples.WORLDS / world), seed=seed)
     await sim.start()
     try:
-        record = await sim.run_mission(source, max_s=1200)
+        record = await sim.run_mission((fleet_examples.DIR / script).read_text(), max_s=max_s)
         log = [line.message for line in sim.mission_log(record.mission_id)]
-        ground = [line.message for _, line in sim.events.query()]
+        return record, log, [line.message for _, line in sim.events.query()], sim.result(record)
     finally:
         await sim.close()
+
+
+async def test_the_fire_patrol_example_sweeps_as_a_bundle_then_traces_from_the_ground() -> None:
+    record, log, ground, _ = await example("fire_patrol_bundle.py", "fire.yml", seed=1, max_s=1200)
     assert record.status == "finished", log
     assert any(m.startswith("the drone ended its sweep at step") and m.endswith("sensor.temperature > 37") for m in log), log
     assert "perimeter traced: back where it reached the contour" in log, log
@@ -257,18 +261,7 @@ async def test_the_fire_patrol_example_sweeps_as_a_bundle_then_traces_from_the_g
 
 
 async def test_the_survey_example_flies_beyond_radio_range_and_the_mission_gets_every_step() -> None:
-    import fleet_examples
-    from sim.world import load_world
-
-    source = (fleet_examples.DIR / "survey_bundle.py").read_text()
-    sim = SimField(load_world(fleet_examples.WORLDS / "survey.yml"), seed=3)
-    await sim.start()
-    try:
-        record = await sim.run_mission(source, max_s=600)
-        log = [line.message for line in sim.mission_log(record.mission_id)]
-        result = sim.result(record)
-    finally:
-        await sim.close()
+    record, log, _, result = await example("survey_bundle.py", "survey.yml", seed=3, max_s=600)
     assert record.status == "finished", log
     assert "survey done: 11 of 11 steps, 23 events in the drone's record" in log, log
     assert any("link lost while it runs bundle b-m1-1" in m for m in log), log
