@@ -2,7 +2,7 @@
 planner of `relay/` where relay drones go: the drone wrappers become points in metres
 around the ground station, the plan's points become positions again.
 
-    plan = relays.plan(served_drones, on_duty, ground, min_quality=0.6, …)
+    plan = relays.plan(served_drones, on_duty, relay_drones, ground, min_quality=0.6, …)
     plan.moves     # [(relay_id, position, duty altitude above home)]
     plan.dispatch  # [(position, duty altitude)]: new relays needed
     plan.home      # [relay_id]: no longer needed
@@ -10,7 +10,6 @@ around the ground station, the plan's points become positions again.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -19,25 +18,22 @@ from mission import units
 from mission.geo import Position, as_position
 from relay import distance as baseline
 from relay import planner
-from schemas.geo import bearing_deg, destination, distance_m
+from sim.projection import LocalFrame
 
 
 class Frame:
-    """Metres north/east of the ground station."""
+    """Metres north/east of the ground station (sim.projection's local plane)."""
 
     def __init__(self, ground: Any) -> None:
-        self.ground = as_position(ground)
+        g = as_position(ground)
+        self.plane = LocalFrame(g.lat, g.lon)
 
     def local(self, p: Any) -> planner.Point:
         p = as_position(p)
-        d = distance_m(self.ground.lat, self.ground.lon, p.lat, p.lon)
-        b = math.radians(bearing_deg(self.ground.lat, self.ground.lon, p.lat, p.lon))
-        return d * math.cos(b), d * math.sin(b)
+        return self.plane.to_local(p.lat, p.lon)
 
-    def world(self, pt: planner.Point, alt: float | None = None) -> Position:
-        d = math.hypot(*pt)
-        lat, lon = destination(self.ground.lat, self.ground.lon, d, math.degrees(math.atan2(pt[1], pt[0])) % 360.0)
-        return Position(lat, lon, alt)
+    def world(self, pt: planner.Point) -> Position:
+        return Position(*self.plane.to_global(*pt))
 
 
 @dataclass(frozen=True)

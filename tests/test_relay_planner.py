@@ -103,3 +103,17 @@ def test_cover_connects_everyone_with_bounded_hops() -> None:
 @pytest.mark.parametrize(("index", "alt"), [(0, 10.0), (1, 5.0), (2, 10.0)])
 def test_duty_altitudes_alternate(index: int, alt: float) -> None:
     assert duty_altitude(index, P) == alt
+
+
+def test_scripts_plan_in_metres_around_the_ground_and_get_positions_back() -> None:
+    """mission/relaying.py: positions to the planner's plane and back (sim.projection)."""
+    from mission import units
+    from mission.geo import Position
+    from mission.relaying import Frame, Relays
+
+    frame = Frame(Position(40.634125, -8.660336))
+    spot = frame.world((-129.0, 9.0))
+    assert Position(40.634125, -8.660336).distance(spot) == pytest.approx(math.hypot(129.0, 9.0), rel=1e-3)
+    assert frame.local(spot) == pytest.approx((-129.0, 9.0))
+    params = Relays().params(min_quality=0.5, step=4 * units.m, base_alt=5 * units.m)
+    assert (params.min_quality, params.step, params.base_alt) == (0.5, 4.0, 5.0)
