@@ -76,7 +76,7 @@ class Agent:
         store = BundleStore(Path(config.state_dir) / "bundles.json" if config.state_dir else None)
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
         self._recent_statuses: collections.deque[CommandStatus] = collections.deque(maxlen=RECENT_STATUSES)
-        self._silent_since_ms: int | None = None
+        self._last_contact_ms: int | None = None  # when the ground last answered a probe
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -94,19 +94,25 @@ class Agent:
         return self.lost_link.silent(self.clock.monotonic())
 
     def _on_ground_contact(self, now: float) -> None:
+        now_ms = self.clock.time_ms()
+        period_ms = self.config.probe_period_ms
+        gap_began_ms = self._last_contact_ms
+        self._last_contact_ms = now_ms
         for decision, summary in self.lost_link.contact(now):
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)
-            if decision == "link_restored" and self._silent_since_ms is not None:
-                self._tell_what_happened_alone(self._silent_since_ms)
-                self._silent_since_ms = None
+        if gap_began_ms is not None and now_ms - gap_began_ms > 1.5 * period_ms:
+            # At least one probe went unanswered: the link dropped for a while, maybe for
+            # less than the lost-link timeout, and a reliable publication whose link closed
+            # meanwhile is gone (ADR 0003). Statuses from then on are sent again.
+            self._tell_what_happened_unheard(gap_began_ms - period_ms)
 
-    def _tell_what_happened_alone(self, since_ms: int) -> None:
-        """Command statuses published while the ground could not hear them, again: a
-        mission waiting for a command's end (sent before the link dropped) learns it."""
+    def _tell_what_happened_unheard(self, since_ms: int) -> None:
+        """Command statuses published while the ground may not have heard them, again: a
+        mission waiting for a command's end learns it (the ground ignores repeats)."""
         missed = [s for s in self._recent_statuses if s.timestamp >= since_ms]
         if missed:
-            log.info("%s: repeating %d command statuses sent out of the ground's reach", self.drone_id, len(missed))
+            log.info("%s: repeating %d command statuses the ground may have missed", self.drone_id, len(missed))
         for status in missed:
             self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
 
@@ -122,8 +128,6 @@ class Agent:
                     self._failsafe(action)  # type: ignore[arg-type]
                 else:
                     log.warning("%s: no answer from the ground for %g s", self.drone_id, self.config.lost_link.timeout_s)
-                    # The silence began timeout_s ago: statuses since then may not have arrived.
-                    self._silent_since_ms = self.clock.time_ms() - round(self.config.lost_link.timeout_s * 1000)
                     self._system(decision, f"no answer from the ground for {self.config.lost_link.timeout_s:g} s")
                     policy = self.bundles.end_for_link_loss()
                     if policy is not None:  # the bundle's own policy, instead of the agent's

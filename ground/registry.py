@@ -53,6 +53,7 @@ class Refusal(msgspec.Struct, frozen=True, kw_only=True):
     reason: str
 
 
+STATUSES_REMEMBERED = 128  # per drone: command statuses heard (an agent repeats those the ground may have missed)
 BUNDLES_REMEMBERED = 16  # per drone: which events of its latest bundles the ground heard
 
 
@@ -78,6 +79,7 @@ class _Drone:
     bundle: BundleInfo | None = None
     bundle_steps: dict[str, list[str]] = field(default_factory=dict)  # bundle id → step descriptions (pushed here)
     bundle_heard: dict[str, set[tuple[int, str]]] = field(default_factory=dict)  # bundle id → (step, state) heard
+    status_heard: dict[tuple[str, str], None] = field(default_factory=dict)  # (command id, state), oldest first
     info: DroneInfo | None = None
 
 
@@ -178,6 +180,20 @@ class Registry:
         d = self._drones.get(drone_id)
         if d is not None:
             d.bundle_steps.pop(bundle_id, None)
+
+    def first_heard(self, status: CommandStatus | SystemStatus | BundleStatus) -> bool:
+        """False for a command status heard before: an agent repeats the statuses the
+        ground may have missed when its probes went unanswered."""
+        d = self._drones.get(status.drone_id)
+        if d is None or not isinstance(status, CommandStatus) or not status.command_id:
+            return True
+        heard = (status.command_id, status.state)
+        if heard in d.status_heard:
+            return False
+        d.status_heard[heard] = None
+        while len(d.status_heard) > STATUSES_REMEMBERED:
+            del d.status_heard[next(iter(d.status_heard))]
+        return True
 
     def on_status(self, status: CommandStatus | SystemStatus | BundleStatus, now_ms: int) -> list[Event]:
         d = self._drones.get(status.drone_id)

@@ -237,7 +237,7 @@ class GroundStation:
 
     def _on_status(self, sample: Sample) -> None:
         status = self._decode(decode_status, sample)
-        if status is None:
+        if status is None or not self.registry.first_heard(status):
             return
         event = WatchEvent("status", status)
         self.broadcast(event)

@@ -663,7 +663,8 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     verbs: dict[str, Any] = {name: guarded(defined[name]) for name in VERBS}
     base = common_names(guards)  # what a plugin enabled by this mission sees
     base.update(verbs)
-    base.update(channel=Channel(m), mission_id=m.id, step=Steps(), when=When())
+    base.update(channel=Channel(m), mission_id=m.id, step=Steps(), when=When(),
+                relays=Relays(lambda: len(m.free_candidates())))
     namespace = dict(base)  # the script's globals
     return namespace
 

@@ -10,7 +10,7 @@ around the ground station, the plan's points become positions again.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -53,15 +53,23 @@ def _goal(drone: Any) -> Position | None:
 class Relays:
     """The `relays` name in scripts."""
 
+    def __init__(self, free: Callable[[], int] | None = None) -> None:
+        self._free = free
+
+    def spare(self) -> int:
+        """How many drones of the fleet are free to be dispatched as relays now."""
+        return self._free() if self._free is not None else 0
+
     def params(self, **inputs: Any) -> planner.Params:
         lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
         return planner.Params(**{**inputs, **lengths})
 
     def plan(self, served: Sequence[Any], on_duty: Mapping[str, Mapping[str, Any]], drones: Mapping[str, Any], ground: Any,
-             scale: float = 1.0, **inputs: Any) -> RelayPlan:
+             scale: float = 1.0, spare: int | None = None, **inputs: Any) -> RelayPlan:
         """`served`: the mission's drones to keep connected; `on_duty`: relay id →
         {"target": position or None, "alt": duty altitude, "serving": bool};
-        `drones`: relay id → its wrapper (for where it is now)."""
+        `drones`: relay id → its wrapper (for where it is now); `spare`: how many new
+        relays may be dispatched (default: the free drones of the fleet)."""
         frame = Frame(ground)
         params = self.params(**inputs)
         mine = []
@@ -77,7 +85,8 @@ class Relays:
                                 frame.local(duty["target"]) if duty.get("target") is not None else None,
                                 float(duty.get("alt", 0.0)), bool(duty.get("serving", True)))
                   for rid, duty in on_duty.items()]
-        result = planner.plan(mine, relays, params, scale)
+        returning = sum(1 for r in relays if not r.serving)
+        result = planner.plan(mine, relays, params, scale, spare=(self.spare() if spare is None else spare) + returning)
         return RelayPlan(
             moves=[(m.relay, frame.world(m.to), m.alt) for m in result.moves],
             dispatch=[(frame.world(pt), alt) for pt, alt in result.dispatch],

@@ -32,7 +32,13 @@ Point = tuple[float, float]  # (north, east), metres from the ground station
 GROUND = "ground"
 GOAL_SPEED = 5.0  # m/s: the least speed assumed toward a command's target
 SCALE_MIN, SCALE_MAX = 0.4, 1.0
-SCALE_DOWN, SCALE_UP = 0.9, 1.02  # per plan: quick to distrust the model, slow to trust it again
+SCALE_DOWN, SCALE_UP = 0.95, 1.02
+# A link losing this share of its packets is up about a sixth of the time (keep-alives
+# every 0.5 s, a 2 s lease, a 4-packet handshake retried every second: ADR 0003);
+# one losing half stays up for half a minute at a time.
+LINK_HOLDS = 0.65
+RELEASE_MARGIN = 0.15  # a relay goes home only if the rest keep every spot this far above min_quality
+MAX_RELAYS = 8  # per plan
 
 
 @dataclass(frozen=True)
@@ -96,7 +102,6 @@ class Plan:
     dispatch: list[tuple[Point, float]] = field(default_factory=list)  # new relays: where and at which altitude
     home: list[str] = field(default_factory=list)  # relays to send home
     scale: float = 1.0  # the model's range scale after this plan's measurements
-    served: dict[str, list[str]] = field(default_factory=dict)  # point index (as str) → drones it connects
     notes: list[str] = field(default_factory=list)
 
 
@@ -125,61 +130,6 @@ def reach(p: Params, scale: float = 1.0) -> float:
     """The planned hop length: where the scaled model's quality is `min_quality`, with
     the margin for motion."""
     return scale * (p.good_m + (1.0 - p.min_quality) * (p.lost_m - p.good_m)) * p.margin
-
-
-def cover(drones: Mapping[str, Point], hop: float, fixed: Iterable[Point] = ()) -> tuple[list[Point], dict[int, list[str]]]:
-    """Relay points that connect every drone to the ground (at (0, 0)) with hops no
-    longer than `hop`, greedily: each new point is the candidate in reach of what is
-    already connected that connects the most drones (ties: the one closest to the
-    ground, so chains stay short). `fixed` are points already connected (none needed).
-    Returns the points and, per point index, the drones it brought in."""
-    connected: list[Point] = [(0.0, 0.0), *fixed]
-    left = dict(drones)
-    points: list[Point] = []
-    brought: dict[int, list[str]] = {}
-
-    def close_over() -> list[str]:
-        """Drones within a hop of anything connected join it (the mesh routes through them)."""
-        joined: list[str] = []
-        grew = True
-        while grew:
-            grew = False
-            for d, at in sorted(left.items()):
-                if any(dist(at, c) <= hop for c in connected):
-                    connected.append(at)
-                    joined.append(d)
-                    del left[d]
-                    grew = True
-        return joined
-
-    close_over()
-    for _ in range(4 * len(drones) + 8):  # each point connects a drone or shortens a chain
-        if not left:
-            break
-        best: tuple[int, float, float, Point] | None = None
-        for cand in _candidates(connected, list(left.values()), hop):
-            if not any(dist(cand, c) <= hop + 1e-6 for c in connected):
-                continue
-            gained = sum(1 for at in left.values() if dist(cand, at) <= hop)
-            # Most drones connected; else the nearest approach to one still out (a chain
-            # step); then the spot nearest the ground.
-            key = (gained, -min(dist(cand, at) for at in left.values()), -dist(cand, (0.0, 0.0)), cand)
-            if best is None or key[:3] > best[:3]:
-                best = key
-        assert best is not None  # a point a hop toward any drone always qualifies
-        points.append(best[3])
-        connected.append(best[3])
-        brought[len(points) - 1] = close_over()
-    return points, brought
-
-
-def _candidates(connected: Sequence[Point], targets: Sequence[Point], hop: float) -> Iterable[Point]:
-    for c, t in itertools.product(connected, targets):
-        yield toward(c, t, hop)  # a chain step
-        if dist(c, t) <= 2 * hop:
-            yield ((c[0] + t[0]) / 2, (c[1] + t[1]) / 2)  # between the two: both in reach
-    for c, (t1, t2) in itertools.product(connected, itertools.combinations(targets, 2)):
-        yield _centre(c, t1, t2)  # one relay for two drones (and the node it hangs on)
 
 
 def _centre(a: Point, b: Point, c: Point) -> Point:
@@ -218,61 +168,200 @@ def separate(point: Point, others: Iterable[Point], gap: float) -> Point:
     return n, e
 
 
-def adjust_scale(scale: float, drones: Sequence[Drone], p: Params, predicted: Mapping[str, float]) -> float:
-    """The measured quality against what the plan predicted for each drone."""
-    worse = [d for d in drones if d.quality is not None and d.quality < p.min_quality <= predicted.get(d.id, 0.0)]
-    if worse:
+def settled(relays: Sequence[Relay], p: Params) -> bool:
+    """Every serving relay is where it was sent: what the drones measure is this geometry's."""
+    return all(r.target is None or dist(r.at, r.target) <= 2 * p.step for r in relays if r.serving)
+
+
+def adjust_scale(scale: float, drones: Sequence[Drone], p: Params, predicted: Mapping[str, float], steady: bool = True) -> float:
+    """The measured quality against what the plan predicted for each drone: worse
+    (while the relays are where they were sent) shrinks the model's range, good
+    everywhere lets it grow back."""
+    worse = [d for d in drones if d.quality is not None and d.quality < p.min_quality and d.quality < predicted.get(d.id, 0.0) - 0.1]
+    if worse and steady:
         return max(SCALE_MIN, scale * SCALE_DOWN)
-    if any(d.quality is not None and d.quality >= 0.95 for d in drones) and scale < SCALE_MAX:
+    if not worse and any(d.quality is not None for d in drones) and all(d.quality is None or d.quality >= 0.95 for d in drones) \
+            and scale < SCALE_MAX:
         return min(SCALE_MAX, scale * SCALE_UP)
     return scale
 
 
+def link_quality(a: Point, b: Point, p: Params, scale: float) -> float | None:
+    """The scaled model's quality of a link between two spots, None where no link holds."""
+    d = dist(a, b) / scale
+    return None if d >= p.good_m + LINK_HOLDS * (p.lost_m - p.good_m) else model_quality(d, p)
+
+
 def path_quality(at: Point, nodes: Sequence[Point], p: Params, scale: float) -> float:
-    """The best quality of any path from `at` to the ground over `nodes` (hop by hop,
-    the product of the scaled model's qualities)."""
-    everything = [(0.0, 0.0), *nodes]
-    best = {i: 0.0 for i in range(len(everything))}
-    best[0] = 1.0
-    done: set[int] = set()
-    while len(done) < len(everything):  # Dijkstra on the product (a maximum, all in [0, 1])
-        i = max((j for j in best if j not in done), key=lambda j: best[j])
-        done.add(i)
+    """The quality of the path the mesh takes from `at` to the ground over `nodes`.
+
+    The mesh's routers run link-state routing on hop count (ADR 0003): traffic takes
+    the fewest hops over the links that are up, lossy or not. A link that loses most
+    of its packets rarely stays up (its keep-alives miss the lease) or opens again (its
+    handshake must get through): links are counted while they lose less than
+    LINK_HOLDS of them. A relay only helps where it is not short-cut by a
+    longer, lossy link; among the fewest-hop paths the worst is counted (which one the
+    mesh picks is not ours to choose)."""
+    everything = [(0.0, 0.0), *nodes, at]
+    target = len(everything) - 1
+    level = {0: 0}
+    quality = {0: 1.0}
+    frontier = [0]
+    while frontier and target not in level:
+        nxt: list[int] = []
         for j in range(len(everything)):
-            if j not in done:
-                q = best[i] * model_quality(dist(everything[i], everything[j]) / scale, p)
-                best[j] = max(best[j], q)
-    return max((best[i] * model_quality(dist(everything[i], at) / scale, p) for i in best), default=0.0)
+            if j in level:
+                continue
+            links = [(i, q) for i in frontier if (q := link_quality(everything[i], everything[j], p, scale)) is not None]
+            if links:
+                level[j] = level[frontier[0]] + 1
+                quality[j] = min(quality[i] * q for i, q in links)
+                nxt.append(j)
+        frontier = nxt
+    return quality.get(target, 0.0)
 
 
-def plan(drones: Sequence[Drone], relays: Sequence[Relay], p: Params, scale: float = 1.0) -> Plan:
-    """What the relays should do now (module docstring)."""
+def wanted_spots(d: Drone, p: Params) -> list[Point]:
+    """Where a drone must stay connected: where it is, and along its way to its goal
+    (the relays fly out while it does) or, without a goal, where it will be."""
+    far = d.goal if d.goal is not None else d.ahead(p.lookahead_s)
+    if dist(far, (0.0, 0.0)) <= dist(d.at, (0.0, 0.0)) or dist(far, d.at) < 1.0:
+        return [d.at]
+    n = min(8, max(1, math.ceil(dist(d.at, far) / 20.0)))
+    return [d.at] + [toward(d.at, far, dist(d.at, far) * k / n) for k in range(1, n + 1)]
+
+
+@dataclass
+class _Scene:
+    """What a set of relay points is judged against."""
+
+    drones: Sequence[Drone]
+    wanted: list[tuple[str, Point]]
+    p: Params
+    scale: float
+    start: Sequence[Point] = ()  # the serving relays' targets before this plan
+
+    def qualities(self, points: Sequence[Point]) -> list[float]:
+        return [path_quality(spot, [*(d.at for d in self.drones if d.id != name), *points], self.p, self.scale)
+                for name, spot in self.wanted]
+
+    def worst(self, points: Sequence[Point]) -> float:
+        return min(self.qualities(points), default=1.0)
+
+    def score(self, points: Sequence[Point]) -> tuple[float, float, float, float]:
+        """Over every wanted spot: minus the total shortfall under min_quality (each spot
+        brought up counts), minus how far the spots still cut off are from anything
+        connected (a chain's first relays count before it reaches), the worst quality up
+        to a margin over the bar (beyond it nothing is worth a move), minus how far the
+        relays move from their targets (they stay put when all else is equal)."""
+        qs = self.qualities(points)
+        connected = self.connected(points)
+        gap = sum(min(dist(spot, c) for c in connected) for (_, spot), q in zip(self.wanted, qs, strict=True) if q == 0.0)
+        moved = sum(dist(a, b) for a, b in zip(points, self.start, strict=False))
+        return (-sum(max(0.0, self.p.min_quality - q) for q in qs), -gap,
+                min(min(qs, default=1.0), self.p.min_quality + RELEASE_MARGIN), -moved)
+
+    def connected(self, points: Sequence[Point]) -> list[Point]:
+        """The ground and every node with a path to it."""
+        done = [(0.0, 0.0)]
+        left = [*points, *(d.at for d in self.drones)]
+        grew = True
+        while grew:
+            grew = False
+            for n in list(left):
+                if any(link_quality(n, c, self.p, self.scale) is not None for c in done):
+                    done.append(n)
+                    left.remove(n)
+                    grew = True
+        return done
+
+    def clear(self, point: Point, others: Sequence[Point]) -> Point:
+        return separate(point, [d.at for d in self.drones] + list(others), self.p.min_separation)
+
+    def improve(self, points: list[Point]) -> list[Point]:
+        """Local search: move one point at a time by shrinking strides while the worst
+        spot (then the mean) gets better."""
+        best = self.score(points)
+        for stride in (16.0, 8.0, 4.0, 2.0):
+            for _ in range(12):
+                better = False
+                for i in range(len(points)):
+                    for k in range(8):
+                        a = math.pi * k / 4
+                        moved = (points[i][0] + stride * math.cos(a), points[i][1] + stride * math.sin(a))
+                        trial = [*points[:i], self.clear(moved, points[:i] + points[i + 1:]), *points[i + 1:]]
+                        s = self.score(trial)
+                        if s > best:
+                            points, best, better = trial, s, True
+                if not better:
+                    break
+        return points
+
+    def add(self, points: list[Point], room: int) -> list[Point]:
+        """More points (at most `room`): the candidate that scores best among single
+        points (a hop from anything connected toward a spot still short of quality,
+        halfway there, or the centre of it, another such spot and the node) and evenly
+        spaced chains of up to three from a connected node to the worst spot."""
+        hop = reach(self.p, self.scale)
+        nodes = self.connected(points)
+        qs = self.qualities(points)
+        short = [spot for (_, spot), q in zip(self.wanted, qs, strict=True) if q < self.p.min_quality]
+        if not short or room < 1:
+            return points
+        singles = [toward(c, t, hop) for c in nodes for t in short] + [toward(c, t, dist(c, t) / 2) for c in nodes for t in short]
+        singles += [_centre(c, t1, t2) for c in nodes for t1, t2 in itertools.combinations(short, 2)]  # one relay for two
+        options = [[c] for c in singles]
+        worst = min(short, key=lambda spot: qs[[w for _, w in self.wanted].index(spot)])
+        for c in nodes:
+            for k in range(2, min(3, room) + 1):
+                options.append([toward(c, worst, dist(c, worst) * i / (k + 1)) for i in range(1, k + 1)])
+        best: tuple[tuple[float, ...], list[Point]] | None = None
+        for extra in options:
+            placed = list(points)
+            for pt in extra:
+                placed.append(self.clear(pt, placed))
+            scored = (self.score(placed), placed)
+            if best is None or scored[0] > best[0]:
+                best = scored
+        return best[1] if best is not None else points
+
+
+def plan(drones: Sequence[Drone], relays: Sequence[Relay], p: Params, scale: float = 1.0, spare: int = MAX_RELAYS) -> Plan:
+    """What the relays should do now (module docstring); `spare`: how many more relays
+    the fleet has (those on their way home count among them)."""
     result = Plan()
-    predicted = {d.id: path_quality(d.at, [o.at for o in drones if o.id != d.id] + [r.at for r in relays if r.serving], p, scale)
-                 for d in drones}
-    scale = adjust_scale(scale, drones, p, predicted)
+    serving = [r for r in relays if r.serving]
+    current = [r.target or r.at for r in serving]
+    predicted = {d.id: path_quality(d.at, [o.at for o in drones if o.id != d.id] + [r.at for r in serving], p, scale) for d in drones}
+    scale = adjust_scale(scale, drones, p, predicted, settled(relays, p))
     result.scale = scale
-    hop = reach(p, scale)
-    # Plan for the drones where they are and where they are going; a drone measured
-    # under min_quality is planned at its worst case (the next hop must come closer).
-    wanted: dict[str, Point] = {}
+    scene = _Scene(drones, [(d.id, spot) for d in drones for spot in wanted_spots(d, p)], p, scale, current)
+    if scene.worst(current) >= p.min_quality:
+        points = current
+        # Enough as they are: one relay may go home if the others keep every spot well above the bar.
+        if serving:
+            without = max((scene.worst(current[:i] + current[i + 1:]), i) for i in range(len(current)))
+            if without[0] >= min(1.0, p.min_quality + RELEASE_MARGIN):
+                points = current[:without[1]] + current[without[1] + 1:]
+                result.home = [serving[without[1]].id]
+                serving = serving[:without[1]] + serving[without[1] + 1:]
+        result.points = points
+        _assign(result, serving, [r for r in relays if not r.serving], p, keep=True)
+        return result
+    points = scene.improve(list(current))
+    while scene.worst(points) < p.min_quality and len(points) < len(serving) + spare:
+        more = scene.improve(scene.add(points, len(serving) + spare - len(points)))
+        if scene.score(more) <= scene.score(points):
+            break  # one more relay does not help (a lossy link short-cuts it)
+        points = more
+    worst = scene.worst(points)
+    if worst < p.min_quality:
+        result.notes.append(f"best placement reaches quality {worst:.2f} < {p.min_quality:g} with {len(points)} relays")
     for d in drones:
-        wanted[d.id] = d.at
-        later = d.ahead(p.lookahead_s)
-        if dist(later, (0.0, 0.0)) > dist(d.at, (0.0, 0.0)):
-            wanted[f"{d.id}@later"] = later
-    points, brought = cover(wanted, hop)
-    for d in drones:
-        if d.quality is not None and d.quality < p.min_quality and not any(d.id in b for b in brought.values()):
-            result.notes.append(f"{d.id}: measured quality {d.quality:.2f} < {p.min_quality:g}; the radio is worse than the model here")
-    # Keep relays clear of the drones they serve and of each other.
-    keep_clear = [d.at for d in drones]
-    placed: list[Point] = []
-    for pt in points:
-        placed.append(separate(pt, keep_clear + placed, p.min_separation))
-    result.points = placed
-    result.served = {str(i): sorted({name.split("@")[0] for name in names}) for i, names in brought.items()}
-    _assign(result, relays, p)
+        if d.quality is not None and d.quality < p.min_quality:
+            result.notes.append(f"{d.id}: measured quality {d.quality:.2f} < {p.min_quality:g}")
+    result.points = points
+    _assign(result, serving, [r for r in relays if not r.serving], p, keep=False)
     return result
 
 
@@ -281,24 +370,19 @@ def duty_altitude(index: int, p: Params) -> float:
     return p.base_alt + (p.alt_diff if index % 2 == 0 else 0.0)
 
 
-def _assign(result: Plan, relays: Sequence[Relay], p: Params) -> None:
-    """Match relays to points, nearest first: serving relays before ones on their way
-    home (which are called back before a new drone is dispatched)."""
-    free = list(relays)
-    pairs = sorted(((not r.serving, dist(r.target or r.at, pt), i, r.id) for i, pt in enumerate(result.points) for r in free))
-    taken_points: set[int] = set()
-    taken_relays: set[str] = set()
-    for _, _, i, rid in pairs:
-        if i in taken_points or rid in taken_relays:
-            continue
-        taken_points.add(i)
-        taken_relays.add(rid)
-        relay = next(r for r in relays if r.id == rid)
-        to = result.points[i]
-        if not relay.serving or relay.target is None or dist(relay.target, to) > p.step:
-            result.moves.append(Move(rid, to, relay.alt or duty_altitude(i, p)))
-    on_duty = len([r for r in relays if r.serving])
-    for i, pt in enumerate(result.points):
-        if i not in taken_points:
-            result.dispatch.append((pt, duty_altitude(on_duty + len(result.dispatch), p)))
-    result.home = sorted(r.id for r in relays if r.serving and r.id not in taken_relays)
+def _assign(result: Plan, serving: Sequence[Relay], returning: Sequence[Relay], p: Params, keep: bool) -> None:
+    """The first points are the serving relays' (in order); the rest go to relays on
+    their way home, nearest first (called back before a new drone is dispatched), then
+    to new relays. A relay is moved only when its point moved by more than `step`."""
+    for r, pt in zip(serving, result.points, strict=False):
+        if not keep and (r.target is None or dist(r.target, pt) > p.step):
+            result.moves.append(Move(r.id, pt, r.alt))
+    extra = result.points[len(serving):]
+    back = list(returning)
+    for pt in extra:
+        if back:
+            r = min(back, key=lambda r: dist(r.at, pt))
+            back.remove(r)
+            result.moves.append(Move(r.id, pt, r.alt))
+        else:
+            result.dispatch.append((pt, duty_altitude(len(serving) + len(result.dispatch), p)))

@@ -6,6 +6,7 @@ on the memory bus and the virtual clock; the radio model where the link matters)
 from __future__ import annotations
 
 import json
+import logging
 from typing import Any
 
 import pytest
@@ -309,3 +310,43 @@ print("the move returned")
                                          lost_link=LostLinkPolicy(timeout_s=3, action="hold", return_after_s=4))
     assert any("Link lost" in g for g in ground), ground  # the finish was published out of reach
     assert "the move returned" in log, (record, log)
+
+
+
+async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered_again(caplog: pytest.LogCaptureFixture) -> None:
+    """A radio shadow 16 m out silences drone01 for 3 s, shorter than the lost-link
+    timeout (5 s), just as its move publishes `finish` there: the status is lost with the
+    link. Once a probe is answered again the agent repeats what it published since the
+    last answered one, so the verb returns (without the repeat it waits for ever)."""
+    sim = SimField(fire_world(RadioModel()), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200))
+    assert sim.air is not None
+    shadow: dict[str, float] = {}
+    through = sim.air.transit
+
+    def transit(src: str, dst: str) -> float | None:
+        spot = sim._where()["drone01"]
+        home = sim.world.drones[0]
+        now = sim.clock.monotonic()
+        if "drone01" in (src, dst) and distance_m(home.lat, home.lon, spot.lat, spot.lon) > 16 and "from" not in shadow:
+            shadow["from"] = now
+        if "drone01" in (src, dst) and 0 <= now - shadow.get("from", now + 1) < 3.0:
+            return None
+        return through(src, dst)
+
+    sim.air.transit = transit  # type: ignore[method-assign]
+    caplog.set_level(logging.INFO, logger="agent.runtime")
+    await sim.start()
+    try:
+        record = await sim.run_mission("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=17*m, speed=2*m/s)
+print("the move returned")
+""", max_s=120)
+        log = [line.message for line in sim.mission_log(record.mission_id)]
+    finally:
+        await sim.close()
+    assert "from" in shadow
+    assert "the move returned" in log, (record, log)
+    assert any("repeating" in r.getMessage() for r in caplog.records)

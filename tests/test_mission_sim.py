@@ -131,7 +131,7 @@ SCRIPTED_CAUSES = [
     ("revoked", "d = assign()\nrevoke(d)\narm(d)", "failed", "not assigned"),
     ("revoked", "d = assign()\nrevoke(d)\nprint(d.battery)", "failed", "not assigned"),
     ("irreplaceable", 'd = assign("drone01")\nreplace(d)', "failed", "drone01"),
-    ("plugin_missing", 'enable("relay", target_dist=50*m)', "failed", "relay"),
+    ("plugin_missing", 'enable("teleport", speed=50*m/s)', "failed", "teleport"),
 ]
 
 

@@ -1,0 +1,172 @@
+"""Keep every drone of the mission connected through relay drones (SPEC §8, issue 15).
+
+Measured mode (the default): after each telemetry update the planner of `relay/`
+(through `relays.plan`) looks at the mission's drones — where they are, where their
+command takes them, and the link quality each measures to the ground — and the
+relays on duty. It asks for new relays (free drones of the fleet, taking off to
+alternating altitudes, thesis script 5.9), moves relays whose spot moved more than
+`step`, calls back a relay on its way home before dispatching a new one, and sends
+home relays no longer needed (released once landed). One relay may serve several
+drones; chains form where one hop is not enough.
+
+    enable("relay", min_quality=0.6, base_alt=5*m, alt_diff=5*m, step=4*m)
+    enable("relay", mode="distance", target_dist=50*m)   # the thesis's one chain per drone
+
+`ground=[lat, lon]` is the ground station (default: the first served drone's home);
+`good_m`/`lost_m` the radio model the plan starts from (the world's `radio:`).
+"""
+
+duty = {}  # relay id -> {"target": position, "alt": metres above home, "serving": bool, "ready": bool}
+crew = {}  # relay id -> its drone wrapper
+served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
+state = {"scale": 1.0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {}}
+RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
+
+
+def ground_spot(drone):
+    if state["ground"] is None:
+        state["ground"] = position(ground[0], ground[1]) if ground else drone.home
+    return state["ground"]
+
+
+def speed_for(relay, target):
+    """Out to a far spot at full speed; following, relative to the fastest drone served."""
+    if relay.position.distance(target) > 30 * m:
+        return 10 * m / s
+    fastest = max([d.speed for d in served.values()] + [0])
+    return min(10 * m / s, max(5 * m / s, fastest * 1.5))
+
+
+def fly(relay):
+    """Take off to the duty altitude, then to the latest spot (moves sent meanwhile
+    only updated it), or straight back if it was sent home meanwhile."""
+    arm(relay)
+    takeoff(relay, duty[relay.id]["alt"] * m)
+    duty[relay.id]["ready"] = True
+    if duty[relay.id]["serving"]:
+        go(relay)
+    else:
+        come_back(relay)
+
+
+def go(relay):
+    d = duty[relay.id]
+    move(relay, to=d["target"], alt=relay.home.alt + d["alt"], speed=speed_for(relay, d["target"]))
+
+
+def recall(relay):
+    cancel(relay)  # a return to launch refuses a goto: stop it first
+    go(relay)
+
+
+def dispatch(spot, alt):
+    relay = assign(any_drone)
+    state["dispatching"] -= 1
+    crew[relay.id] = relay
+    duty[relay.id] = {"target": spot, "alt": alt, "serving": True, "ready": False}
+    print(f"{relay.id}: relay duty at {alt:g} m, serving the mission's drones")
+    fly(relay)
+
+
+def send_home(relay):
+    duty[relay.id]["serving"] = False
+    print(f"{relay.id}: relay no longer needed, returning")
+    if duty[relay.id]["ready"]:  # else fly() brings it back once it has taken off
+        come_back(relay)
+
+
+def come_back(relay):
+    home(relay)
+    if relay.id in duty and not duty[relay.id]["serving"]:  # not called back meanwhile
+        del duty[relay.id]
+        del crew[relay.id]
+        revoke(relay)
+
+
+def measured(drone):
+    # One plan per telemetry period (when a drone is heard a second time since the last
+    # plan, so a drone out of reach does not stop it); none while a relay is being assigned.
+    if drone.id not in state["round"]:
+        state["round"].append(drone.id)
+        return
+    state["round"] = [drone.id]
+    if state["dispatching"]:
+        return
+    plan = relays.plan(list(served.values()), duty, crew, ground_spot(drone), state["scale"],
+                       min_quality=min_quality, base_alt=base_alt, alt_diff=alt_diff, step=step,
+                       min_separation=min_separation, good_m=good_m, lost_m=lost_m)
+    state["scale"] = plan.scale
+    for rid, spot, alt in plan.moves:
+        d = duty[rid]
+        called_back = not d["serving"]
+        d["target"], d["serving"] = spot, True
+        if called_back:
+            print(f"{rid}: called back to relay duty")
+        if called_back and d["ready"]:
+            run(recall, crew[rid])
+        elif d["ready"]:
+            run(go, crew[rid])
+    for spot, alt in plan.dispatch:
+        state["dispatching"] += 1
+        run(dispatch, spot, alt)
+    leaving = state["leaving"]
+    for rid in list(leaving):
+        if rid not in plan.home:
+            del leaving[rid]
+    for rid in plan.home:
+        leaving[rid] = leaving.get(rid, 0) + 1
+        if leaving[rid] >= RELEASE_AFTER:
+            del leaving[rid]
+            run(send_home, crew[rid])
+
+
+def distance(drone):
+    """The thesis's algorithm: each drone beyond target_dist gets a follower, which may
+    get its own (scripts 5.9–5.13)."""
+    if drone.id in state["followed"] or drone.state != "active":
+        return
+    if relays.needs_follower(drone, ground_spot(drone), len(duty), target_dist):
+        state["followed"].append(drone.id)
+        run(follow, drone)
+
+
+def follow(other):
+    alt = base_alt + alt_diff if len(duty) % 2 == 0 else base_alt
+    me = assign(any_drone)
+    crew[me.id] = me
+    duty[me.id] = {"target": None, "alt": alt, "serving": True, "ready": False}
+    print(f"{me.id}: following {other.id} at {alt:g} m (distance mode, target {target_dist:g} m)")
+    arm(me)
+    takeoff(me, alt * m)
+    current = me.position
+    while other.state in ("active", "hold"):
+        spot, speed, bearing, back = relays.follow_step(other, me, ground_spot(other), target_dist)
+        if back:
+            break
+        if spot.distance(current) > step:
+            current = spot
+            run(move, me, to=spot, alt=me.home.alt + alt, yaw=bearing, speed=speed)
+        wait(other)
+    state["followed"].remove(other.id)
+    send_home(me)
+
+
+def main(drone):
+    if drone.id in crew:
+        if mode == "distance":
+            distance(drone)  # relays are followed in turn: chains
+        return
+    served[drone.id] = drone
+    if mode == "distance":
+        distance(drone)
+    else:
+        measured(drone)
+
+
+plugin(id="relay", type=monitoring,
+       input={"mode": (str, "measured"), "min_quality": (float, 0.6), "base_alt": (float, 5.0),
+              "alt_diff": (float, 5.0), "step": (float, 4.0), "min_separation": (float, 5.0),
+              "target_dist": (float, 50.0), "good_m": (float, 60.0), "lost_m": (float, 100.0),
+              "ground": (list, [])},
+       callback=main,
+       doc="Keep the mission's drones connected with relay drones, on measured link quality (mode='distance': the thesis's baseline).")
