@@ -33,6 +33,7 @@ POLL_S = 0.05
 # How long an accepted command's effects are expected to show in telemetry (one
 # heartbeat on PX4, plus margin): within it, those effects are not "system" events.
 EFFECT_LAG_S = 3.0
+REPLIES_REMEMBERED = 64  # command ids answered (a retry of one is not run twice)
 RETURN_MIN_ALT_M = 10.0
 NEEDS_POSITION = frozenset({"goto", "move", "turn"})
 
@@ -79,6 +80,7 @@ class CommandHandler:
         self._queued: _Job | None = None
         self._work: asyncio.Queue[_Job] = asyncio.Queue()
         self._accepted_at: dict[str, float] = {}
+        self._replies: dict[str, CommandReply] = {}  # command id → the answer given, oldest first
         self._armed_belief: tuple[bool, float] | None = None
         self._prev = FcState()
 
@@ -89,6 +91,19 @@ class CommandHandler:
     # ----- decisions (synchronous: this is the queryable's answer) -------------------
 
     def submit(self, cmd: Command) -> CommandReply:
+        """Decide on a command; a command id seen before gets the same answer again and
+        nothing else happens (a sender whose reply was lost on the radio may retry)."""
+        if cmd.command_id and cmd.command_id in self._replies:
+            log.info("%s: %s %s again: answered as before", self.drone_id, cmd.name, cmd.command_id)
+            return self._replies[cmd.command_id]
+        reply = self._decide(cmd)
+        if cmd.command_id:
+            self._replies[cmd.command_id] = reply
+            while len(self._replies) > REPLIES_REMEMBERED:
+                del self._replies[next(iter(self._replies))]
+        return reply
+
+    def _decide(self, cmd: Command) -> CommandReply:
         name, now = cmd.name, self._clock.monotonic()
         state = self._fc.state()
         reason: str | None = None

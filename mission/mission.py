@@ -80,6 +80,7 @@ class _PendingBundle:
     bundle_id: str
     deadline: float  # clock.monotonic() by which the bundle should have ended
     done: asyncio.Future[BundleRecord]
+DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
 INSTANT_COMMANDS = frozenset({"arm", "disarm", "cancel"})
 STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
@@ -505,7 +506,7 @@ class Mission:
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
-                await self.station.command(drone_id, json.dumps({**body, "command_id": command_id}).encode(), self.id)
+                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode())
                 if not wait:
                     return None
                 status = await self._outcome(fut, drone_id)
@@ -523,6 +524,18 @@ class Mission:
         if status.state == "failure":
             raise self.fail("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
+
+    async def _deliver(self, drone_id: str, name: str, payload: bytes) -> None:
+        """Send a command; with no answer, send it again (same command id: the agent
+        runs it once) before the mission gives up on the drone."""
+        for attempt in range(1, DELIVERY_TRIES + 1):
+            try:
+                await self.station.command(drone_id, payload, self.id)
+                return
+            except Unreachable:
+                if attempt == DELIVERY_TRIES:
+                    raise
+                self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt + 1}/{DELIVERY_TRIES})")
 
     async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
         """Send a task bundle as this mission and wait until it has ended (SPEC §6);

@@ -42,6 +42,7 @@ class RelayPlan:
     dispatch: list[tuple[Position, float]]
     home: list[str]
     scale: float
+    steady: int
     notes: list[str]
 
 
@@ -65,7 +66,7 @@ class Relays:
         return planner.Params(**{**inputs, **lengths})
 
     def plan(self, served: Sequence[Any], on_duty: Mapping[str, Mapping[str, Any]], drones: Mapping[str, Any], ground: Any,
-             scale: float = 1.0, spare: int | None = None, **inputs: Any) -> RelayPlan:
+             scale: float = 1.0, spare: int | None = None, steady: int = 0, **inputs: Any) -> RelayPlan:
         """`served`: the mission's drones to keep connected; `on_duty`: relay id →
         {"target": position or None, "alt": duty altitude, "serving": bool};
         `drones`: relay id → its wrapper (for where it is now); `spare`: how many new
@@ -86,11 +87,12 @@ class Relays:
                                 float(duty.get("alt", 0.0)), bool(duty.get("serving", True)))
                   for rid, duty in on_duty.items()]
         returning = sum(1 for r in relays if not r.serving)
-        result = planner.plan(mine, relays, params, scale, spare=(self.spare() if spare is None else spare) + returning)
+        result = planner.plan(mine, relays, params, scale, spare=(self.spare() if spare is None else spare) + returning,
+                              steady=steady)
         return RelayPlan(
             moves=[(m.relay, frame.world(m.to), m.alt) for m in result.moves],
             dispatch=[(frame.world(pt), alt) for pt, alt in result.dispatch],
-            home=result.home, scale=result.scale, notes=result.notes,
+            home=result.home, scale=result.scale, steady=result.steady, notes=result.notes,
         )
 
     # ---- the thesis's baseline (mode="distance") ------------------------------------

@@ -39,6 +39,8 @@ SCALE_DOWN, SCALE_UP = 0.95, 1.02
 LINK_HOLDS = 0.65
 RELEASE_MARGIN = 0.15  # a relay goes home only if the rest keep every spot this far above min_quality
 MAX_RELAYS = 8  # per plan
+STEADY_PLANS = 12  # a probe window (10 s) and then some, at one plan a second
+DRIFT_S = 3.0  # a drone with no goto/move is planned this far ahead along its velocity
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,7 @@ class Plan:
     dispatch: list[tuple[Point, float]] = field(default_factory=list)  # new relays: where and at which altitude
     home: list[str] = field(default_factory=list)  # relays to send home
     scale: float = 1.0  # the model's range scale after this plan's measurements
+    steady: int = 0  # plans in a row with the drones still and the relays where sent (give it to the next plan)
     notes: list[str] = field(default_factory=list)
 
 
@@ -173,12 +176,11 @@ def settled(relays: Sequence[Relay], p: Params) -> bool:
     return all(r.target is None or dist(r.at, r.target) <= 2 * p.step for r in relays if r.serving)
 
 
-def adjust_scale(scale: float, drones: Sequence[Drone], p: Params, predicted: Mapping[str, float], steady: bool = True) -> float:
-    """The measured quality against what the plan predicted for each drone: worse
-    (while the relays are where they were sent) shrinks the model's range, good
-    everywhere lets it grow back."""
+def adjust_scale(scale: float, drones: Sequence[Drone], p: Params, predicted: Mapping[str, float]) -> float:
+    """The measured quality against what the plan predicts for each drone: worse
+    shrinks the model's range, good everywhere lets it grow back."""
     worse = [d for d in drones if d.quality is not None and d.quality < p.min_quality and d.quality < predicted.get(d.id, 0.0) - 0.1]
-    if worse and steady:
+    if worse:
         return max(SCALE_MIN, scale * SCALE_DOWN)
     if not worse and any(d.quality is not None for d in drones) and all(d.quality is None or d.quality >= 0.95 for d in drones) \
             and scale < SCALE_MAX:
@@ -224,7 +226,7 @@ def path_quality(at: Point, nodes: Sequence[Point], p: Params, scale: float) -> 
 def wanted_spots(d: Drone, p: Params) -> list[Point]:
     """Where a drone must stay connected: where it is, and along its way to its goal
     (the relays fly out while it does) or, without a goal, where it will be."""
-    far = d.goal if d.goal is not None else d.ahead(p.lookahead_s)
+    far = d.goal if d.goal is not None else d.ahead(DRIFT_S)  # no command: only where its speed takes it soon
     if dist(far, (0.0, 0.0)) <= dist(d.at, (0.0, 0.0)) or dist(far, d.at) < 1.0:
         return [d.at]
     n = min(8, max(1, math.ceil(dist(d.at, far) / 20.0)))
@@ -326,14 +328,23 @@ class _Scene:
         return best[1] if best is not None else points
 
 
-def plan(drones: Sequence[Drone], relays: Sequence[Relay], p: Params, scale: float = 1.0, spare: int = MAX_RELAYS) -> Plan:
+def plan(drones: Sequence[Drone], relays: Sequence[Relay], p: Params, scale: float = 1.0, spare: int = MAX_RELAYS,
+         steady: int = 0) -> Plan:
     """What the relays should do now (module docstring); `spare`: how many more relays
-    the fleet has (those on their way home count among them)."""
+    the fleet has (those on their way home count among them); `steady`: the last
+    plan's count of steady plans in a row. Measurements cover a window of probes
+    (10 s by default), so the model is only judged by them once the drones have been
+    still and the relays where they were sent for a whole window (STEADY_PLANS)."""
     result = Plan()
     serving = [r for r in relays if r.serving]
     current = [r.target or r.at for r in serving]
     predicted = {d.id: path_quality(d.at, [o.at for o in drones if o.id != d.id] + [r.at for r in serving], p, scale) for d in drones}
-    scale = adjust_scale(scale, drones, p, predicted, settled(relays, p))
+    still = settled(relays, p) and all(math.hypot(*d.velocity) < 1.0 for d in drones)
+    result.steady = steady + 1 if still else 0
+    if result.steady >= STEADY_PLANS:
+        adjusted = adjust_scale(scale, drones, p, predicted)
+        if adjusted != scale:
+            scale, result.steady = adjusted, 0  # the next judgement waits for a window under the new plan
     result.scale = scale
     scene = _Scene(drones, [(d.id, spot) for d in drones for spot in wanted_spots(d, p)], p, scale, current)
     if scene.worst(current) >= p.min_quality:

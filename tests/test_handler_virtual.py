@@ -163,3 +163,15 @@ async def test_arm_then_takeoff_back_to_back_reach_the_autopilot_in_order(rig: R
     takeoff = rig.send(c.Takeoff(alt=3))  # decided before the arm has executed
     await rig.run_until(lambda: "finish" in rig.states(takeoff))
     assert rig.states(arm) == ["success"]
+
+
+async def test_a_command_sent_again_with_its_id_is_answered_as_before_and_run_once(rig: Rig) -> None:
+    """A sender whose reply was lost on the radio retries with the same command id."""
+    await airborne(rig)
+    first = c.Goto(lat=40.6336, lon=-8.6608, alt=8.2 + 5, command_id="g1")
+    assert rig.handler.submit(first).accepted
+    await rig.clock.advance(0.5)
+    again = rig.handler.submit(first)
+    assert again.accepted and again.command_id == "g1"
+    await rig.run_until(lambda: "finish" in rig.states("g1"))
+    assert rig.states("g1") == ["start", "finish"]  # not superseded by itself, not run twice

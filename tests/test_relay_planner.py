@@ -65,16 +65,18 @@ def test_measured_quality_worse_than_the_model_shrinks_the_hops() -> None:
     A drone at 76 m, fine for the unscaled model (0.6), then gets a relay."""
     d = Drone("d1", at(70, 0), quality=0.3)
     assert plan([Drone("d1", at(76, 0))], [], P).points == []
-    scale, rounds = 1.0, 0
-    while rounds < 40:
-        result = plan([d], [], P, scale)
-        if result.scale == scale:
+    scale, steady, rounds = 1.0, 0, 0
+    while rounds < 400:
+        result = plan([d], [], P, scale, steady=steady)
+        if result.scale == scale and result.steady >= 12:
             break
-        scale, rounds = result.scale, rounds + 1
-    assert 0.4 <= scale < 0.85 and rounds < 40, (scale, rounds)
+        scale, steady, rounds = result.scale, result.steady, rounds + 1
+    assert 0.4 <= scale < 0.85 and rounds < 400, (scale, rounds)
     assert path_quality(d.at, [], P, scale) <= 0.4
     assert plan([Drone("d1", at(76, 0))], [], P, scale).points
-    assert plan([Drone("d1", at(30, 0), quality=1.0)], [], P, scale).scale > scale  # good again: trust grows back
+    assert plan([Drone("d1", at(30, 0), quality=1.0)], [], P, scale, steady=11).scale > scale  # good again: trust grows back
+    moving = Drone("d1", at(70, 0), velocity=(3.0, 0.0), quality=0.3)
+    assert plan([moving], [], P, 1.0, steady=50).scale == 1.0  # its window is not this geometry's
 
 
 def test_relays_keep_their_target_unless_it_moves_more_than_step() -> None:

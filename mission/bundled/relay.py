@@ -19,7 +19,7 @@ drones; chains form where one hop is not enough.
 duty = {}  # relay id -> {"target": position, "alt": metres above home, "serving": bool, "ready": bool}
 crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
-state = {"scale": 1.0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {}}
+state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {}}
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
 
 
@@ -92,10 +92,10 @@ def measured(drone):
     state["round"] = [drone.id]
     if state["dispatching"]:
         return
-    plan = relays.plan(list(served.values()), duty, crew, ground_spot(drone), state["scale"],
+    plan = relays.plan(list(served.values()), duty, crew, ground_spot(drone), state["scale"], steady=state["steady"],
                        min_quality=min_quality, base_alt=base_alt, alt_diff=alt_diff, step=step,
                        min_separation=min_separation, good_m=good_m, lost_m=lost_m)
-    state["scale"] = plan.scale
+    state["scale"], state["steady"] = plan.scale, plan.steady
     for rid, spot, alt in plan.moves:
         d = duty[rid]
         called_back = not d["serving"]
