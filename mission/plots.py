@@ -1,4 +1,5 @@
-"""The four plots of a simulation result (SPEC §5), drawn with matplotlib (Agg)."""
+"""The plots of a simulation result (SPEC §5), drawn with matplotlib (Agg): paths,
+altitude, battery, distances and, where links were measured, link quality."""
 
 from __future__ import annotations
 
@@ -54,17 +55,31 @@ def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
         ax.legend()
         save(fig, name)
 
+    # Distances on the paths flown where the radio is simulated (heard samples of two
+    # drones rarely share a time), else on what the ground heard.
+    paths = {k: result["drones"][k].get("flown") or v for k, v in drones.items()}
     fig, ax = plt.subplots(figsize=(8, 4))
-    for drone_id, samples in drones.items():
+    for drone_id, samples in paths.items():
         ax.plot([s["t_s"] for s in samples], [distance_m(s["lat"], s["lon"], gs["lat"], gs["lon"]) for s in samples],
                 label=f"{drone_id} - ground")
-    for a, b in itertools.combinations(sorted(drones), 2):
-        by_t = {s["t_s"]: s for s in drones[b]}
-        pairs = [(s, by_t[s["t_s"]]) for s in drones[a] if s["t_s"] in by_t]
+    for a, b in itertools.combinations(sorted(paths), 2):
+        by_t = {s["t_s"]: s for s in paths[b]}
+        pairs = [(s, by_t[s["t_s"]]) for s in paths[a] if s["t_s"] in by_t]
         ax.plot([s["t_s"] for s, _ in pairs], [distance_m(s["lat"], s["lon"], o["lat"], o["lon"]) for s, o in pairs],
                 linestyle="--", label=f"{a} - {b}")
     ax.set(xlabel="time (s)", ylabel="distance (m)", title=title)
     ax.grid(True, alpha=0.3)
     ax.legend()
     save(fig, "distances.png")
+
+    linked = {k: [s for s in v if s.get("link")] for k, v in drones.items()}
+    if any(linked.values()):  # SPEC §8: each drone's measured link to the ground
+        fig, ax = plt.subplots(figsize=(8, 4))
+        for drone_id, samples in linked.items():
+            if samples:
+                ax.plot([s["t_s"] for s in samples], [s["link"]["quality"] for s in samples], label=drone_id)
+        ax.set(xlabel="time (s)", ylabel="measured link quality to the ground (0-1)", ylim=(-0.05, 1.05), title=title)
+        ax.grid(True, alpha=0.3)
+        ax.legend()
+        save(fig, "link.png")
     return written

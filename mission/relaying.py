@@ -57,6 +57,10 @@ class Relays:
     def __init__(self, free: Callable[[], int] | None = None) -> None:
         self._free = free
 
+    def metres(self, value: Any, what: str = "distance") -> float:
+        """A length input (`5*m` or a plain number of metres) as metres."""
+        return units.length(value, what)
+
     def spare(self) -> int:
         """How many drones of the fleet are free to be dispatched as relays now."""
         return self._free() if self._free is not None else 0

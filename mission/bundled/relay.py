@@ -130,12 +130,16 @@ def distance(drone):
         run(follow, drone)
 
 
+def reposition(me, spot, alt, bearing, speed):
+    move(me, to=spot, alt=me.home.alt + alt, yaw=bearing * deg, speed=speed * m / s)
+
+
 def follow(other):
-    alt = base_alt + alt_diff if len(duty) % 2 == 0 else base_alt
+    alt = relays.metres(base_alt + alt_diff if len(duty) % 2 == 0 else base_alt, "base_alt")
     me = assign(any_drone)
     crew[me.id] = me
     duty[me.id] = {"target": None, "alt": alt, "serving": True, "ready": False}
-    print(f"{me.id}: following {other.id} at {alt:g} m (distance mode, target {target_dist:g} m)")
+    print(f"{me.id}: following {other.id} at {alt:g} m (distance mode, target {relays.metres(target_dist, 'target_dist'):g} m)")
     arm(me)
     takeoff(me, alt * m)
     current = me.position
@@ -143,9 +147,9 @@ def follow(other):
         spot, speed, bearing, back = relays.follow_step(other, me, ground_spot(other), target_dist)
         if back:
             break
-        if spot.distance(current) > step:
+        if spot.distance(current) > relays.metres(step, "step"):
             current = spot
-            run(move, me, to=spot, alt=me.home.alt + alt, yaw=bearing, speed=speed)
+            run(reposition, me, spot, alt, bearing, speed)
         wait(other)
     state["followed"].remove(other.id)
     send_home(me)
