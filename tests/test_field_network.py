@@ -319,6 +319,63 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
     assert distance_m(*north(-4), home_two["lat"], home_two["lon"]) < 5, home_two
 
 
+RELAYED = """
+enable("relay", ground=[GROUND_LAT, GROUND_LON])
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=125*m, speed=5*m/s)  # past the radio's 100 m: only a relay reaches it there
+sleep(15*s)
+print(f"out at {distance(d.position, position(GROUND_LAT, GROUND_LON)):.0f} m")
+move(d, backward=125*m, speed=5*m/s)  # sent while it is out: it must get there through the relay
+land(d)
+"""
+
+
+@pytest.mark.slow(90)
+async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_commanded(
+        tmp_path: Path, processes: list[ChildProcess]) -> None:
+    """Issue 15 on real packets: drone01 flies 125 m north, past the radio's 100 m; the
+    relay plugin sends drone02 or drone03 between it and the laptop. The ground keeps
+    hearing drone01's telemetry out there (the mesh routes through the relay) and the
+    command that brings it back reaches it."""
+    ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0", drone_timeout_ms=3000)
+    processes.append(ground)
+    await ground.ready()
+    sim = RadioSim(tmp_path, ground, [{"id": "drone01", "lat": north(-4)[0], "lon": north(-4)[1]},
+                                      {"id": "drone02", "lat": north(-12)[0], "lon": north(-12)[1]},
+                                      {"id": "drone03", "lat": north(-20)[0], "lon": north(-20)[1]}],
+                   lost_link={"timeout_s": 5, "action": "hold", "return_after_s": 60}, return_altitude=10)
+    processes.append(sim)
+    await sim.up()
+    script = RELAYED.replace("GROUND_LAT", str(GROUND[0])).replace("GROUND_LON", str(GROUND[1]))
+    heard_far: list[float] = []
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        for d in sim.drone_ids:
+            await until(lambda d=d: state_is(http, d, "ready"), 60, f"{d} ready at the ground")
+        r = await http.post("/mission", content=script.encode(), params={"name": "relayed"})
+        assert r.status_code == 201, r.text
+        mission_id = r.json()["mission_id"]
+
+        async def ended() -> dict[str, Any] | None:
+            far = await drone(http, "drone01")
+            if far is not None and far["telem"].get("position"):
+                p = far["telem"]["position"]
+                out = distance_m(GROUND[0], GROUND[1], p["lat"], p["lon"])
+                if out > 105 and far["info"]["state"] != "unknown":
+                    heard_far.append(out)
+            record = (await http.get(f"/mission/{mission_id}")).json()
+            return record if record["end"] is not None else None
+
+        record = await until(ended, 240, "the relayed mission to end")
+        lines = await log_lines(http, "drone01")
+    log = "\n".join(line["message"] for line in record["log"])
+    assert record["status"] == "finished", f"{record['status']} {record['cause']}: {record['message']}\n{log}"
+    assert "relay duty" in log and re.search(r"out at 1[12]\d m", log), log
+    assert len(heard_far) >= 5, (heard_far, "\n".join(lines[-30:]))  # heard, and not marked unknown, beyond 105 m
+    assert not any("Link lost" in line for line in lines), "\n".join(lines)
+
+
 def _now() -> float:
     return time.monotonic()
 
