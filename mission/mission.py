@@ -157,6 +157,7 @@ class Mission:
         self._stop_listening: Callable[[], None] | None = None
         self._critical: set[str] = set()
         self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
+        self._link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
         self._wrappers: list[Drone] = []
         self.plugins = MissionPlugins(self, plugins)
         self._enable_first = enable or {}
@@ -392,6 +393,7 @@ class Mission:
             grace += ends_in
         else:
             self.log("warn", f"{drone_id}: link lost; waiting up to {grace:g} s for it to come back")
+        self._link_back_at.setdefault(drone_id, asyncio.get_running_loop().create_future())
         self._link_waits[drone_id] = asyncio.get_running_loop().create_task(
             self._link_grace(drone_id, grace), name=f"mission {self.id} link grace {drone_id}",
         )
@@ -402,6 +404,9 @@ class Mission:
         self.end("link_lost", f"{drone_id} unreachable for {grace_s:g} s (mission.link_grace_s)")
 
     def _link_back(self, drone_id: str) -> None:
+        back = self._link_back_at.pop(drone_id, None)
+        if back is not None and not back.done():
+            back.set_result(None)
         wait = self._link_waits.pop(drone_id, None)
         if wait is not None:
             wait.cancel()
@@ -499,6 +504,10 @@ class Mission:
         """
         self.check_assigned(drone_id)
         name = str(body["cmd"])
+        back = self._link_back_at.get(drone_id)
+        if back is not None and not back.done():  # out of reach: the ground would refuse it (unknown)
+            self.log("info", f"{drone_id}: {name} waits for the link to come back")
+            await asyncio.shield(back)
         command_id = new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:

@@ -350,3 +350,41 @@ print("the move returned")
     assert "from" in shadow
     assert "the move returned" in log, (record, log)
     assert any("repeating" in r.getMessage() for r in caplog.records)
+
+
+async def test_a_verb_sent_while_its_drone_is_out_of_reach_waits_for_the_link() -> None:
+    """The ground refuses commands to a drone it marks unknown (409); a mission verb
+    sent then waits, within mission.link_grace_s, for the drone to be back instead of
+    failing the mission. A 12 s radio shadow hides drone01 once it hovers."""
+    sim = SimField(fire_world(RadioModel()), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200))
+    assert sim.air is not None
+    shadow: dict[str, float] = {}
+    through = sim.air.transit
+
+    def transit(src: str, dst: str) -> float | None:
+        now = sim.clock.monotonic()
+        if "drone01" in (src, dst) and sim._where()["drone01"].alt > 8.2 + 9.5 and "from" not in shadow:
+            shadow["from"] = now + 5.0  # once its takeoff has ended
+        if "drone01" in (src, dst) and 0 <= now - shadow.get("from", now + 1) < 12.0:
+            return None
+        return through(src, dst)
+
+    sim.air.transit = transit  # type: ignore[method-assign]
+    await sim.start()
+    try:
+        record = await sim.run_mission("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+print("took off")
+while d.state != "unknown":
+    sleep(0.2*s)
+print("out of reach")
+land(d)
+print("landed")
+""", max_s=120)
+        log = [line.message for line in sim.mission_log(record.mission_id)]
+    finally:
+        await sim.close()
+    assert record.status == "finished", (record, log)
+    assert log.index("took off") < log.index("out of reach") < log.index("drone01: land waits for the link to come back") < log.index("landed"), log
