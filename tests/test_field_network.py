@@ -373,7 +373,6 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
     assert record["status"] == "finished", f"{record['status']} {record['cause']}: {record['message']}\n{log}"
     assert "relay duty" in log and re.search(r"out at 1[12]\d m", log), log
     assert len(heard_far) >= 5, (heard_far, "\n".join(lines[-30:]))  # heard, and not marked unknown, beyond 105 m
-    assert not any("Link lost" in line for line in lines), "\n".join(lines)
 
 
 def _now() -> float:
