@@ -8,14 +8,15 @@ when its target moves by more than `step`), how many new relays to dispatch and 
 relays to send home.
 
 Measured mode (the default) decides on **measured** quality, with the radio model as
-the prior: a hop is planned no longer than the distance at which the model's quality
-falls to `min_quality`, scaled by `scale`; a drone whose measured quality to the
-ground falls under `min_quality` while the plan says it should be fine shrinks the
-scale (the radio is worse than the model here), a drone measured well above its
-prediction lets it grow back. The points come from a greedy cover over the mesh:
-every mission drone is a router, so a drone near one that is connected needs no relay,
-and one relay placed where it reaches several drones serves them all (chains form
-where one hop is not enough).
+the prior, its range scaled by `scale`: a drone measuring clearly worse than the plan
+predicts, after a whole probe window with the drones still and the relays where they
+were sent, shrinks the scale (the radio is worse than the model here); good
+measurements everywhere let it grow back. A placement is judged by the path the mesh
+really takes (`path_quality`: fewest hops over the links that hold, so a lossy
+shortcut defeats a relay). Every mission drone is a router, so a drone near one that
+is connected needs no relay, and one relay placed where it reaches several drones
+serves them all; relays are moved from where they are by a local search and added
+(single, or as an even chain) only while they help. ADR 0006 has the measurements.
 
 Distance mode (`mode="distance"`) is the thesis's baseline (scripts 5.9–5.13, in
 `relay.distance`): one chain per drone by distance to the ground alone.
@@ -30,7 +31,6 @@ from dataclasses import dataclass, field
 
 Point = tuple[float, float]  # (north, east), metres from the ground station
 GROUND = "ground"
-GOAL_SPEED = 5.0  # m/s: the least speed assumed toward a command's target
 SCALE_MIN, SCALE_MAX = 0.4, 1.0
 SCALE_DOWN, SCALE_UP = 0.95, 1.02
 # A link losing this share of its packets is up about a sixth of the time (keep-alives
@@ -52,7 +52,6 @@ class Params:
     alt_diff: float = 5.0
     step: float = 4.0  # a relay's target is not moved by less than this
     min_separation: float = 5.0  # relays keep this far (horizontally) from each other and the drones they serve
-    lookahead_s: float = 20.0  # plan for where the drones will be this much later (a relay's takeoff and flight out)
     margin: float = 0.85  # hops are planned at this share of the reach, for the motion in between
 
     def __post_init__(self) -> None:
@@ -73,11 +72,7 @@ class Drone:
     quality: float | None = None  # measured quality to the ground (through the mesh), if known
 
     def ahead(self, seconds: float) -> Point:
-        """Where it will be `seconds` from now: toward its goal (at least at
-        GOAL_SPEED: a drone that has just started is about to speed up), not past it;
-        with no goal, along its velocity."""
-        if self.goal is not None:
-            return toward(self.at, self.goal, max(math.hypot(*self.velocity), GOAL_SPEED) * seconds)
+        """Where its velocity takes it in `seconds`."""
         return self.at[0] + self.velocity[0] * seconds, self.at[1] + self.velocity[1] * seconds
 
 
