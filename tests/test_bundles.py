@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Callable
 from typing import Any
 
 import pytest
@@ -17,7 +18,7 @@ from fleet.compose import SimField
 from schemas.bundles import MAX_STEPS, parse_bundle
 from schemas.errors import CommandRejected, InvalidMessage
 from schemas.geo import destination, distance_m
-from sim.radio import RadioModel
+from sim.radio import RadioModel, Spot3
 from sim.world import DroneSpec, HeatSource, Spot, World
 
 BASE = (40.633490, -8.660815)
@@ -89,8 +90,11 @@ def fire_world(radio: RadioModel | None = None) -> World:
     )
 
 
-async def fly(script: str, world: World | None = None, max_s: float = 900, **agent: Any) -> tuple[SimField, Any, list[str]]:
+async def fly(script: str, world: World | None = None, max_s: float = 900, prepare: Callable[[SimField], Any] | None = None,
+              **agent: Any) -> tuple[SimField, Any, list[str]]:
     sim = SimField(world or fire_world(), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200, **agent))
+    if prepare is not None:
+        prepare(sim)
     await sim.start()
     try:
         record = await sim.run_mission(script, max_s=max_s)
@@ -313,41 +317,47 @@ print("the move returned")
 
 
 
-async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered_again(caplog: pytest.LogCaptureFixture) -> None:
-    """A radio shadow 16 m out silences drone01 for 3 s, shorter than the lost-link
-    timeout (5 s), just as its move publishes `finish` there: the status is lost with the
-    link. Once a probe is answered again the agent repeats what it published since the
-    last answered one, so the verb returns (without the repeat it waits for ever)."""
-    sim = SimField(fire_world(RadioModel()), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200))
+def radio_shadow(sim: SimField, begins: Callable[[Spot3], bool], lasts_s: float, after_s: float = 0.0) -> dict[str, float]:
+    """drone01's messages are lost for `lasts_s`, from `after_s` after `begins(where it
+    is)` first holds; the returned dict gets "from", the shadow's start."""
     assert sim.air is not None
     shadow: dict[str, float] = {}
     through = sim.air.transit
 
     def transit(src: str, dst: str) -> float | None:
-        spot = sim._where()["drone01"]
-        home = sim.world.drones[0]
+        if "drone01" not in (src, dst):
+            return through(src, dst)
         now = sim.clock.monotonic()
-        if "drone01" in (src, dst) and distance_m(home.lat, home.lon, spot.lat, spot.lon) > 16 and "from" not in shadow:
-            shadow["from"] = now
-        if "drone01" in (src, dst) and 0 <= now - shadow.get("from", now + 1) < 3.0:
+        if "from" not in shadow and begins(sim._where()["drone01"]):
+            shadow["from"] = now + after_s
+        if 0 <= now - shadow.get("from", now + 1) < lasts_s:
             return None
         return through(src, dst)
 
     sim.air.transit = transit  # type: ignore[method-assign]
+    return shadow
+
+
+async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered_again(caplog: pytest.LogCaptureFixture) -> None:
+    """A radio shadow 16 m out silences drone01 for 3 s, shorter than the lost-link
+    timeout (5 s), just as its move publishes `finish` there: the status is lost with the
+    link. Once a probe is answered again the agent repeats what it published since the
+    last answered one, so the verb returns (without the repeat it waits for ever)."""
+    shadows: list[dict[str, float]] = []
+
+    def sixteen_metres_out(sim: SimField) -> None:
+        home = sim.world.drones[0]
+        shadows.append(radio_shadow(sim, lambda spot: distance_m(home.lat, home.lon, spot.lat, spot.lon) > 16, 3.0))
+
     caplog.set_level(logging.INFO, logger="agent.runtime")
-    await sim.start()
-    try:
-        record = await sim.run_mission("""
+    _, (record, log), _ = await fly("""
 d = assign("drone01")
 arm(d)
 takeoff(d, 10*m)
 move(d, forward=17*m, speed=2*m/s)
 print("the move returned")
-""", max_s=120)
-        log = [line.message for line in sim.mission_log(record.mission_id)]
-    finally:
-        await sim.close()
-    assert "from" in shadow
+""", fire_world(RadioModel()), max_s=120, prepare=sixteen_metres_out)
+    assert "from" in shadows[0]
     assert "the move returned" in log, (record, log)
     assert any("repeating" in r.getMessage() for r in caplog.records)
 
@@ -356,23 +366,10 @@ async def test_a_verb_sent_while_its_drone_is_out_of_reach_waits_for_the_link() 
     """The ground refuses commands to a drone it marks unknown (409); a mission verb
     sent then waits, within mission.link_grace_s, for the drone to be back instead of
     failing the mission. A 12 s radio shadow hides drone01 once it hovers."""
-    sim = SimField(fire_world(RadioModel()), seed=3, agent_config=AgentConfig(telemetry_rate_ms=200))
-    assert sim.air is not None
-    shadow: dict[str, float] = {}
-    through = sim.air.transit
+    def once_it_hovers(sim: SimField) -> None:  # 5 s after it passes 9.5 m: its takeoff has ended
+        radio_shadow(sim, lambda spot: spot.alt > 8.2 + 9.5, 12.0, after_s=5.0)
 
-    def transit(src: str, dst: str) -> float | None:
-        now = sim.clock.monotonic()
-        if "drone01" in (src, dst) and sim._where()["drone01"].alt > 8.2 + 9.5 and "from" not in shadow:
-            shadow["from"] = now + 5.0  # once its takeoff has ended
-        if "drone01" in (src, dst) and 0 <= now - shadow.get("from", now + 1) < 12.0:
-            return None
-        return through(src, dst)
-
-    sim.air.transit = transit  # type: ignore[method-assign]
-    await sim.start()
-    try:
-        record = await sim.run_mission("""
+    _, (record, log), _ = await fly("""
 d = assign("drone01")
 arm(d)
 takeoff(d, 10*m)
@@ -382,9 +379,6 @@ while d.state != "unknown":
 print("out of reach")
 land(d)
 print("landed")
-""", max_s=120)
-        log = [line.message for line in sim.mission_log(record.mission_id)]
-    finally:
-        await sim.close()
+""", fire_world(RadioModel()), max_s=120, prepare=once_it_hovers)
     assert record.status == "finished", (record, log)
     assert log.index("took off") < log.index("out of reach") < log.index("drone01: land waits for the link to come back") < log.index("landed"), log
