@@ -25,7 +25,7 @@ from bus.clock import Clock
 from schemas import commands as c
 from schemas.commands import Command, CommandReply
 from schemas.geo import bearing_deg, normalize_deg, offset_body
-from schemas.status import CommandStatus, Coords, SystemStatus
+from schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, CommandStatus, Coords, SystemStatus
 
 log = logging.getLogger(__name__)
 
@@ -122,7 +122,8 @@ class CommandHandler:
         for ended in decision.ends:
             job = self._job_of(ended)
             if job is not None:
-                self._end(job, end_state(job.name), f"superseded by {name}")
+                by = f"{FAILSAFE_REASON}: " if cmd.command_id.startswith(FAILSAFE_ID_PREFIX) else ""
+                self._end(job, end_state(job.name), f"{by}superseded by {name}")
         job = _Job(cmd)
         self._accepted_at[name] = now
         if name in ("arm", "disarm"):

@@ -34,7 +34,7 @@ from schemas.codec import decode_sensor, encode
 from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from schemas.errors import InvalidMessage
 from schemas.keys import Keys, check_id
-from schemas.status import CommandStatus, SystemStatus
+from schemas.status import FAILSAFE_ID_PREFIX, CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -138,7 +138,7 @@ class Agent:
     def _failsafe(self, action: LostLinkAction) -> None:
         """Act alone: the same handler and priority rules as a command from the ground."""
         now_ms = self.clock.time_ms()  # one failsafe per action at a time: unique, and replays in fast time
-        command = FAILSAFE_COMMANDS[action](drone_id=self.drone_id, command_id=f"failsafe-{action}-{now_ms}", timestamp=now_ms)
+        command = FAILSAFE_COMMANDS[action](drone_id=self.drone_id, command_id=f"{FAILSAFE_ID_PREFIX}{action}-{now_ms}", timestamp=now_ms)
         reply = self.handler.submit(command)
         log.warning("%s: lost link failsafe: %s (%s)", self.drone_id, action,
                     "accepted" if reply.accepted else f"refused: {reply.reason}")

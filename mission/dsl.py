@@ -579,9 +579,12 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     def move(d: Drone, *, forward: Any = 0, backward: Any = 0, right: Any = 0, left: Any = 0,
              up: Any = 0, down: Any = 0, to: Any = None, lat: Any = None, lon: Any = None,
              alt: Any = None, yaw: Any = None, speed: Any = None) -> None:
-        base = d._plan_base()
         goal = move_goal("move", forward, backward, right, left, up, down, to, lat, lon)
+        # Where the drone is now matters only to a relative move or one that keeps its
+        # heading; an absolute one with a yaw goes at once (no wait for telemetry).
+        base = d._plan_base() if isinstance(goal, tuple) or yaw is None else None
         if isinstance(goal, tuple):
+            assert base is not None
             fwd, rgt, vertical = goal
             moved = base.forward(fwd).right(rgt) if (fwd or rgt) else base
             goal = Position(moved.lat, moved.lon, (base.alt or 0.0) + vertical, base.heading)
@@ -590,10 +593,12 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         body: dict[str, Any] = {"cmd": "goto", "lat": goal.lat, "lon": goal.lon}
         if goal.alt is not None:
             body["alt"] = goal.alt
-        heading = base.heading
         if yaw is not None:
             heading = normalize_deg(units.angle(yaw, "yaw"))
             body["yaw"] = heading
+        else:
+            assert base is not None
+            heading = base.heading
         if speed is not None:
             body["speed"] = units.speed(speed)
         send(d, body)

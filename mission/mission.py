@@ -34,7 +34,7 @@ from schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_
 from schemas.commands import new_command_id
 from schemas.errors import CommandRejected, FleetError, InvalidMessage
 from schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
-from schemas.status import CommandStatus, SystemStatus
+from schemas.status import CommandStatus, SystemStatus, ended_by_failsafe
 from schemas.telemetry import Telemetry
 
 if TYPE_CHECKING:
@@ -81,6 +81,10 @@ class _PendingBundle:
     deadline: float  # clock.monotonic() by which the bundle should have ended
     done: asyncio.Future[BundleRecord]
 DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
+# Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
+# them (relative ones — move by offsets, turn, offboard — would not mean the same again).
+RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
+RESUME_TRIES = 3
 INSTANT_COMMANDS = frozenset({"arm", "disarm", "cancel"})
 STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
@@ -502,8 +506,22 @@ class Mission:
         Failures end the mission: the ground's 400 → cmd_parse, a refusal, a failure
         status or no answer → cmd_exec, anything else → unexpected.
         """
-        self.check_assigned(drone_id)
         name = str(body["cmd"])
+        for interrupted in range(RESUME_TRIES + 1):
+            status = await self._execute_once(drone_id, name, body, wait=wait)
+            if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
+                break
+            if interrupted == RESUME_TRIES:
+                self.log("warn", f"{drone_id}: {name} interrupted by its lost-link failsafe {RESUME_TRIES + 1} times; "
+                                 "going on without it")
+                break
+            # The drone held (or turned home) on its own while out of reach; the script
+            # still wants this done, so it is sent again once the drone can hear it.
+            self.log("warn", f"{drone_id}: {name} was interrupted by the drone's lost-link failsafe; sending it again")
+        return status
+
+    async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool) -> CommandStatus | None:
+        self.check_assigned(drone_id)
         back = self._link_back_at.get(drone_id)
         if back is not None and not back.done():  # out of reach: the ground would refuse it (unknown)
             self.log("info", f"{drone_id}: {name} waits for the link to come back")

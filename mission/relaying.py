@@ -107,11 +107,23 @@ class Relays:
         return baseline.requires_relay(frame.local(drone.position), frame.local(goal) if goal else None, drone.speed,
                                        n_relays, units.length(target_dist, "target_dist"))
 
-    def follow_step(self, other: Any, me: Any, ground: Any, target_dist: Any) -> tuple[Position, float, float, bool]:
-        """Where the follower `me` goes now: (target, speed, bearing, other returning)."""
+    def follow_step(self, other: Any, me: Any, ground: Any, target_dist: Any, alt: float | None = None,
+                    others: Sequence[Any] = (), min_separation: Any = 5.0) -> tuple[Position, float, float, bool]:
+        """Where the follower `me` goes now: (target, speed, bearing, other returning).
+        With `alt` (its duty altitude AMSL) the target keeps `min_separation` (3-D) from
+        the drones `others`, where they are and where their goto takes them."""
         frame = Frame(ground)
         goal = _goal(other)
         o, g, m = frame.local(other.position), (frame.local(goal) if goal else None), frame.local(me.position)
         td = units.length(target_dist, "target_dist")
         to = baseline.new_target(o, g, m, td)
+        if alt is not None:
+            near: list[tuple[planner.Point, float]] = []
+            for d in others:
+                here = d.position
+                near.append((frame.local(here), here.alt if here.alt is not None else alt))
+                there = _goal(d)
+                if there is not None:
+                    near.append((frame.local(there), there.alt if there.alt is not None else near[-1][1]))
+            to = baseline.keep_clear(to, alt, near, units.length(min_separation, "min_separation"))
         return frame.world(to), baseline.new_speed(other.speed), baseline.new_bearing(o, g, m), baseline.returning(o, g, td)

@@ -10,11 +10,14 @@ the planner's local frame (metres north/east of the ground station at (0, 0)).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 from relay.planner import Point, dist, toward
 
 GROUND: Point = (0.0, 0.0)
 MAX_SPEED = 10.0  # m/s: a follower never flies faster (script 5.13)
+CLEAR_MARGIN_M = 1.0  # keep_clear keeps this much more than min_separation (flight is not exact)
+CLEAR_PASSES = 6
 
 
 def takeoff_time(n_relays: int) -> float:
@@ -50,6 +53,26 @@ def new_target(other: Point, other_goal: Point | None, me: Point, target_dist: f
             return toward(other, GROUND, dist(other, GROUND) / 2)
         return me
     return toward(other, GROUND, target_dist)
+
+
+def keep_clear(spot: Point, alt: float, others: Sequence[tuple[Point, float]], min_separation: float) -> Point:
+    """Not in the thesis (it had no separation): `spot` at `alt`, moved away from each
+    drone of `others` (point, altitude) it would come within `min_separation` of, in
+    3-D, by just enough (plus CLEAR_MARGIN_M); a few passes settle crowded spots."""
+    for _ in range(CLEAR_PASSES):
+        near = [(p, a) for p, a in others if math.hypot(dist(p, spot), a - alt) < min_separation + CLEAR_MARGIN_M]
+        if not near:
+            break
+        p, a = min(near, key=lambda o: math.hypot(dist(o[0], spot), o[1] - alt))
+        flat = math.sqrt(max((min_separation + CLEAR_MARGIN_M) ** 2 - (a - alt) ** 2, 0.0)) + 0.1
+        away = _unit(p, spot) or _unit(p, GROUND) or (1.0, 0.0)  # right above or below it: aside, toward the ground
+        spot = (p[0] + away[0] * flat, p[1] + away[1] * flat)
+    return spot
+
+
+def _unit(a: Point, b: Point) -> Point | None:
+    d = dist(a, b)
+    return ((b[0] - a[0]) / d, (b[1] - a[1]) / d) if d > 1e-6 else None
 
 
 def new_speed(other_speed: float) -> float:

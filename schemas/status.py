@@ -12,6 +12,15 @@ import msgspec
 
 from schemas.telemetry import Position
 
+FAILSAFE_ID_PREFIX = "failsafe-"  # command ids of what an agent sends itself when it loses the ground
+FAILSAFE_REASON = "lost-link failsafe"  # starts the reason of a command its failsafe ended
+
+
+def ended_by_failsafe(status: CommandStatus) -> bool:
+    """Did the agent's own lost-link failsafe (not the ground) end this command?"""
+    return status.state == "cancel" and (status.reason or "").startswith(FAILSAFE_REASON)
+
+
 CommandState = Literal["start", "stop", "cancel", "finish", "queued", "success", "failure"]
 SystemState = Literal[
     "connect", "disconnect", "disarm", "return", "stop_offboard", "start_manual",

@@ -382,3 +382,27 @@ print("landed")
 """, fire_world(RadioModel()), max_s=120, prepare=once_it_hovers)
     assert record.status == "finished", (record, log)
     assert log.index("took off") < log.index("out of reach") < log.index("drone01: land waits for the link to come back") < log.index("landed"), log
+
+
+async def test_a_goto_its_lost_link_hold_interrupted_is_sent_again_when_the_link_is_back() -> None:
+    """A 7 s radio shadow, 20 m into a 60 m move, outlasts the lost-link timeout (3 s):
+    the agent's failsafe holds, which cancels the move. The mission sends it again once
+    the drone is back, so the verb returns with the drone at its goal (before, the
+    cancel ended the verb there and the drone stayed short of it)."""
+    def twenty_metres_out(sim: SimField) -> None:
+        home = sim.world.drones[0]
+        radio_shadow(sim, lambda spot: distance_m(home.lat, home.lon, spot.lat, spot.lon) > 20, 7.0)
+
+    sim, (record, log), _ = await fly("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+start = d.position
+move(d, forward=60*m, speed=5*m/s)
+print(f"moved {start.distance(d.position):.0f} m")
+""", fire_world(RadioModel()), max_s=200, prepare=twenty_metres_out,
+        lost_link=LostLinkPolicy(timeout_s=3, action="hold", return_after_s=60))
+    assert record.status == "finished", (record, log)
+    assert "drone01: goto was interrupted by the drone's lost-link failsafe; sending it again" in log, log
+    moved = next(line for line in log if line.startswith("moved"))
+    assert abs(float(moved.split()[1]) - 60) < 3, log

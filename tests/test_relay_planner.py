@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from relay.distance import keep_clear
 from relay.planner import Drone, Params, Relay, dist, duty_altitude, path_quality, plan
 
 P = Params()  # the default radio: good to 60 m, lost at 100 m; min_quality 0.6 → 76 m, 64.6 m with the margin
@@ -130,3 +131,22 @@ def test_scripts_plan_in_metres_around_the_ground_and_get_positions_back() -> No
     assert frame.local(spot) == pytest.approx((-129.0, 9.0))
     params = Relays().params(min_quality=0.5, step=4 * units.m, base_alt=5 * units.m)
     assert (params.min_quality, params.step, params.base_alt) == (0.5, 4.0, 5.0)
+
+
+@pytest.mark.parametrize(("spot", "alt", "others"), [
+    ((10.0, 0.0), 10.0, [((10.0, 0.0), 10.0)]),  # right on another drone
+    ((10.0, 0.0), 10.0, [((10.0, 0.0), 5.0)]),  # right above one, 5 m: not more than min_separation
+    ((10.0, 2.0), 10.0, [((10.0, 0.0), 10.0), ((10.0, 5.0), 10.0), ((14.0, 2.0), 10.0)]),  # crowded
+    ((0.0, 0.0), 5.0, [((0.0, 0.0), 5.0)]),  # at the ground station itself
+])
+def test_the_distance_baselines_targets_keep_the_separation(spot: tuple[float, float], alt: float,
+                                                            others: list[tuple[tuple[float, float], float]]) -> None:
+    """Script 5.12 has no separation; mode="distance" moves its target just clear (3-D)."""
+    clear = keep_clear(spot, alt, others, 5.0)
+    for p, a in others:
+        assert math.hypot(dist(p, clear), a - alt) >= 5.0, (clear, p)
+    assert dist(clear, spot) < 15.0  # moved aside, not sent away
+
+
+def test_a_distance_target_already_clear_stays() -> None:
+    assert keep_clear((10.0, 0.0), 10.0, [((30.0, 0.0), 10.0), ((10.0, 0.0), 16.5)], 5.0) == (10.0, 0.0)

@@ -49,7 +49,14 @@ def fly(relay):
         come_back(relay)
 
 
+def on_duty(relay):
+    """Still serving: a move started as its own subroutine may run after the relay was sent home."""
+    return relay.id in duty and duty[relay.id]["serving"]
+
+
 def go(relay):
+    if not on_duty(relay):
+        return
     d = duty[relay.id]
     move(relay, to=d["target"], alt=relay.home.alt + d["alt"], speed=speed_for(relay, d["target"]))
 
@@ -131,20 +138,30 @@ def distance(drone):
 
 
 def reposition(me, spot, alt, bearing, speed):
+    if not on_duty(me):
+        return
     move(me, to=spot, alt=me.home.alt + alt, yaw=bearing * deg, speed=speed * m / s)
 
 
 def follow(other):
-    alt = relays.metres(base_alt + alt_diff if len(duty) % 2 == 0 else base_alt, "base_alt")
+    # Alternating altitudes (script 5.9), and never the altitude of the relay it follows.
+    high, low = relays.metres(base_alt + alt_diff, "base_alt"), relays.metres(base_alt, "base_alt")
+    if other.id in duty:
+        alt = low if duty[other.id]["alt"] == high else high
+    else:
+        alt = high if len(duty) % 2 == 0 else low
     me = assign(any_drone)
     crew[me.id] = me
     duty[me.id] = {"target": None, "alt": alt, "serving": True, "ready": False}
     print(f"{me.id}: following {other.id} at {alt:g} m (distance mode, target {relays.metres(target_dist, 'target_dist'):g} m)")
     arm(me)
     takeoff(me, alt * m)
+    duty[me.id]["ready"] = True
     current = me.position
     while other.state in ("active", "hold"):
-        spot, speed, bearing, back = relays.follow_step(other, me, ground_spot(other), target_dist)
+        others = [d for d in list(crew.values()) + list(served.values()) if d.id != me.id]
+        spot, speed, bearing, back = relays.follow_step(other, me, ground_spot(other), target_dist, me.home.alt + alt,
+                                                        others, min_separation)
         if back:
             break
         if spot.distance(current) > relays.metres(step, "step"):
