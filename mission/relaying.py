@@ -20,6 +20,8 @@ from relay import distance as baseline
 from relay import planner
 from sim.projection import LocalFrame
 
+AIRBORNE_M = 1.0  # above home: flying
+
 
 class Frame:
     """Metres north/east of the ground station (sim.projection's local plane)."""
@@ -51,6 +53,22 @@ def _goal(drone: Any) -> Position | None:
     return cmd.target if cmd is not None and cmd.name in ("goto", "move") and isinstance(cmd.target, Position) else None
 
 
+def flight_altitude(drone: Any) -> float | None:
+    """Metres above its home a mission drone flies at: where its takeoff or goto takes
+    it (a return: its altitude), else where it is (not while it climbs or lands: a
+    level passed through is not one flown at); None on the ground or landing."""
+    cmd, home = drone.cmd, drone.home
+    if cmd is not None and cmd.name in ("takeoff", "return") and isinstance(cmd.target, (int, float)):
+        return float(cmd.target)  # the return's altitude: it flies home there
+    if cmd is not None and cmd.name == "land":
+        return None
+    goal = _goal(drone)
+    if goal is not None and goal.alt is not None and home is not None and home.alt is not None:
+        return goal.alt - home.alt
+    t = drone._telem()
+    return t.position.rel_alt if t.position is not None and t.position.rel_alt > AIRBORNE_M else None
+
+
 class Relays:
     """The `relays` name in scripts."""
 
@@ -64,6 +82,12 @@ class Relays:
     def spare(self) -> int:
         """How many drones of the fleet are free to be dispatched as relays now."""
         return self._free() if self._free is not None else 0
+
+    def duty_altitude(self, index: int, served: Sequence[Any], **inputs: Any) -> float:
+        """Script 5.9's alternating duty altitudes (index 0: base_alt + alt_diff, 1:
+        base_alt, …), lifted clear of the altitudes the `served` drones fly at."""
+        flying = [a for a in map(flight_altitude, served) if a is not None]
+        return planner.duty_altitude(index, self.params(**inputs), flying)
 
     def params(self, **inputs: Any) -> planner.Params:
         lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
@@ -85,6 +109,7 @@ class Relays:
             mine.append(planner.Drone(
                 d.id, frame.local(d.position), (t.velocity.north, t.velocity.east),
                 frame.local(goal) if goal is not None else None, link.quality if link is not None else None,
+                flight_altitude(d),
             ))
         relays = [planner.Relay(rid, frame.local(drones[rid].position),
                                 frame.local(duty["target"]) if duty.get("target") is not None else None,

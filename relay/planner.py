@@ -41,6 +41,8 @@ RELEASE_MARGIN = 0.15  # a relay goes home only if the rest keep every spot this
 MAX_RELAYS = 8  # per plan
 STEADY_PLANS = 12  # a probe window (10 s) and then some, at one plan a second
 DRIFT_S = 3.0  # a drone with no goto/move is planned this far ahead along its velocity
+LIFT_STEP_M = 0.5
+MAX_LIFT_M = 100.0
 
 
 @dataclass(frozen=True)
@@ -70,6 +72,7 @@ class Drone:
     velocity: Point = (0.0, 0.0)  # (north, east) m/s
     goal: Point | None = None  # where its current command takes it
     quality: float | None = None  # measured quality to the ground (through the mesh), if known
+    alt: float | None = None  # m above the ground it flies at (the higher of now and its goal); None: on the ground
 
     def ahead(self, seconds: float) -> Point:
         """Where its velocity takes it in `seconds`."""
@@ -352,7 +355,7 @@ def plan(drones: Sequence[Drone], relays: Sequence[Relay], p: Params, scale: flo
                 result.home = [serving[without[1]].id]
                 serving = serving[:without[1]] + serving[without[1] + 1:]
         result.points = points
-        _assign(result, serving, [r for r in relays if not r.serving], p, keep=True)
+        _assign(result, serving, [r for r in relays if not r.serving], p, keep=True, flying=_flying(drones))
         return result
     points = scene.improve(list(current))
     while scene.worst(points) < p.min_quality and len(points) < len(serving) + spare:
@@ -367,28 +370,47 @@ def plan(drones: Sequence[Drone], relays: Sequence[Relay], p: Params, scale: flo
         if d.quality is not None and d.quality < p.min_quality:
             result.notes.append(f"{d.id}: measured quality {d.quality:.2f} < {p.min_quality:g}")
     result.points = points
-    _assign(result, serving, [r for r in relays if not r.serving], p, keep=False)
+    _assign(result, serving, [r for r in relays if not r.serving], p, keep=False, flying=_flying(drones))
     return result
 
 
-def duty_altitude(index: int, p: Params) -> float:
-    """Thesis script 5.9: the first relay at base_alt + alt_diff, the next at base_alt, …"""
-    return p.base_alt + (p.alt_diff if index % 2 == 0 else 0.0)
+def duty_altitude(index: int, p: Params, flying: Sequence[float] = ()) -> float:
+    """Thesis script 5.9: the first relay at base_alt + alt_diff, the next at base_alt, …
+    Both levels are lifted together, if need be, until they are min_separation above or
+    below every altitude the served drones fly at: a drone flying
+    back toward the ground passes right where its relays hover (0.1 m on real packets)."""
+    lift = 0.0
+    while lift < MAX_LIFT_M and not all(_alt_clear(p.base_alt + lift + k * p.alt_diff, flying, p) for k in (0, 1)):
+        lift += LIFT_STEP_M
+    return p.base_alt + lift + (p.alt_diff if index % 2 == 0 else 0.0)
 
 
-def _assign(result: Plan, serving: Sequence[Relay], returning: Sequence[Relay], p: Params, keep: bool) -> None:
+def _alt_clear(alt: float, flying: Sequence[float], p: Params) -> bool:
+    return all(abs(alt - f) >= p.min_separation for f in flying)
+
+
+def _flying(drones: Sequence[Drone]) -> list[float]:
+    return [d.alt for d in drones if d.alt is not None]
+
+
+def _assign(result: Plan, serving: Sequence[Relay], returning: Sequence[Relay], p: Params, keep: bool,
+            flying: Sequence[float] = ()) -> None:
     """The first points are the serving relays' (in order); the rest go to relays on
     their way home, nearest first (called back before a new drone is dispatched), then
     to new relays. A relay is moved only when its point moved by more than `step`."""
-    for r, pt in zip(serving, result.points, strict=False):
-        if not keep and (r.target is None or dist(r.target, pt) > p.step):
-            result.moves.append(Move(r.id, pt, r.alt))
+    for i, (r, pt) in enumerate(zip(serving, result.points, strict=False)):
+        alt = r.alt if _alt_clear(r.alt, flying, p) else duty_altitude(i, p, flying)
+        if keep and alt != r.alt:
+            result.moves.append(Move(r.id, r.target or r.at, alt))  # it stays, above (or below) the drones
+        elif not keep and (r.target is None or dist(r.target, pt) > p.step or alt != r.alt):
+            result.moves.append(Move(r.id, pt, alt))
     extra = result.points[len(serving):]
     back = list(returning)
-    for pt in extra:
+    for j, pt in enumerate(extra):
         if back:
             r = min(back, key=lambda r: dist(r.at, pt))
             back.remove(r)
-            result.moves.append(Move(r.id, pt, r.alt))
+            alt = r.alt if _alt_clear(r.alt, flying, p) else duty_altitude(len(serving) + j, p, flying)
+            result.moves.append(Move(r.id, pt, alt))
         else:
-            result.dispatch.append((pt, duty_altitude(len(serving) + len(result.dispatch), p)))
+            result.dispatch.append((pt, duty_altitude(len(serving) + len(result.dispatch), p, flying)))

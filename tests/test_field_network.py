@@ -7,6 +7,7 @@ capability fails these tests instead of skipping them.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -21,6 +22,7 @@ import httpx
 import pytest
 import yaml
 
+from fleet import relay_experiments as rx
 from schemas.geo import destination, distance_m
 from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, fleet_command
@@ -350,6 +352,7 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
     await sim.up()
     script = RELAYED.replace("GROUND_LAT", str(GROUND[0])).replace("GROUND_LON", str(GROUND[1]))
     heard_far: list[float] = []
+    tracks: dict[str, dict[int, dict[str, float]]] = {}
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         for d in sim.drone_ids:
             await until(lambda d=d: state_is(http, d, "ready"), 60, f"{d} ready at the ground")
@@ -358,6 +361,10 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
         mission_id = r.json()["mission_id"]
 
         async def ended() -> dict[str, Any] | None:
+            for d in sim.drone_ids:  # every drone's track, for the separation
+                seen = await drone(http, d)
+                if seen is not None and seen["telem"].get("position"):
+                    tracks.setdefault(d, {})[seen["telem"]["timestamp"]] = seen["telem"]["position"]
             far = await drone(http, "drone01")
             if far is not None and far["telem"].get("position"):
                 p = far["telem"]["position"]
@@ -373,6 +380,31 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
     assert record["status"] == "finished", f"{record['status']} {record['cause']}: {record['message']}\n{log}"
     assert "relay duty" in log and re.search(r"out at 1[12]\d m", log), log
     assert len(heard_far) >= 5, (heard_far, "\n".join(lines[-30:]))  # heard, and not marked unknown, beyond 105 m
+    separation = rx.least_separation({"drones": resampled(tracks)}, ("drone01",))
+    assert 5.0 <= separation < float("inf"), separation  # a relay flew, never within min_separation (5 m)
+
+
+def resampled(tracks: dict[str, dict[int, dict[str, float]]], every_s: float = 0.5,
+              longest_gap_s: float = 2.5) -> dict[str, dict[str, list[dict[str, float]]]]:
+    """The drones' telemetry, as the API showed it, on one time grid (each drone's
+    samples come at their own times): interpolated between samples at most
+    `longest_gap_s` apart, in the shape fleet.relay_experiments reads."""
+    start = min(min(t) for t in tracks.values()) / 1000
+    end = max(max(t) for t in tracks.values()) / 1000
+    grid = [start + i * every_s for i in range(int((end - start) / every_s) + 1)]
+    out: dict[str, dict[str, list[dict[str, float]]]] = {}
+    for drone_id, samples in tracks.items():
+        times = sorted(samples)
+        points = []
+        for t in grid:
+            for a, b in itertools.pairwise(times):
+                if a / 1000 <= t <= b / 1000 and (b - a) / 1000 <= longest_gap_s:
+                    f = (t - a / 1000) / max((b - a) / 1000, 1e-9)
+                    pa, pb = samples[a], samples[b]
+                    points.append({"t_s": round(t, 3), **{k: pa[k] + f * (pb[k] - pa[k]) for k in ("lat", "lon", "rel_alt")}})
+                    break
+        out[drone_id] = {"samples": points}
+    return out
 
 
 def _now() -> float:

@@ -150,3 +150,17 @@ def test_the_distance_baselines_targets_keep_the_separation(spot: tuple[float, f
 
 def test_a_distance_target_already_clear_stays() -> None:
     assert keep_clear((10.0, 0.0), 10.0, [((30.0, 0.0), 10.0), ((10.0, 0.0), 16.5)], 5.0) == (10.0, 0.0)
+
+
+def test_duty_altitudes_rise_clear_of_the_altitude_the_drones_fly_at() -> None:
+    """A drone flying back toward the ground passes where its relays hover: at 10 m
+    (script 5.9's first level) a relay met it 0.1 m away on real packets."""
+    result = plan([Drone("d1", at(180, 30), alt=10.0)], [], P)
+    alts = [alt for _, alt in result.dispatch]
+    assert len(alts) == 2 and alts[0] - alts[1] == P.alt_diff, alts  # still alternating
+    assert all(abs(alt - 10.0) >= P.min_separation for alt in alts), alts
+    # a relay on duty whose level a drone climbed to is moved up, where it is
+    relay = Relay("r1", at(90, 30), target=at(90, 30), alt=10.0)
+    moved = plan([Drone("d1", at(150, 30), alt=12.0)], [relay], P).moves
+    assert [m.relay for m in moved] == ["r1"] and abs(moved[0].alt - 12.0) >= P.min_separation, moved
+    assert duty_altitude(0, P, [30.0]) == 10.0  # drones far above: the thesis's levels

@@ -106,7 +106,7 @@ def measured(drone):
     for rid, spot, alt in plan.moves:
         d = duty[rid]
         called_back = not d["serving"]
-        d["target"], d["serving"] = spot, True
+        d["target"], d["alt"], d["serving"] = spot, alt, True
         if called_back:
             print(f"{rid}: called back to relay duty")
         if called_back and d["ready"]:
@@ -145,7 +145,8 @@ def reposition(me, spot, alt, bearing, speed):
 
 def follow(other):
     # Alternating altitudes (script 5.9), and never the altitude of the relay it follows.
-    high, low = relays.metres(base_alt + alt_diff, "base_alt"), relays.metres(base_alt, "base_alt")
+    levels = {"base_alt": base_alt, "alt_diff": alt_diff, "min_separation": min_separation}
+    high, low = (relays.duty_altitude(i, list(served.values()), **levels) for i in (0, 1))
     if other.id in duty:
         alt = low if duty[other.id]["alt"] == high else high
     else:
