@@ -92,6 +92,7 @@ class MavsdkFlightController:
         self._system: Any = None
         self._tasks: list[asyncio.Task[None]] = []
         self._cache: dict[str, Any] = {"connected": False}
+        self._geofence: Any = None  # made on first use: plugins are only constructed when used
         self._snapshot: FcState | None = None
 
     async def start(self) -> None:
@@ -257,12 +258,27 @@ class MavsdkFlightController:
             raise FcRejected(f"unknown setpoint {kind}")
         await self._call(kind, call)
 
+    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
+        """The mission protocol with mission_type FENCE (MISSION_COUNT, an item per
+        vertex, MISSION_ACK); returns on the autopilot's ACCEPTED. A refusal or no answer
+        (MAVSDK retries for a few seconds) comes back as FcRejected with MAVSDK's result."""
+        from mavsdk.asyncio.plugins.geofence import FenceType, GeofenceAsync, GeofenceData, Point, Polygon
+
+        if self._system is None:
+            raise FcUnavailable("fence: not connected to the flight controller")
+        if self._geofence is None:
+            self._geofence = GeofenceAsync(self._system)
+        points = [Point(latitude_deg=lat, longitude_deg=lon) for lat, lon in polygon]
+        data = GeofenceData(polygons=[Polygon(points=points, fence_type=FenceType.INCLUSION)], circles=[])
+        await self._call("fence", self._geofence.upload_geofence(data))
+
     async def close(self) -> None:
         for task in self._tasks:
             task.cancel()
         if self._tasks:
             await asyncio.wait(self._tasks)
         self._tasks.clear()
+        self._geofence = None
         if self._sdk is not None:
             self._sdk.destroy()
             self._sdk = None

@@ -76,4 +76,8 @@ class FlightController(Protocol):
         """Stream an offboard setpoint (position_ned, velocity_ned, velocity_body,
         attitude, attitude_rate); angles in degrees."""
 
+    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
+        """Upload an inclusion polygon [(lat, lon), …] as the autopilot's geofence;
+        raise FcError if it refuses or does not answer."""
+
     async def close(self) -> None: ...

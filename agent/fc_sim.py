@@ -28,6 +28,7 @@ from sim.vehicle import Vehicle
 DEFAULT_SPAWN = (40.633490, -8.660815, 8.2)  # thesis test field, Aveiro
 STEP_S = 0.02
 SETPOINT_PERIOD_S = 0.05
+FENCE_MAX_VERTICES = 64  # PX4 v1.16 keeps at most this many fence items (DM_KEY_FENCE_POINTS_MAX)
 
 
 def parse_sim_url(url: str) -> tuple[Vehicle, int | None]:
@@ -158,6 +159,19 @@ class SimFlightController:
 
     async def stop_offboard(self) -> None:
         self._command(self.vehicle.stop_offboard, ends_stream=True)
+
+    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
+        """Store the polygon on the vehicle (`vehicle.fence`) as PX4 takes it through
+        MAVSDK: at 1e-7° resolution; refused with MAVSDK's results for what MAVSDK
+        checks itself (under three vertices, coordinates out of range) and for more
+        vertices than PX4 stores (it answers MAV_MISSION_NO_SPACE)."""
+        if not self.vehicle.connected:
+            raise FcRejected("fence: flight controller not responding")
+        if len(polygon) < 3 or not all(-90 <= lat <= 90 and -180 <= lon <= 180 for lat, lon in polygon):
+            raise FcRejected("fence: invalid argument")
+        if len(polygon) > FENCE_MAX_VERTICES:
+            raise FcRejected("fence: too many geofence items")
+        self.vehicle.fence = [(round(lat * 1e7) / 1e7, round(lon * 1e7) / 1e7) for lat, lon in polygon]
 
     async def close(self) -> None:
         if self._control is not None:

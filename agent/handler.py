@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import msgspec
 from msgspec import UNSET
@@ -24,6 +24,7 @@ from agent.tracker import Goal, finished, interrupted, system_events
 from bus.clock import Clock
 from schemas import commands as c
 from schemas.commands import Command, CommandReply
+from schemas.fence import Geofence, refusal
 from schemas.geo import bearing_deg, normalize_deg, offset_body
 from schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, CommandStatus, Coords, SystemStatus
 
@@ -44,6 +45,7 @@ class FlightSettings:
     takeoff_altitude: float = 15.0
     return_altitude: float = 15.0
     max_speed: float = 5.0
+    geofence: Geofence = field(default_factory=Geofence)
 
 
 @dataclass(eq=False)
@@ -111,6 +113,8 @@ class CommandHandler:
             reason = "flight controller disconnected"
         elif name in NEEDS_POSITION and state.position is None:
             reason = "no position yet"
+        else:  # whatever path the command came by (SPEC §11)
+            reason = refusal(self._settings.geofence, cmd, state.position, state.heading, self._settings.takeoff_altitude)
         if reason is None:
             decision = decide(name, Situation(self._armed(state), self._active(self._running), self._active(self._queued)))
             reason = decision.reason

@@ -21,7 +21,7 @@ import msgspec
 
 from agent.bundle import BundleRunner, BundleStore
 from agent.config import AgentConfig
-from agent.fc_port import FcUnavailable, FlightController
+from agent.fc_port import FcError, FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
 from agent.link import LostLink, LostLinkAction
@@ -34,7 +34,7 @@ from schemas.codec import decode_sensor, encode
 from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from schemas.errors import InvalidMessage
 from schemas.keys import Keys, check_id
-from schemas.status import FAILSAFE_ID_PREFIX, CommandStatus, SystemStatus
+from schemas.status import FAILSAFE_ID_PREFIX, GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -44,6 +44,7 @@ RECENT_STATUSES = 64  # command statuses kept to repeat to a ground that was out
 NEIGHBOUR_SCOUT_PERIOD_S = 1.0
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
+GEOFENCE_ID_PREFIX = "geofence-"
 
 
 def make_flight_controller(url: str, clock: Clock) -> FlightController:
@@ -70,6 +71,7 @@ class Agent:
             takeoff_altitude=config.takeoff_altitude,
             return_altitude=config.return_altitude,
             max_speed=config.max_speed,
+            geofence=config.geofence,
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
         self._seq = 0
@@ -135,14 +137,39 @@ class Agent:
                         self._system("failsafe", policy)
             await self.clock.sleep(LOST_LINK_TICK_S)
 
-    def _failsafe(self, action: LostLinkAction) -> None:
-        """Act alone: the same handler and priority rules as a command from the ground."""
+    def _failsafe(self, action: LostLinkAction, why: str | None = None) -> None:
+        """Act alone: the same handler and priority rules as a command from the ground.
+        Without `why`, for the lost link (a command it ends is sent again by the
+        mission once the link is back); else the reason, e.g. the geofence's."""
         now_ms = self.clock.time_ms()  # one failsafe per action at a time: unique, and replays in fast time
-        command = FAILSAFE_COMMANDS[action](drone_id=self.drone_id, command_id=f"{FAILSAFE_ID_PREFIX}{action}-{now_ms}", timestamp=now_ms)
+        prefix = FAILSAFE_ID_PREFIX if why is None else GEOFENCE_ID_PREFIX
+        command = FAILSAFE_COMMANDS[action](drone_id=self.drone_id, command_id=f"{prefix}{action}-{now_ms}", timestamp=now_ms)
         reply = self.handler.submit(command)
-        log.warning("%s: lost link failsafe: %s (%s)", self.drone_id, action,
+        log.warning("%s: %s failsafe: %s (%s)", self.drone_id, why or "lost link", action,
                     "accepted" if reply.accepted else f"refused: {reply.reason}")
-        self._system("failsafe", action)
+        self._system("failsafe", action if why is None else f"{action}: {why}")
+
+    async def _fence_loop(self) -> None:
+        """SPEC §11: a flying drone found outside the geofence (an offboard setpoint, a
+        wind, a fence changed under it) returns, once per excursion."""
+        fence, out = self.config.geofence, False
+        while True:
+            s = self.fc.state()
+            flying = s.armed and s.landed_state not in ("on_ground", "unknown") and s.position is not None
+            where = fence.outside(s.position.lat, s.position.lon, s.position.rel_alt) if flying and s.position else None
+            if where is not None and not out:
+                self._failsafe("return", f"{GEOFENCE_OUTSIDE}, {where}")
+            out = where is not None
+            await self.clock.sleep(LOST_LINK_TICK_S)
+
+    async def _upload_fence(self) -> None:
+        """The fence's polygon as the autopilot's own geofence, where it takes one."""
+        polygon = [(lat, lon) for lat, lon in self.config.geofence.polygon]
+        try:
+            await self.fc.upload_fence(polygon)
+            log.info("%s: geofence of %d vertices uploaded to the flight controller", self.drone_id, len(polygon))
+        except FcError as exc:  # the agent's own checks and watch still hold
+            log.warning("%s: the flight controller did not take the geofence: %s", self.drone_id, exc)
 
     def _publish_status(self, status: CommandStatus | SystemStatus | BundleStatus) -> None:
         self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
@@ -230,6 +257,10 @@ class Agent:
                 tg.create_task(self._telemetry_loop(), name=f"{self.drone_id} telemetry")
                 tg.create_task(self.prober.run(), name=f"{self.drone_id} link probe")
                 tg.create_task(self._lost_link_loop(), name=f"{self.drone_id} lost link")
+                if self.config.geofence.limits:
+                    tg.create_task(self._fence_loop(), name=f"{self.drone_id} geofence")
+                if self.config.geofence.polygon:
+                    tg.create_task(self._upload_fence(), name=f"{self.drone_id} geofence upload")
         finally:
             await self.bundles.close()
             token.close()

@@ -46,6 +46,7 @@ from mission.mission import MissionRecord
 from mission.plugins import PluginLibrary, plugin_summary
 from mission.simulate import telemetry_sample, write_result
 from schemas.errors import ConfigError
+from schemas.fence import Geofence
 from schemas.fleet import WatchEvent
 from schemas.keys import Keys
 from schemas.telemetry import Telemetry
@@ -171,6 +172,11 @@ class SimField:
         self.data_dir = data_dir or Path(self._tmp.name)  # type: ignore[union-attr]
         self.config = ground_config or GroundConfig(data_dir=str(self.data_dir))
         self.agent_config = agent_config or AgentConfig(telemetry_rate_ms=telemetry_rate_ms)
+        if world.geofence is not None:  # the world's fence, unless the caller set one
+            if self.config.geofence == Geofence():
+                self.config = msgspec.structs.replace(self.config, geofence=world.geofence)
+            if self.agent_config.geofence == Geofence():
+                self.agent_config = msgspec.structs.replace(self.agent_config, geofence=world.geofence)
         self.tracks: dict[str, Track] = {}
         self._tasks: list[asyncio.Task[Any]] = []
         self._agents: dict[str, asyncio.Task[Any]] = {}
@@ -321,6 +327,7 @@ class SimField:
             "seed": self.seed,
             "t0_ms": self.clock.time_ms() - round(self.clock.monotonic() * 1000),  # wall time of t_s = 0
             "ground_station": {"lat": gs.lat, "lon": gs.lon},
+            **({"geofence": msgspec.to_builtins(self.config.geofence)} if self.config.geofence.limits else {}),
             "drones": {
                 drone_id: {
                     "samples": track.samples,

@@ -197,7 +197,12 @@ async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
         field = exc.field.removeprefix("$.") if exc.field else None
         return _error(400, str(exc), {"field": field})
     except CommandRejected as exc:
-        return _error(exc.status, exc.reason, {"drone_id": drone_id})
+        detail: dict[str, Any] = {"drone_id": drone_id}
+        if exc.code is not None:  # SPEC §11: "geofence" or "conflict" (with the other drone)
+            detail["reason"] = exc.code
+        if exc.other is not None:
+            detail["other"] = exc.other
+        return _error(exc.status, exc.reason, detail)
     except QueryRefused as exc:
         return _error(502, f"the agent of {drone_id} answered with an error: {exc}", {"drone_id": drone_id})
     except Unreachable as exc:

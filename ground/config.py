@@ -16,6 +16,7 @@ from msgspec import Meta
 
 from schemas.config import MissionSettings
 from schemas.endpoints import check_endpoints
+from schemas.fence import Geofence
 
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
 Millis = Annotated[int, Meta(ge=0, le=86_400_000)]
@@ -46,6 +47,7 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     event_telemetry_ms: Annotated[int, Meta(ge=0, le=60_000)] = 500  # /events: one telemetry per drone per period
     command_timeout_ms: Annotated[int, Meta(ge=100, le=60_000)] = 3000  # waiting for an agent's reply
     link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
+    geofence: Geofence = msgspec.field(default_factory=Geofence)  # SPEC §11: refused at the ground (409 geofence)
 
     def __post_init__(self) -> None:
         check_endpoints(listen=self.listen)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -29,8 +30,12 @@ from schemas.bundles import BundleRecord, BundleReply, new_bundle_id, parse_bund
 from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command, new_command_id
 from schemas.errors import CommandRejected, InvalidMessage
+from schemas.fence import CONFLICT, flight_of, refusal
+from schemas.fence import REASON as FENCE
 from schemas.fleet import WatchEvent
+from schemas.geo import distance_m
 from schemas.keys import Keys
+from schemas.status import TERMINAL_STATES, CommandStatus
 from schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
@@ -66,6 +71,9 @@ class GroundStation:
         self._watches_ended = False
         self._listeners: list[Callable[[WatchEvent], None]] = []
         self._last_telem_event: dict[str, float] = {}
+        # drone → (command id, lat, lon, alt AMSL): where a command this ground sent takes
+        # it, from the moment it passed the checks until it ends (its `start` comes later)
+        self._claims: dict[str, tuple[str, float, float, float]] = {}
 
     # ---- running -------------------------------------------------------------------
 
@@ -133,7 +141,17 @@ class GroundStation:
         self._registered(drone_id)
         command = self._stamp(drone_id, body)
         self._check(drone_id, command.name, command.name, mission_id)
-        reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(command), _reply_decoder, "CommandReply")
+        spot = self._check_flight(drone_id, command)
+        if spot is not None:
+            self._claims[drone_id] = (command.command_id, *spot)
+        elif command.name not in ("arm", "disarm"):  # land, return, cancel…: it gives up its target
+            self._claims.pop(drone_id, None)
+        try:
+            reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(command), _reply_decoder, "CommandReply")
+        except BaseException:
+            if spot is not None and self._claims.get(drone_id, ("",))[0] == command.command_id:
+                del self._claims[drone_id]
+            raise
         return reply
 
     async def push(self, drone_id: str, body: bytes, mission_id: str | None = None) -> BundleReply:
@@ -192,6 +210,59 @@ class GroundStation:
             )])
             raise CommandRejected(refusal.status, refusal.reason)
 
+    def _check_flight(self, drone_id: str, command: Command) -> tuple[float, float, float] | None:
+        """SPEC §11 at the ground: the fence (409 geofence), then the other drones'
+        targets and hovering drones (409 conflict, naming the other drone). Returns
+        where the command takes the drone (lat, lon, alt AMSL), if known."""
+        telem = self.registry.telemetry(drone_id)
+        fence = self.config.geofence
+        why = refusal(fence, command, telem.position, telem.heading)
+        other: str | None = None
+        spot: tuple[float, float, float] | None = None
+        flight = flight_of(command, telem.position, telem.heading)
+        if why is None and flight is not None and flight.alt is not None and telem.position is not None:
+            spot = (*flight.end, telem.position.alt - telem.position.rel_alt + flight.alt)
+            clash = self._nearest_claim(drone_id, spot)
+            if clash is not None and clash[1] < fence.min_separation_m:
+                other, gap, what = clash
+                why = (f"{CONFLICT}: the target is {gap:.1f} m from {what} of {other} "
+                       f"(geofence.min_separation_m {fence.min_separation_m:g})")
+        if why is None:
+            return spot
+        if why is not None:
+            self._emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
+                                message=f"Refused {command.name}: {why}")])
+            raise CommandRejected(409, why, code=CONFLICT if other else FENCE, other=other)
+
+    def _nearest_claim(self, drone_id: str, target: tuple[float, float, float]) -> tuple[str, float, str] | None:
+        """The other drone whose claim on the air is nearest `target` (lat, lon, alt
+        AMSL), 3-D: where the command this ground sent it, its running goto/move or its
+        takeoff goes, or else where it hovers; (drone, metres, what)."""
+        nearest: tuple[str, float, str] | None = None
+        for other in self.registry.ids():
+            if other == drone_id or self.registry.info(other).state == "unknown":
+                continue
+            for spot, what in self._claims_of(other):
+                gap = math.hypot(distance_m(target[0], target[1], spot[0], spot[1]), target[2] - spot[2])
+                if nearest is None or gap < nearest[1]:
+                    nearest = (other, gap, what)
+        return nearest
+
+    def _claims_of(self, drone_id: str) -> list[tuple[tuple[float, float, float], str]]:
+        info, t = self.registry.info(drone_id), self.registry.telemetry(drone_id)
+        cmd, pos = info.current_command, t.position
+        spots: list[tuple[tuple[float, float, float], str]] = []
+        sent = self._claims.get(drone_id)
+        if sent is not None:
+            spots.append((sent[1:], "the target"))
+        if cmd is not None and cmd.coords is not None:
+            spots.append(((cmd.coords.lat, cmd.coords.lon, cmd.coords.alt), "the target"))
+        elif cmd is not None and cmd.command == "takeoff" and cmd.altitude is not None and pos is not None:
+            spots.append(((pos.lat, pos.lon, pos.alt - pos.rel_alt + cmd.altitude), "the takeoff"))
+        elif not spots and cmd is None and pos is not None and t.armed and t.landed_state == "in_air":
+            spots.append(((pos.lat, pos.lon, pos.alt), "the hovering spot"))
+        return spots
+
     async def _deliver(self, key: str, payload: bytes, decoder: msgspec.json.Decoder[Any], kind: str) -> Any:
         """Query the agent's queryable and hold it to its reply (`accepted`, `reason`)."""
         raw = await self.bus.query(key, payload, timeout_s=self.config.command_timeout_ms / 1000)
@@ -200,7 +271,8 @@ class GroundStation:
         except msgspec.MsgspecError as exc:
             raise CommandRejected(502, f"the agent answered something that is not a {kind}: {exc}") from None
         if not reply.accepted:
-            raise CommandRejected(409, reply.reason or "refused by the agent")
+            reason = reply.reason or "refused by the agent"
+            raise CommandRejected(409, reason, code=FENCE if reason.startswith(FENCE) else None)
         return reply
 
     def _body(self, drone_id: str, body: bytes) -> dict[str, Any]:
@@ -239,6 +311,9 @@ class GroundStation:
         status = self._decode(decode_status, sample)
         if status is None or not self.registry.first_heard(status):
             return
+        if isinstance(status, CommandStatus) and status.state in TERMINAL_STATES and status.drone_id in self._claims \
+                and self._claims[status.drone_id][0] == status.command_id:
+            del self._claims[status.drone_id]  # it hovers there now (or wherever it stopped)
         event = WatchEvent("status", status)
         self.broadcast(event)
         self._emit(self.registry.on_status(status, self.clock.time_ms()))

@@ -447,9 +447,9 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             raise TypeError(f"expected a drone (from assign), got {d!r}")
         return d._live()
 
-    def send(d: Drone, body: dict[str, Any], wait: bool = True) -> Any:
+    def send(d: Drone, body: dict[str, Any], wait: bool = True, wait_clear: bool = False) -> Any:
         target, generation = drone_id(d), d._gen
-        status = _call(m, m.execute(target, body, wait=wait))
+        status = _call(m, m.execute(target, body, wait=wait, wait_clear=wait_clear))
         if wait and d._gen != generation and status.state not in COMPLETED:
             # `replace` swapped the drone while it ran this command (the return home
             # superseded it): the new drone, once in place, does it instead.
@@ -578,7 +578,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
 
     def move(d: Drone, *, forward: Any = 0, backward: Any = 0, right: Any = 0, left: Any = 0,
              up: Any = 0, down: Any = 0, to: Any = None, lat: Any = None, lon: Any = None,
-             alt: Any = None, yaw: Any = None, speed: Any = None) -> None:
+             alt: Any = None, yaw: Any = None, speed: Any = None, wait_clear: bool = False) -> None:
         goal = move_goal("move", forward, backward, right, left, up, down, to, lat, lon)
         # Where the drone is now matters only to a relative move or one that keeps its
         # heading; an absolute one with a yaw goes at once (no wait for telemetry).
@@ -601,7 +601,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             heading = base.heading
         if speed is not None:
             body["speed"] = units.speed(speed)
-        send(d, body)
+        send(d, body, wait_clear=bool(wait_clear))
         d._anchor = Position(goal.lat, goal.lon, goal.alt, heading)
 
     # ---- task bundles (SPEC §6) ------------------------------------------------------

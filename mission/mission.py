@@ -33,8 +33,10 @@ from mission.sandbox import Guards, SecurityViolation
 from schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
 from schemas.commands import new_command_id
 from schemas.errors import CommandRejected, FleetError, InvalidMessage
+from schemas.fence import CONFLICT
+from schemas.fence import REASON as FENCE
 from schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
-from schemas.status import CommandStatus, SystemStatus, ended_by_failsafe
+from schemas.status import GEOFENCE_OUTSIDE, TERMINAL_STATES, CommandStatus, SystemStatus, ended_by_failsafe
 from schemas.telemetry import Telemetry
 
 if TYPE_CHECKING:
@@ -69,7 +71,6 @@ CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "ground_restart": ("failed", "the ground station stopped while the mission ran"),
     "time_limit": ("cancelled", "time limit reached"),  # fast-time simulation's --max-time
 }
-TERMINAL_COMMAND_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})
 T = TypeVar("T")
 BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
 
@@ -331,7 +332,7 @@ class Mission:
 
     def _on_command_status(self, status: CommandStatus) -> None:
         fut = self._pending.get(status.command_id)
-        if fut is not None and status.state in TERMINAL_COMMAND_STATES and not fut.done():
+        if fut is not None and status.state in TERMINAL_STATES and not fut.done():
             fut.set_result(status)
 
     def _on_bundle_status(self, status: BundleStatus) -> None:
@@ -360,7 +361,9 @@ class Mission:
         asyncio.get_running_loop().create_task(ask(), name=f"mission {self.id} bundle {pending.bundle_id}")
 
     def _on_system_status(self, status: SystemStatus) -> None:
-        if status.state == "return":
+        if status.state == "failsafe" and GEOFENCE_OUTSIDE in (status.reason or ""):
+            self.end("geofence", f"{status.drone_id} was found {(status.reason or '').removeprefix('return: ')}; it returns")
+        elif status.state == "return":
             self.end("return", f"{status.drone_id} started an automatic return to launch" + (f": {status.reason}" if status.reason else ""))
         elif status.state == "start_manual":
             self.end("manual", f"{status.drone_id} is under manual control")
@@ -500,7 +503,8 @@ class Mission:
         self._pulses.setdefault(drone_id, []).append(fut)
         await fut
 
-    async def execute(self, drone_id: str, body: dict[str, Any], *, wait: bool = True) -> CommandStatus | None:
+    async def execute(self, drone_id: str, body: dict[str, Any], *, wait: bool = True,
+                      wait_clear: bool = False) -> CommandStatus | None:
         """Send one command as this mission; with `wait`, return its terminal status.
 
         Failures end the mission: the ground's 400 → cmd_parse, a refusal, a failure
@@ -508,7 +512,7 @@ class Mission:
         """
         name = str(body["cmd"])
         for interrupted in range(RESUME_TRIES + 1):
-            status = await self._execute_once(drone_id, name, body, wait=wait)
+            status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
                 break
             if interrupted == RESUME_TRIES:
@@ -520,7 +524,8 @@ class Mission:
             self.log("warn", f"{drone_id}: {name} was interrupted by the drone's lost-link failsafe; sending it again")
         return status
 
-    async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool) -> CommandStatus | None:
+    async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
+                            wait_clear: bool) -> CommandStatus | None:
         self.check_assigned(drone_id)
         back = self._link_back_at.get(drone_id)
         if back is not None and not back.done():  # out of reach: the ground would refuse it (unknown)
@@ -533,7 +538,7 @@ class Mission:
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
-                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode())
+                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode(), wait_clear)
                 if not wait:
                     return None
                 status = await self._outcome(fut, drone_id)
@@ -549,20 +554,34 @@ class Mission:
             drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
         ))
         if status.state == "failure":
-            raise self.fail("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
+            raise self.fail("geofence" if (status.reason or "").startswith(FENCE) else "cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
 
-    async def _deliver(self, drone_id: str, name: str, payload: bytes) -> None:
+    async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False) -> None:
         """Send a command; with no answer, send it again (same command id: the agent
-        runs it once) before the mission gives up on the drone."""
-        for attempt in range(1, DELIVERY_TRIES + 1):
+        runs it once) before the mission gives up on the drone. With `wait_clear`, a
+        target another drone holds (409 conflict) is tried again each time that drone
+        reports, for up to mission.clear_wait_s."""
+        attempt, waited_for = 1, None
+        give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
+        while True:
             try:
                 await self.station.command(drone_id, payload, self.id)
+                if waited_for is not None:
+                    self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
                 return
             except Unreachable:
                 if attempt == DELIVERY_TRIES:
                     raise
-                self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt + 1}/{DELIVERY_TRIES})")
+                attempt += 1
+                self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt}/{DELIVERY_TRIES})")
+            except CommandRejected as exc:
+                if not (wait_clear and exc.code == CONFLICT and exc.other) or self.clock.monotonic() > give_up:
+                    raise
+                if waited_for != exc.other:
+                    waited_for = exc.other
+                    self.log("info", f"{drone_id}: {name} waits for {exc.other} to clear the spot ({exc.reason})")
+                await self.next_telemetry(exc.other)
 
     async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
         """Send a task bundle as this mission and wait until it has ended (SPEC §6);
@@ -590,7 +609,8 @@ class Mission:
         except InvalidMessage as exc:
             raise self.fail("cmd_parse", f"{name} {drone_id}: {exc}") from None
         except CommandRejected as exc:
-            raise self.fail("cmd_exec", f"{name} {drone_id} refused: {exc.reason}") from None
+            cause = "geofence" if exc.code == FENCE else "cmd_exec"
+            raise self.fail(cause, f"{name} {drone_id} refused: {exc.reason}") from None
         except Unreachable as exc:
             raise self.fail("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
 

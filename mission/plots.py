@@ -40,6 +40,11 @@ def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
             ax.plot([e for _, e in flown], [n for n, _ in flown], linestyle=":", color=colour, linewidth=1,
                     label=f"{drone_id} flown (heard or not)")
     ax.plot(0, 0, "k^", markersize=10, label="ground station")
+    fence = (result.get("geofence") or {}).get("polygon")
+    if fence:
+        corners = [frame.to_local(lat, lon) for lat, lon in [*fence, fence[0]]]
+        ax.plot([e for _, e in corners], [n for n, _ in corners], color="tab:red", linestyle="--", linewidth=1.5,
+                label="geofence")
     ax.set(xlabel="east (m)", ylabel="north (m)", title=f"paths - {title}")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)

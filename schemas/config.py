@@ -25,6 +25,7 @@ class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     return_on_critical_battery: bool = True  # a mission drone at critical battery is sent home
     end_action: Literal["hold", "return"] = "hold"  # what flying drones do when their mission ends
     link_grace_s: Annotated[float, Meta(ge=0, le=3600)] = 30.0  # how long a mission waits for a drone whose link is lost
+    clear_wait_s: Annotated[float, Meta(ge=0, le=3600)] = 120.0  # move(..., wait_clear=True): longest wait for a spot
 
 
 

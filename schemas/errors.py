@@ -36,7 +36,9 @@ class ConfigError(FleetError):
 class CommandRejected(FleetError):
     """The ground or the agent will not run a command now; `status` is the HTTP code."""
 
-    def __init__(self, status: int, reason: str) -> None:
+    def __init__(self, status: int, reason: str, code: str | None = None, other: str | None = None) -> None:
         super().__init__(reason)
         self.status = status
         self.reason = reason
+        self.code = code  # machine-readable kind of a 409: "geofence", "conflict"
+        self.other = other  # the other drone of a conflict

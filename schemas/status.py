@@ -14,6 +14,7 @@ from schemas.telemetry import Position
 
 FAILSAFE_ID_PREFIX = "failsafe-"  # command ids of what an agent sends itself when it loses the ground
 FAILSAFE_REASON = "lost-link failsafe"  # starts the reason of a command its failsafe ended
+GEOFENCE_OUTSIDE = "outside the geofence"  # a failsafe's reason after "return: " (SPEC §11)
 
 
 def ended_by_failsafe(status: CommandStatus) -> bool:
@@ -21,6 +22,7 @@ def ended_by_failsafe(status: CommandStatus) -> bool:
     return status.state == "cancel" and (status.reason or "").startswith(FAILSAFE_REASON)
 
 
+TERMINAL_STATES = frozenset({"finish", "success", "failure", "cancel", "stop"})  # a command's last status
 CommandState = Literal["start", "stop", "cancel", "finish", "queued", "success", "failure"]
 SystemState = Literal[
     "connect", "disconnect", "disarm", "return", "stop_offboard", "start_manual",

@@ -80,6 +80,7 @@ class Vehicle:
         self.connected = True
         self.cruise_speed = self.params.cruise_speed_mps
         self.events: list[str] = []  # status texts for whoever listens (STATUSTEXT)
+        self.fence: list[tuple[float, float]] = []  # the autopilot's inclusion geofence [(lat, lon), …]; [] = none
         self._armed_at = 0.0
         self._landed_at: float | None = None
         self._took_off = False

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Annotated, Literal
 import msgspec
 from msgspec import Meta
 
+from schemas.fence import Geofence
 from schemas.geo import destination
 from sim.radio import RadioModel, Spot3
 from sim.vehicle import VehicleParams
@@ -76,6 +77,9 @@ class World(_Strict, frozen=True):
     # network unless the world has `radio:` (or `simulate --radio`); `fleet sim --radio`
     # always applies it, with the thesis's defaults when absent.
     radio: RadioModel | None = None
+    # The field's fence (SPEC §11): fast time gives it to the ground and every agent,
+    # as a field would be set up, and paths.png draws it.
+    geofence: Geofence | None = None
 
     @property
     def radio_model(self) -> RadioModel:

@@ -5,19 +5,27 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import struct
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 
 import pytest
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mav2
 
+from agent.fc_mavsdk import MavsdkFlightController
+from agent.fc_port import FcRejected
+from agent.fc_sim import SimFlightController
+from bus.clock import VirtualClock
 from bus.zenoh_bus import ZenohBus
 from schemas.geo import destination, distance_m
 from sim.faults import send_fault
+from sim.mavlink_endpoint import MavlinkVehicle
+from sim.vehicle import Vehicle
 from tests.harness import AgentProcess, Operator, SimProcess, fleet_command
-from tests.helpers import free_udp_base
+from tests.helpers import Collector, free_udp_base
 
 pytestmark = pytest.mark.integration
 
@@ -180,3 +188,173 @@ def test_bad_flight_controller_urls(url: str) -> None:
 
     with pytest.raises(ConfigError):
         mavsdk_url(url)
+
+
+# ----- geofence upload: the mission protocol of the MAVLink simulator ------------------
+
+FENCE = [(40.6345, -8.6612), (40.6345, -8.6590), (40.6325, -8.6590), (40.6325, -8.6612)]
+SMALLER_FENCE = [(40.6340, -8.6605), (40.6340, -8.6595), (40.6330, -8.6600)]
+
+
+def assert_same_polygon(got: list[tuple[float, float]], want: list[tuple[float, float]]) -> None:
+    assert len(got) == len(want), got
+    for (lat, lon), (want_lat, want_lon) in zip(got, want, strict=True):
+        assert abs(lat - want_lat) <= 1e-7 and abs(lon - want_lon) <= 1e-7, (got, want)
+
+
+@pytest.fixture
+async def px4() -> AsyncIterator[MavlinkVehicle]:
+    """One simulated PX4 in this process, stepping, sending to a free loopback port."""
+    port = free_udp_base(1)
+    endpoint = MavlinkVehicle(Vehicle(40.633490, -8.660815, 8.2), 1, [("127.0.0.1", port)])
+    await endpoint.start(("127.0.0.1", 0))
+    stepping = asyncio.get_running_loop().create_task(endpoint.run())
+    try:
+        yield endpoint
+    finally:
+        stepping.cancel()
+        await asyncio.wait([stepping])
+        endpoint.close()
+
+
+@pytest.fixture
+async def mavsdk_fc(px4: MavlinkVehicle) -> AsyncIterator[MavsdkFlightController]:
+    """The agent's MAVSDK adapter (real mavsdk 4.x) connected to `px4`."""
+    fc = MavsdkFlightController(f"udpin://127.0.0.1:{px4.outputs[0][1]}")
+    try:
+        await fc.start()
+        yield fc
+    finally:
+        await fc.close()
+
+
+async def test_mavsdk_uploads_a_geofence_the_simulator_holds_and_a_second_replaces_it(
+    px4: MavlinkVehicle, mavsdk_fc: MavsdkFlightController,
+) -> None:
+    # upload_fence returns on the vehicle's MISSION_ACK, which it sends after storing.
+    await mavsdk_fc.upload_fence(FENCE)
+    assert_same_polygon(px4.vehicle.fence, FENCE)
+    items = px4.missions.plans[mav2.MAV_MISSION_TYPE_FENCE]
+    assert [i.command for i in items] == [mav2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION] * 4
+    assert {i.params[0] for i in items} == {4.0}  # param1: the polygon's vertex count
+    # As PX4, the vehicle asked in float messages first; MAVSDK answered UNSUPPORTED and
+    # the vehicle switched to MISSION_REQUEST_INT.
+    assert px4.missions.int_mode
+
+    await mavsdk_fc.upload_fence(SMALLER_FENCE)
+    assert_same_polygon(px4.vehicle.fence, SMALLER_FENCE)
+    assert len(px4.missions.plans[mav2.MAV_MISSION_TYPE_FENCE]) == 3
+    assert px4.missions.state == "idle"
+
+
+async def test_a_fence_the_autopilot_cannot_store_is_refused_and_the_old_one_kept(
+    px4: MavlinkVehicle, mavsdk_fc: MavsdkFlightController,
+) -> None:
+    await mavsdk_fc.upload_fence(FENCE)
+    too_many = [(40.63 + i * 1e-5, -8.66 + (i % 2) * 1e-5) for i in range(65)]  # PX4 keeps 64 fence items
+    with pytest.raises(FcRejected, match="too many geofence items"):
+        await mavsdk_fc.upload_fence(too_many)
+    with pytest.raises(FcRejected, match="invalid argument"):  # MAVSDK's own check
+        await mavsdk_fc.upload_fence(FENCE[:2])
+    assert_same_polygon(px4.vehicle.fence, FENCE)
+
+
+async def test_the_builtin_sim_controller_holds_the_fence_like_the_mavlink_one() -> None:
+    vehicle = Vehicle(40.633490, -8.660815, 8.2)
+    fc = SimFlightController(vehicle, VirtualClock())
+    await fc.start()
+    try:
+        await fc.upload_fence(FENCE)
+        assert_same_polygon(vehicle.fence, FENCE)
+        await fc.upload_fence(SMALLER_FENCE)
+        assert_same_polygon(vehicle.fence, SMALLER_FENCE)
+        with pytest.raises(FcRejected, match="invalid argument"):
+            await fc.upload_fence(FENCE[:2])
+        with pytest.raises(FcRejected, match="too many geofence items"):
+            await fc.upload_fence([(40.63 + i * 1e-5, -8.66) for i in range(65)])
+        assert_same_polygon(vehicle.fence, SMALLER_FENCE)
+        vehicle.connected = False
+        with pytest.raises(FcRejected, match="not responding"):
+            await fc.upload_fence(FENCE)
+    finally:
+        await fc.close()
+
+
+def e7_of_float32(deg: float) -> int:
+    """A coordinate sent in a float MISSION_ITEM, as it comes back in a MISSION_ITEM_INT."""
+    return round(struct.unpack("<f", struct.pack("<f", deg))[0] * 1e7)
+
+
+class Gcs(asyncio.DatagramProtocol):
+    """A bare MAVLink 2 ground station (255/190) on a loopback socket."""
+
+    def __init__(self) -> None:
+        self.mav = mav2.MAVLink(None, srcSystem=255, srcComponent=mav2.MAV_COMP_ID_MISSIONPLANNER)
+        self.mav.robust_parsing = True
+        self.got = Collector()
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        for msg in self.mav.parse_buffer(data) or []:
+            self.got(msg)
+
+    async def ask(self, msg: mav2.MAVLink_message, reply: str) -> mav2.MAVLink_message:
+        """Send `msg` to the vehicle and wait for its next `reply`."""
+        assert self.transport is not None
+        start = len(self.got.items)
+        self.transport.sendto(msg.pack(self.mav))
+        return await self.got.wait_for(lambda m: m.get_type() == reply, 5, reply, start=start)
+
+
+async def test_a_ground_station_uploads_and_downloads_a_mission_and_rally_points(px4: MavlinkVehicle) -> None:
+    loop = asyncio.get_running_loop()
+    transport, gcs = await loop.create_datagram_endpoint(Gcs, remote_addr=("127.0.0.1", px4.local_port))
+    m, MISSION, RALLY = gcs.mav, mav2.MAV_MISSION_TYPE_MISSION, mav2.MAV_MISSION_TYPE_RALLY
+    try:
+        # Upload in float messages (MISSION_ITEM), as PX4 first asks for them.
+        request = await gcs.ask(m.mission_count_encode(1, 1, 2, MISSION), "MISSION_REQUEST")
+        assert (request.seq, request.mission_type) == (0, MISSION)
+        takeoff = m.mission_item_encode(1, 1, 0, mav2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mav2.MAV_CMD_NAV_TAKEOFF,
+                                        1, 1, 0, 0, 0, 0, 40.6335, -8.6608, 10, MISSION)
+        assert (await gcs.ask(takeoff, "MISSION_REQUEST")).seq == 1
+        waypoint = m.mission_item_encode(1, 1, 1, mav2.MAV_FRAME_GLOBAL_RELATIVE_ALT, mav2.MAV_CMD_NAV_WAYPOINT,
+                                         0, 1, 0, 0, 0, 0, 40.6340, -8.6600, 15, MISSION)
+        ack = await gcs.ask(waypoint, "MISSION_ACK")
+        assert (ack.type, ack.mission_type) == (mav2.MAV_MISSION_ACCEPTED, MISSION)
+        # Download in int messages.
+        count = await gcs.ask(m.mission_request_list_encode(1, 1, MISSION), "MISSION_COUNT")
+        assert count.count == 2
+        first = await gcs.ask(m.mission_request_int_encode(1, 1, 0, MISSION), "MISSION_ITEM_INT")
+        assert (first.command, first.frame, first.x, first.y, first.z) == (  # as received: float32 degrees
+            mav2.MAV_CMD_NAV_TAKEOFF, mav2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, e7_of_float32(40.6335),
+            e7_of_float32(-8.6608), 10)
+        second = await gcs.ask(m.mission_request_int_encode(1, 1, 1, MISSION), "MISSION_ITEM_INT")
+        assert (second.seq, second.command, second.x) == (1, mav2.MAV_CMD_NAV_WAYPOINT, e7_of_float32(40.6340))
+        transport.sendto(m.mission_ack_encode(1, 1, mav2.MAV_MISSION_ACCEPTED, MISSION).pack(m))
+        # Rally points, now in int messages (the vehicle stays in the mode last used).
+        request = await gcs.ask(m.mission_count_encode(1, 1, 1, RALLY), "MISSION_REQUEST_INT")
+        rally = m.mission_item_int_encode(1, 1, 0, mav2.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                                          mav2.MAV_CMD_NAV_RALLY_POINT, 0, 0, 0, 0, 0, 0, 406330000, -86610000, 20, RALLY)
+        assert (await gcs.ask(rally, "MISSION_ACK")).type == mav2.MAV_MISSION_ACCEPTED
+        assert len(px4.missions.plans[RALLY]) == 1 and len(px4.missions.plans[MISSION]) == 2
+        # What PX4 refuses is refused with a MISSION_ACK, never left unanswered.
+        await gcs.ask(m.mission_count_encode(1, 1, 1, MISSION), "MISSION_REQUEST_INT")
+        terminate = m.mission_item_int_encode(1, 1, 0, mav2.MAV_FRAME_MISSION, mav2.MAV_CMD_DO_FLIGHTTERMINATION,
+                                              0, 1, 1, 0, 0, 0, 0, 0, 0, MISSION)
+        assert (await gcs.ask(terminate, "MISSION_ACK")).type == mav2.MAV_MISSION_UNSUPPORTED
+        await gcs.ask(m.mission_count_encode(1, 1, 1, MISSION), "MISSION_REQUEST_INT")
+        vertex = m.mission_item_int_encode(1, 1, 0, mav2.MAV_FRAME_GLOBAL, mav2.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                                           0, 0, 3, 0, 0, 0, 406330000, -86610000, 0, MISSION)
+        assert (await gcs.ask(vertex, "MISSION_ACK")).type == mav2.MAV_MISSION_ERROR  # a fence item in a mission
+        ack = await gcs.ask(m.mission_count_encode(1, 1, 65, mav2.MAV_MISSION_TYPE_FENCE), "MISSION_ACK")
+        assert ack.type == mav2.MAV_MISSION_NO_SPACE
+        assert len(px4.missions.plans[MISSION]) == 2  # refused uploads leave the stored plan alone
+        # MISSION_CLEAR_ALL for every type.
+        ack = await gcs.ask(m.mission_clear_all_encode(1, 1, mav2.MAV_MISSION_TYPE_ALL), "MISSION_ACK")
+        assert ack.type == mav2.MAV_MISSION_ACCEPTED
+        assert all(not items for items in px4.missions.plans.values())
+    finally:
+        transport.close()
