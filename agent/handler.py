@@ -87,6 +87,11 @@ class CommandHandler:
         self._prev = FcState()
 
     @property
+    def running(self) -> str | None:
+        """The name of the command running now, if any."""
+        return self._running.name if self._running is not None and not self._running.ended else None
+
+    @property
     def connected(self) -> bool:
         return self._fc.state().connected
 

@@ -141,6 +141,12 @@ class Agent:
         """Act alone: the same handler and priority rules as a command from the ground.
         Without `why`, for the lost link (a command it ends is sent again by the
         mission once the link is back); else the reason, e.g. the geofence's."""
+        running = self.handler.running
+        if why is None and (running == "land" or (running == "return" and action != "land")):
+            # Already on its way down or home: a hold would stop it in the air, out of reach.
+            log.warning("%s: lost link failsafe: %s not taken, the drone is already running %s",
+                        self.drone_id, action, running)
+            return
         now_ms = self.clock.time_ms()  # one failsafe per action at a time: unique, and replays in fast time
         prefix = FAILSAFE_ID_PREFIX if why is None else GEOFENCE_ID_PREFIX
         command = FAILSAFE_COMMANDS[action](drone_id=self.drone_id, command_id=f"{prefix}{action}-{now_ms}", timestamp=now_ms)

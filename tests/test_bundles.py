@@ -406,3 +406,32 @@ print(f"moved {start.distance(d.position):.0f} m")
     assert "drone01: goto was interrupted by the drone's lost-link failsafe; sending it again" in log, log
     moved = next(line for line in log if line.startswith("moved"))
     assert abs(float(moved.split()[1]) - 60) < 3, log
+
+
+async def test_a_lost_link_hold_does_not_stop_a_drone_on_its_way_home(caplog: pytest.LogCaptureFixture) -> None:
+    """A 6 s radio shadow (the lost-link timeout is 3 s, action hold) hits drone01 while
+    it returns: the hold would stop it in the air, out of reach; the agent lets the
+    return go on, so the return ends once (finish), never cancelled."""
+    def once_it_heads_home(sim: SimField) -> None:
+        home = sim.world.drones[0]
+        state = {"out": False}
+
+        def heading_home(spot: Spot3) -> bool:  # out past 30 m, then back inside 25 m
+            far = distance_m(home.lat, home.lon, spot.lat, spot.lon)
+            state["out"] = state["out"] or far > 30
+            return state["out"] and far < 25
+
+        radio_shadow(sim, heading_home, 6.0)
+
+    caplog.set_level(logging.WARNING, logger="agent.runtime")
+    sim, (record, log), _ = await fly("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=35*m, speed=5*m/s)
+home(d)
+""", fire_world(RadioModel()), max_s=200, prepare=once_it_heads_home,
+        lost_link=LostLinkPolicy(timeout_s=3, action="hold", return_after_s=60))
+    assert record.status == "finished", (record, log)
+    assert "interrupted by the drone's lost-link failsafe" not in "\n".join(log), log
+    assert any("hold not taken, the drone is already running return" in r.getMessage() for r in caplog.records)
