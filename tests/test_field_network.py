@@ -304,7 +304,11 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
         for d in cases:
             assert records[d]["status"] == "finished", f"{d}: {records[d]}"
         one, two = await log_lines(http, "drone01"), await log_lines(http, "drone02")
-        await until(lambda: state_is(http, "drone02", "ready"), 60, "drone02 landed and ready")
+        try:
+            await until(lambda: state_is(http, "drone02", "ready"), 60, "drone02 landed and ready")
+        except AssertionError:
+            now = await drone(http, "drone02")
+            raise AssertionError(f"drone02 not ready: {now}\nmission: {log_two}\n" + "\n".join((await log_lines(http, "drone02"))[-25:])) from None
         home_two = (await drone(http, "drone02"))["telem"]["position"]  # type: ignore[index]
 
     # drone01 flew on alone: the ground lost it, the mission waited, then caught up.

@@ -29,7 +29,8 @@ DRONES = ("drone01", "drone02", "drone03", "drone04")
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
-    fcs = {d: f"sim://?lat=40.6334{i}&lon=-8.66081{i}&alt=8.2" for i, d in enumerate(DRONES)}
+    # Parked 11 m apart, as real drones are: closer, a takeoff under a hovering drone is a conflict (SPEC §11).
+    fcs = {d: f"sim://?lat=40.633400&lon={-8.660810 + 0.00013 * i:.6f}&alt=8.2" for i, d in enumerate(DRONES)}
     fleet = GroundFleet(tmp_path_factory.mktemp("missions"), fcs, {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0})
     yield fleet
     fleet.stop()
