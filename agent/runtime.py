@@ -21,7 +21,7 @@ import msgspec
 
 from agent.bundle import BundleRunner, BundleStore
 from agent.config import AgentConfig
-from agent.fc_port import FcError, FcUnavailable, FlightController
+from agent.fc_port import FcError, FcState, FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
 from agent.link import LostLink, LostLinkAction
@@ -121,7 +121,7 @@ class Agent:
     async def _lost_link_loop(self) -> None:
         while True:
             state = self.fc.state()
-            flying = state.armed and state.landed_state not in ("on_ground", "unknown")
+            flying = _flying(state)
             # While a bundle runs, its own on_link_loss decides (below); the agent's
             # failsafe waits until the bundle has ended.
             alone = flying and not self.bundles.running
@@ -161,8 +161,7 @@ class Agent:
         fence, out = self.config.geofence, False
         while True:
             s = self.fc.state()
-            flying = s.armed and s.landed_state not in ("on_ground", "unknown") and s.position is not None
-            where = fence.outside(s.position.lat, s.position.lon, s.position.rel_alt) if flying and s.position else None
+            where = fence.outside(s.position.lat, s.position.lon, s.position.rel_alt) if _flying(s) and s.position else None
             if where is not None and not out:
                 self._failsafe("return", f"{GEOFENCE_OUTSIDE}, {where}")
             out = where is not None
@@ -274,6 +273,10 @@ class Agent:
             sensors.close()
             bundles.close()
             queryable.close()
+
+
+def _flying(state: FcState) -> bool:
+    return state.armed and state.landed_state not in ("on_ground", "unknown")
 
 
 async def _join(bus: Bus, keys: Keys, drone_id: str) -> None:

@@ -16,7 +16,7 @@ import logging
 import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, NoReturn
 
 import msgspec
 
@@ -30,7 +30,7 @@ from schemas.bundles import BundleRecord, BundleReply, new_bundle_id, parse_bund
 from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command, new_command_id
 from schemas.errors import CommandRejected, InvalidMessage
-from schemas.fence import CONFLICT, flight_of, refusal
+from schemas.fence import CONFLICT, flight_of
 from schemas.fence import REASON as FENCE
 from schemas.fleet import WatchEvent
 from schemas.geo import distance_m
@@ -201,38 +201,38 @@ class GroundStation:
             raise CommandRejected(404, f"no drone {drone_id!r} is registered")
 
     def _check(self, drone_id: str, name: str, label: str, mission_id: str | None) -> None:
-        """The registry's refusal of `name` now (thesis §4.2.4), logged as "Refused <label>: …"."""
+        """The registry's refusal of `name` now (thesis §4.2.4)."""
         refusal = self.registry.check_command(drone_id, name, mission_id)
         if refusal is not None:
-            self._emit([LogLine(
-                timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
-                message=f"Refused {label}: {refusal.reason}",
-            )])
-            raise CommandRejected(refusal.status, refusal.reason)
+            self._refuse(drone_id, label, CommandRejected(refusal.status, refusal.reason))
+
+    def _refuse(self, drone_id: str, label: str, rejected: CommandRejected) -> NoReturn:
+        """Log the refusal as "Refused <label>: …" and raise it."""
+        self._emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
+                            message=f"Refused {label}: {rejected.reason}")])
+        raise rejected
 
     def _check_flight(self, drone_id: str, command: Command) -> tuple[float, float, float] | None:
         """SPEC §11 at the ground: the fence (409 geofence), then the other drones'
         targets and hovering drones (409 conflict, naming the other drone). Returns
         where the command takes the drone (lat, lon, alt AMSL), if known."""
-        telem = self.registry.telemetry(drone_id)
-        fence = self.config.geofence
-        why = refusal(fence, command, telem.position, telem.heading)
-        other: str | None = None
-        spot: tuple[float, float, float] | None = None
+        telem, fence = self.registry.telemetry(drone_id), self.config.geofence
         flight = flight_of(command, telem.position, telem.heading)
-        if why is None and flight is not None and flight.alt is not None and telem.position is not None:
-            spot = (*flight.end, telem.position.alt - telem.position.rel_alt + flight.alt)
-            clash = self._nearest_claim(drone_id, spot)
-            if clash is not None and clash[1] < fence.min_separation_m:
-                other, gap, what = clash
-                why = (f"{CONFLICT}: the target is {gap:.1f} m from {what} of {other} "
-                       f"(geofence.min_separation_m {fence.min_separation_m:g})")
-        if why is None:
-            return spot
+        if flight is None:
+            return None
+        why = fence.check(flight.start, flight.end, flight.alt) if fence.limits else None
         if why is not None:
-            self._emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
-                                message=f"Refused {command.name}: {why}")])
-            raise CommandRejected(409, why, code=CONFLICT if other else FENCE, other=other)
+            self._refuse(drone_id, command.name, CommandRejected(409, why, code=FENCE))
+        if flight.alt is None or telem.position is None:
+            return None
+        spot = (*flight.end, telem.position.alt - telem.position.rel_alt + flight.alt)
+        clash = self._nearest_claim(drone_id, spot)
+        if clash is not None and clash[1] < fence.min_separation_m:
+            other, gap, what = clash
+            why = (f"{CONFLICT}: the target is {gap:.1f} m from {what} of {other} "
+                   f"(geofence.min_separation_m {fence.min_separation_m:g})")
+            self._refuse(drone_id, command.name, CommandRejected(409, why, code=CONFLICT, other=other))
+        return spot
 
     def _nearest_claim(self, drone_id: str, target: tuple[float, float, float]) -> tuple[str, float, str] | None:
         """The other drone whose claim on the air is nearest `target` (lat, lon, alt

@@ -81,6 +81,8 @@ class _PendingBundle:
     bundle_id: str
     deadline: float  # clock.monotonic() by which the bundle should have ended
     done: asyncio.Future[BundleRecord]
+
+
 DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
 # Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
 # them (relative ones — move by offsets, turn, offboard — would not mean the same again).
@@ -361,8 +363,9 @@ class Mission:
         asyncio.get_running_loop().create_task(ask(), name=f"mission {self.id} bundle {pending.bundle_id}")
 
     def _on_system_status(self, status: SystemStatus) -> None:
-        if status.state == "failsafe" and GEOFENCE_OUTSIDE in (status.reason or ""):
-            self.end("geofence", f"{status.drone_id} was found {(status.reason or '').removeprefix('return: ')}; it returns")
+        reason = status.reason or ""
+        if status.state == "failsafe" and GEOFENCE_OUTSIDE in reason:
+            self.end("geofence", f"{status.drone_id} was found {reason.removeprefix('return: ')}; it returns")
         elif status.state == "return":
             self.end("return", f"{status.drone_id} started an automatic return to launch" + (f": {status.reason}" if status.reason else ""))
         elif status.state == "start_manual":
@@ -554,7 +557,7 @@ class Mission:
             drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
         ))
         if status.state == "failure":
-            raise self.fail("geofence" if (status.reason or "").startswith(FENCE) else "cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
+            raise self.fail("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
 
     async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False) -> None:

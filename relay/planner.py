@@ -385,6 +385,11 @@ def duty_altitude(index: int, p: Params, flying: Sequence[float] = ()) -> float:
     return p.base_alt + lift + (p.alt_diff if index % 2 == 0 else 0.0)
 
 
+def _kept_altitude(r: Relay, index: int, p: Params, flying: Sequence[float]) -> float:
+    """A relay keeps its altitude unless a drone flies at it; then it takes the lifted level of `index`."""
+    return r.alt if _alt_clear(r.alt, flying, p) else duty_altitude(index, p, flying)
+
+
 def _alt_clear(alt: float, flying: Sequence[float], p: Params) -> bool:
     return all(abs(alt - f) >= p.min_separation for f in flying)
 
@@ -399,7 +404,7 @@ def _assign(result: Plan, serving: Sequence[Relay], returning: Sequence[Relay], 
     their way home, nearest first (called back before a new drone is dispatched), then
     to new relays. A relay is moved only when its point moved by more than `step`."""
     for i, (r, pt) in enumerate(zip(serving, result.points, strict=False)):
-        alt = r.alt if _alt_clear(r.alt, flying, p) else duty_altitude(i, p, flying)
+        alt = _kept_altitude(r, i, p, flying)
         if keep and alt != r.alt:
             result.moves.append(Move(r.id, r.target or r.at, alt))  # it stays, above (or below) the drones
         elif not keep and (r.target is None or dist(r.target, pt) > p.step or alt != r.alt):
@@ -410,7 +415,7 @@ def _assign(result: Plan, serving: Sequence[Relay], returning: Sequence[Relay], 
         if back:
             r = min(back, key=lambda r: dist(r.at, pt))
             back.remove(r)
-            alt = r.alt if _alt_clear(r.alt, flying, p) else duty_altitude(len(serving) + j, p, flying)
+            alt = _kept_altitude(r, len(serving) + j, p, flying)
             result.moves.append(Move(r.id, pt, alt))
         else:
             result.dispatch.append((pt, duty_altitude(len(serving) + len(result.dispatch), p, flying)))
