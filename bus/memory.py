@@ -142,10 +142,16 @@ class MemoryBus:
         return decl
 
     def publish(self, key: str, payload: bytes, *, reliable: bool = True) -> None:
+        # One transmission per node that subscribes, handed to each of its matching
+        # subscriptions there (as a Zenoh session does): a node that subscribes twice,
+        # say to record, changes neither what crosses the radio nor its random draws.
+        inboxes: dict[str, list[Inbox[Sample]]] = {}
         for decl, inbox in list(self._net.subscribers):
             if intersects(decl.keyexpr, key):
-                sample = Sample(key, bytes(payload))
-                self._net.carry(self.node, decl.owner.node, functools.partial(inbox.put_nowait, sample))
+                inboxes.setdefault(decl.owner.node, []).append(inbox)
+        sample = Sample(key, bytes(payload))
+        for node, there in inboxes.items():
+            self._net.carry(self.node, node, functools.partial(_put_all, there, sample))
 
     def subscribe(
         self, keyexpr: str, handler: SampleHandler, *, latest_only: bool = False, maxsize: int = 1024
@@ -258,3 +264,8 @@ class MemoryBus:
         for decl in reversed(self._decls):
             decl.close()
         self._decls.clear()
+
+
+def _put_all(inboxes: list[Inbox[Sample]], sample: Sample) -> None:
+    for inbox in inboxes:
+        inbox.put_nowait(sample)

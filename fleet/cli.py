@@ -25,7 +25,7 @@ from schemas.errors import ConfigError, FleetError
 SERVICES = frozenset({"agent", "ground", "sim", "demo", "sensor"})
 # The extra (pyproject.toml) that brings each optional library.
 EXTRA_OF = {"zenoh": "agent", "mavsdk": "agent", "litestar": "ground", "uvicorn": "ground", "httpx": "ground",
-            "greenlet": "ground", "pymavlink": "sim", "matplotlib": "plots"}
+            "greenlet": "ground", "mcap": "ground", "pymavlink": "sim", "matplotlib": "plots"}
 LIBRARIES = ("zenoh", "httpx", "httpcore", "matplotlib", "asyncio", "mavsdk", "grpc", "uvicorn")
 
 
@@ -297,11 +297,14 @@ def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_don
 
 def _add_http_clients() -> None:
     from fleet.mission_cli import mission
+    from fleet.recording_cli import plot, record, replay
     from ground.cli import drone, logs
 
     main.add_command(drone)
     main.add_command(logs)
     main.add_command(mission)
+    for command in (record, replay, plot):
+        main.add_command(command)
 
 
 _add_http_clients()

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import shutil
 import socket
 import tempfile
 from collections.abc import Callable, Iterator
@@ -104,6 +105,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
         bus = await ZenohBus.open("router", listen=config.listen)
         try:
             station = GroundStation(config, bus, events)
+            station.record_missions(data_dir / "missions")
             missions = MissionManager(station, store, station.clock, plugins=plugins)
             server = _EmbeddedServer(uvicorn.Config(
                 create_app(station, missions), log_level="warning", lifespan="on",
@@ -202,6 +204,8 @@ class SimField:
             self._tasks.append(loop.create_task(self.air.run(), name="radio"))
         self._tasks.append(loop.create_task(self.station.run(), name="ground"))
         self.station.listen(self._record)
+        gs = self.world.ground_station or self.world.origin
+        self.station.record_missions(self.data_dir / "missions", ground_station=(gs.lat, gs.lon))
         for spec in self.specs:
             assert spec.lat is not None and spec.lon is not None and spec.alt is not None
             vehicle = Vehicle(spec.lat, spec.lon, spec.alt, self.world.params())
@@ -353,6 +357,11 @@ class SimField:
             self._tmp.cleanup()
 
 
+def _copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dst)
+
+
 async def simulate(
     source: str,
     world: World,
@@ -373,6 +382,9 @@ async def simulate(
         await sim.start(echo)
         record = await sim.run_mission(source, name=name, max_s=max_s, enable=enable)
         result = sim.result(record)
+        if out_dir is not None:  # the mission's recording (SPEC §12), before its data dir goes
+            await asyncio.to_thread(_copy, sim.data_dir / "missions" / f"{record.mission_id}.mcap",
+                                    out_dir / "recording.mcap")
     finally:
         await sim.close()
     if out_dir is not None:

@@ -165,7 +165,7 @@ def check(script: Path) -> None:
 @click.option("--world", type=click.Path(exists=True, dir_okay=False, path_type=Path), help="World file (SPEC §7).")
 @click.option("--drones", "n", type=click.IntRange(1, 100), help="Number of drones (default: the world's, or 1).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the script's `random`.")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), help="Write result.json and plots here.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), help="Write result.json, recording.mcap and plots here.")
 @click.option("--max-time", "max_s", type=click.FloatRange(1, 86_400), default=3600, show_default=True,
               help="Cancel the mission after this much simulated time (s).")
 @click.option("--enable", "plugins", multiple=True, metavar="'PLUGIN key=value…'",
@@ -232,5 +232,5 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     click.echo(outcome(record))
     click.echo(f"simulated {duration:.1f} s in {wall:.2f} s of wall time ({duration / max(wall, 1e-9):.0f}x)")
     if out_dir is not None:
-        click.echo(f"wrote {out_dir / 'result.json'} and plots in {out_dir}")
+        click.echo(f"wrote result.json, recording.mcap and plots in {out_dir}")
     raise SystemExit(EXIT_CODES[record["status"]])

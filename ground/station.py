@@ -16,15 +16,18 @@ import logging
 import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, NoReturn
 
 import msgspec
 
 from bus.clock import Clock, SystemClock
 from bus.port import Bus, Declaration, QueryRefused, Sample, echo
+from bus.recording import now_ns_of
 from ground.config import GroundConfig
 from ground.describe import describe_step
 from ground.eventlog import EventLog
+from ground.recording import MissionRecordings
 from ground.registry import Event, InfoChanged, LogLine, Registry
 from schemas.bundles import BundleRecord, BundleReply, new_bundle_id, parse_bundle, sensor_guards
 from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
@@ -74,6 +77,12 @@ class GroundStation:
         # drone → (command id, lat, lon, alt AMSL): where a command this ground sent takes
         # it, from the moment it passed the checks until it ends (its `start` comes later)
         self._claims: dict[str, tuple[str, float, float, float]] = {}
+        self.recordings: MissionRecordings | None = None
+
+    def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
+        """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
+        self.recordings = MissionRecordings(self.bus, self.keys, directory, now_ns_of(self.clock),
+                                            self.config.geofence, ground_station)
 
     # ---- running -------------------------------------------------------------------
 
@@ -93,11 +102,15 @@ class GroundStation:
         try:
             while True:
                 self._emit(self.registry.tick(self.clock.time_ms()))
+                if self.recordings is not None:
+                    self.recordings.tick()
                 await self.clock.sleep(TICK_S)
         finally:
+            self.log_ground("info", "Ground station stopped")
+            if self.recordings is not None:
+                self.recordings.close()
             for declaration in reversed(declarations):
                 declaration.close()
-            self.log_ground("info", "Ground station stopped")
 
     def log_ground(self, level: str, message: str) -> None:
         """A line about the ground itself (no drone)."""
@@ -265,6 +278,8 @@ class GroundStation:
 
     async def _deliver(self, key: str, payload: bytes, decoder: msgspec.json.Decoder[Any], kind: str) -> Any:
         """Query the agent's queryable and hold it to its reply (`accepted`, `reason`)."""
+        if self.recordings is not None:
+            self.recordings.sent(key, payload)
         raw = await self.bus.query(key, payload, timeout_s=self.config.command_timeout_ms / 1000)
         try:
             reply = decoder.decode(raw)
@@ -382,6 +397,8 @@ class GroundStation:
             self.broadcast(WatchEvent("telemetry", telem))
 
     def broadcast(self, event: WatchEvent) -> None:
+        if self.recordings is not None:
+            self.recordings.on_event(event)
         for watcher in self._watchers:
             watcher.put(event)
 

@@ -39,7 +39,7 @@ def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
         if flown:  # on the radio: the path flown, also where the ground did not hear it
             ax.plot([e for _, e in flown], [n for n, _ in flown], linestyle=":", color=colour, linewidth=1,
                     label=f"{drone_id} flown (heard or not)")
-    ax.plot(0, 0, "k^", markersize=10, label="ground station")
+    ax.plot(0, 0, "k^", markersize=10, label=gs.get("label", "ground station"))
     fence = (result.get("geofence") or {}).get("polygon")
     if fence:
         corners = [frame.to_local(lat, lon) for lat, lon in [*fence, fence[0]]]

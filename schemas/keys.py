@@ -69,6 +69,10 @@ class Keys(msgspec.Struct, frozen=True):
     def field_sensor(self, sensor_id: str = "*", sensor_type: str = "*") -> str:
         return self._k("sensor", sensor_id, sensor_type)
 
+    def ground(self, *parts: str) -> str:
+        """`ground/…`: what the ground itself says (recordings: its log, its missions)."""
+        return self._k("ground", *parts)
+
     def ground_alive(self) -> str:
         return self._k("ground", "alive")
 

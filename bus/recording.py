@@ -1,0 +1,333 @@
+"""Recordings of the mesh in MCAP (SPEC §12): what `fleet record` writes, what the
+ground writes per mission, and what `fleet replay` and `fleet plot` read.
+
+One channel per key (its topic is the key as on the wire), message encoding `json`
+(the payload exactly as it crossed the mesh), and one JSON schema per message kind,
+generated from the msgspec Structs of `schemas/` and named `fleet.<Kind>`. Liveliness
+tokens (`drone/<id>/alive`) are recorded as `fleet.Liveliness` messages on the token's
+key. Log time is the time the recorder received the message (ns since the epoch).
+
+The writer closes a chunk at least once a second of log time (`FLUSH_S`), and the
+recorder's timer does the same when traffic stops: a recorder that is killed loses at
+most the last second, and what it wrote is a run of whole chunks that `read()` (and
+`mcap recover`) can read back without the summary at the end.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import msgspec
+
+from bus.clock import Clock
+from bus.port import Bus, Declaration, Sample
+from schemas.bundles import BundleStatus, TaskBundle
+from schemas.commands import Command
+from schemas.status import CommandStatus, SystemStatus
+from schemas.telemetry import LinkQuality, SensorReading, Telemetry
+
+FLUSH_S = 1.0
+SCHEMA_PREFIX = "fleet."
+
+
+class Liveliness(msgspec.Struct, frozen=True):
+    """A liveliness token appearing (`alive: true`) or vanishing on its key."""
+
+    alive: bool
+
+
+# Message kinds of the wire contract (SPEC §2), by the last chunk of their key.
+MESH_KINDS: dict[str, Any] = {
+    "Telemetry": Telemetry,
+    "Status": (CommandStatus, SystemStatus, BundleStatus),  # untagged: told apart by their fields
+    "LinkQuality": LinkQuality,
+    "SensorReading": SensorReading,
+    "Command": Command,
+    "TaskBundle": TaskBundle,
+    "Liveliness": Liveliness,
+}
+_BY_LAST_CHUNK = {"telem": "Telemetry", "status": "Status", "link": "LinkQuality", "cmd": "Command",
+                  "bundle": "TaskBundle", "alive": "Liveliness"}
+# Sent as queries (commands, bundles) or the ground's own: kept in a recording, never replayed.
+NOT_REPLAYED = frozenset({"Command", "TaskBundle"})
+
+
+def kind_of(key: str) -> str | None:
+    """The message kind of a key, whatever namespace it is under: `…/drone/<id>/telem`
+    → Telemetry, `…/drone/<id>/sensor/<type>` and `…/sensor/<id>/<type>` →
+    SensorReading, `…/ground/alive` → Liveliness; None for keys outside the contract."""
+    parts = key.split("/")
+    if len(parts) >= 3 and parts[-3] == "drone" and parts[-1] in _BY_LAST_CHUNK:
+        return _BY_LAST_CHUNK[parts[-1]]
+    if len(parts) >= 4 and parts[-4] == "drone" and parts[-2] == "sensor":
+        return "SensorReading"
+    if len(parts) >= 3 and parts[-3] == "sensor":
+        return "SensorReading"
+    if parts[-2:] == ["ground", "alive"]:
+        return "Liveliness"
+    return None
+
+
+def json_schema(kind: str, kinds: dict[str, Any] = MESH_KINDS) -> bytes:
+    of = kinds[kind]
+    if isinstance(of, tuple):  # one of several Structs (msgspec's schema() wants them tagged)
+        refs, defs = msgspec.json.schema_components(of, ref_template="#/$defs/{name}")
+        schema: dict[str, Any] = {"anyOf": list(refs), "$defs": defs}
+    else:
+        schema = msgspec.json.schema(of)
+    schema["title"] = SCHEMA_PREFIX + kind
+    return json.dumps(schema, sort_keys=True).encode()
+
+
+class Recorder:
+    """An MCAP file being written: channels and schemas are registered on first use.
+
+    `kinds` adds message kinds beyond the mesh's (the ground's mission records, say).
+    A payload of a known kind that is not JSON is written on a channel without schema
+    rather than lost."""
+
+    def __init__(self, out: Path | IO[bytes], *, kinds: dict[str, Any] | None = None,
+                 metadata: dict[str, str] | None = None) -> None:
+        from mcap.writer import CompressionType, Writer  # the `record` extra
+
+        self.path = out if isinstance(out, Path) else None
+        self._file: IO[bytes] = open(out, "wb") if isinstance(out, Path) else out  # noqa: SIM115 (closed in close())
+        self._writer = Writer(self._file, compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="fleet")
+        if metadata:
+            self._writer.add_metadata("fleet", metadata)
+        self.kinds = {**MESH_KINDS, **(kinds or {})}
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[tuple[str, str | None], int] = {}
+        self._flushed_ns: int | None = None
+        self.messages = 0
+        self.closed = False
+
+    def _channel(self, topic: str, kind: str | None) -> int:
+        channel = self._channels.get((topic, kind))
+        if channel is None:
+            schema = 0
+            if kind is not None:
+                schema = self._schemas.get(kind) or self._writer.register_schema(
+                    SCHEMA_PREFIX + kind, "jsonschema", json_schema(kind, self.kinds))
+                self._schemas[kind] = schema
+            channel = self._writer.register_channel(topic, "json", schema)
+            self._channels[(topic, kind)] = channel
+        return channel
+
+    def write(self, topic: str, payload: bytes, log_ns: int, kind: str | None = None) -> None:
+        """One message; `kind` defaults to the kind of the topic as a mesh key."""
+        if self.closed:
+            return
+        kind = kind if kind is not None else kind_of(topic)
+        if kind is not None:
+            try:
+                msgspec.json.decode(payload)
+            except msgspec.DecodeError:
+                kind = None
+        self._writer.add_message(self._channel(topic, kind), log_time=log_ns, data=payload, publish_time=log_ns,
+                                 sequence=self.messages)
+        self.messages += 1
+        self.tick(log_ns)
+
+    def write_struct(self, topic: str, value: Any, log_ns: int, kind: str) -> None:
+        self.write(topic, msgspec.json.encode(value), log_ns, kind)
+
+    def tick(self, now_ns: int) -> None:
+        """Close the chunk in progress once a second (of log time)."""
+        if self._flushed_ns is None:
+            self._flushed_ns = now_ns
+        elif now_ns - self._flushed_ns >= FLUSH_S * 1e9:
+            self._writer.flush()
+            self._flushed_ns = now_ns
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self._writer.finish()
+        self._file.close()
+
+
+def now_ns_of(clock: Clock) -> Callable[[], int]:
+    """Log time from a clock: wall time in ns, or a virtual clock's (reproducible)."""
+    if type(clock).__name__ == "SystemClock":
+        return time.time_ns
+    return lambda: clock.time_ms() * 1_000_000
+
+
+class BusRecording:
+    """Everything under a key expression on a bus, samples and liveliness, into a Recorder."""
+
+    def __init__(self, bus: Bus, recorder: Recorder, keyexpr: str = "**",
+                 now_ns: Callable[[], int] = time.time_ns) -> None:
+        self.recorder = recorder
+        self.now_ns = now_ns
+        self._declarations: list[Declaration] = [
+            bus.subscribe(keyexpr, self._on_sample, maxsize=1_000_000),
+            bus.watch_liveliness(keyexpr, self._on_liveliness),
+        ]
+
+    def _on_sample(self, sample: Sample) -> None:
+        if sample.kind == "put":
+            self.recorder.write(sample.key, sample.payload, self.now_ns())
+
+    def _on_liveliness(self, key: str, alive: bool) -> None:
+        self.recorder.write_struct(key, Liveliness(alive), self.now_ns(), "Liveliness")
+
+    def tick(self) -> None:
+        self.recorder.tick(self.now_ns())
+
+    def close(self) -> None:
+        for declaration in self._declarations:
+            declaration.close()
+        self._declarations.clear()
+        self.recorder.close()
+
+
+# ---- reading -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Message:
+    topic: str
+    kind: str | None  # the schema's kind (`Telemetry`), None on a channel without schema
+    log_ns: int
+    data: bytes
+
+
+@dataclass
+class Contents:
+    """What a recording holds, read from its first byte (so also a truncated one)."""
+
+    messages: list[Message]
+    schemas: dict[str, bytes]  # kind → JSON schema
+    metadata: dict[str, str]
+    complete: bool  # False: the writer was killed; `messages` is what it had written
+
+
+def read(path: Path) -> Contents:
+    """Every message in file order (the order they were received), tolerating a file
+    cut short by a killed recorder."""
+    from mcap.records import Channel, DataEnd, Metadata, Schema
+    from mcap.records import Message as McapMessage
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, tuple[str, bytes]] = {}
+    channels: dict[int, tuple[str, str | None]] = {}
+    metadata: dict[str, str] = {}
+    messages: list[Message] = []
+    complete = False
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f, skip_magic=False, emit_chunks=False).records:
+                if isinstance(record, Schema):
+                    name = record.name.removeprefix(SCHEMA_PREFIX)
+                    schemas[record.id] = (name, record.data)
+                elif isinstance(record, Channel):
+                    channels[record.id] = (record.topic, schemas[record.schema_id][0] if record.schema_id else None)
+                elif isinstance(record, McapMessage):
+                    topic, kind = channels[record.channel_id]
+                    messages.append(Message(topic, kind, record.log_time, record.data))
+                elif isinstance(record, Metadata) and record.name == "fleet":
+                    metadata.update(record.metadata)
+                elif isinstance(record, DataEnd):
+                    complete = True
+                    break
+        except Exception as exc:  # noqa: BLE001 — any cut (EOF, a half chunk) ends the readable part
+            if not messages and not schemas:
+                raise RecordingError(f"{path}: not an MCAP recording ({type(exc).__name__}: {exc})") from None
+    return Contents(messages, {name: data for name, data in schemas.values()}, metadata, complete)
+
+
+class RecordingError(Exception):
+    """A file that is not a recording Fleet can read."""
+
+
+def recover(src: Path, dst: Path) -> Contents:
+    """Write what a cut recording holds as a complete MCAP file."""
+    contents = read(src)
+    recorder = Recorder(dst, metadata=contents.metadata or None)
+    for message in contents.messages:
+        recorder.write(message.topic, message.data, message.log_ns, message.kind)
+    recorder.close()
+    return contents
+
+
+# ---- replay --------------------------------------------------------------------------
+
+
+class Replay:
+    """Publish a recording again on a bus, keeping its timing (divided by `speed`):
+    samples are put on their keys, liveliness tokens declared and undeclared. Commands
+    and bundles (queries the ground sent), the ground's own liveliness and messages
+    outside the wire contract are not replayed: a replay never flies a drone."""
+
+    def __init__(self, bus: Bus, contents: Contents, clock: Clock, speed: float = 1.0) -> None:
+        if speed <= 0:
+            raise ValueError("speed must be > 0")
+        self.bus = bus
+        self.contents = contents
+        self.clock = clock
+        self.speed = speed
+        self.tokens: dict[str, Declaration] = {}
+        self.published = 0
+
+    @staticmethod
+    def replayed(message: Message) -> bool:
+        if message.kind is None or message.kind in NOT_REPLAYED or message.kind not in MESH_KINDS:
+            return False
+        return not (message.kind == "Liveliness" and message.topic.endswith("ground/alive"))
+
+    async def run(self, progress: Callable[[int, int], None] | None = None) -> None:
+        messages = [m for m in self.contents.messages if self.replayed(m)]
+        if not messages:
+            return
+        t0, start = messages[0].log_ns, self.clock.monotonic()
+        for n, message in enumerate(messages):
+            due = start + (message.log_ns - t0) / 1e9 / self.speed
+            wait = due - self.clock.monotonic()
+            if wait > 0:
+                await self.clock.sleep(wait)
+            self._send(message)
+            if progress is not None:
+                progress(n + 1, len(messages))
+
+    def _send(self, message: Message) -> None:
+        if message.kind == "Liveliness":
+            alive = msgspec.json.decode(message.data, type=Liveliness).alive
+            token = self.tokens.pop(message.topic, None)
+            if token is not None:
+                token.close()
+            if alive:
+                self.tokens[message.topic] = self.bus.announce(message.topic)
+        else:
+            reliable = message.kind not in ("Telemetry", "LinkQuality")
+            self.bus.publish(message.topic, message.data, reliable=reliable)
+        self.published += 1
+
+    def close(self) -> None:
+        for token in self.tokens.values():
+            token.close()
+        self.tokens.clear()
+
+
+async def record_until_stopped(bus: Bus, recorder: Recorder, keyexpr: str, stop: asyncio.Event,
+                               now_ns: Callable[[], int] = time.time_ns) -> BusRecording:
+    """`fleet record`'s loop: record until `stop`, closing a chunk every FLUSH_S."""
+    recording = BusRecording(bus, recorder, keyexpr, now_ns)
+    try:
+        while not stop.is_set():
+            try:
+                await asyncio.wait_for(stop.wait(), FLUSH_S)
+            except TimeoutError:
+                recording.tick()
+    finally:
+        recording.close()
+    return recording
