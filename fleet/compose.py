@@ -21,9 +21,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import random
 import shutil
 import socket
 import tempfile
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -186,6 +188,9 @@ class SimField:
         self._fcs: list[SimFlightController] = []
         self.events = EventLog(self.data_dir / "events.db")
         self.station = GroundStation(self.config, self._bus(GROUND), self.events, self.clock)
+        ids = random.Random(f"ids {seed}")
+        self.station.new_command_id = lambda: str(uuid.UUID(int=ids.getrandbits(128), version=4))
+        self.station.new_bundle_id = lambda: f"b-{ids.getrandbits(48):012x}"
         self.manager: MissionManager | None = None
         self.plugins = plugins if plugins is not None else PluginLibrary.default(None)
 

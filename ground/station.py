@@ -78,6 +78,10 @@ class GroundStation:
         # it, from the moment it passed the checks until it ends (its `start` comes later)
         self._claims: dict[str, tuple[str, float, float, float]] = {}
         self.recordings: MissionRecordings | None = None
+        # Where command and bundle ids come from: random, or seeded in fast time (a
+        # simulation replays to the byte, its recording included).
+        self.new_command_id: Callable[[], str] = new_command_id
+        self.new_bundle_id: Callable[[], str] = new_bundle_id
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -177,7 +181,7 @@ class GroundStation:
         obj = self._body(drone_id, body)
         obj.setdefault("bundle_id", "")
         if not obj["bundle_id"]:
-            obj["bundle_id"] = new_bundle_id()
+            obj["bundle_id"] = self.new_bundle_id()
         bundle = parse_bundle(json.dumps(obj).encode())
         carried = self.registry.info(drone_id).sensors
         for path, label, kind in sensor_guards(bundle.wire):
@@ -310,7 +314,7 @@ class GroundStation:
         """The request body plus drone_id, timestamp and (unless given) command_id."""
         obj = self._body(drone_id, body)
         if not obj.get("command_id"):
-            obj["command_id"] = new_command_id()
+            obj["command_id"] = self.new_command_id()
         return decode_command(json.dumps(obj))
 
     # ---- events in -----------------------------------------------------------------

@@ -31,7 +31,6 @@ from mission.port import FleetPort, MissionConfig
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
 from schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
-from schemas.commands import new_command_id
 from schemas.errors import CommandRejected, FleetError, InvalidMessage
 from schemas.fence import CONFLICT
 from schemas.fence import REASON as FENCE
@@ -534,7 +533,7 @@ class Mission:
         if back is not None and not back.done():  # out of reach: the ground would refuse it (unknown)
             self.log("info", f"{drone_id}: {name} waits for the link to come back")
             await asyncio.shield(back)
-        command_id = new_command_id()
+        command_id = self.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
             self._pending[command_id] = fut
