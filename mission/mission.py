@@ -88,6 +88,7 @@ DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
 RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
 RESUME_TRIES = 3
 INSTANT_COMMANDS = frozenset({"arm", "disarm", "cancel"})
+HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
 STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
 
@@ -282,8 +283,9 @@ class Mission:
             action = None
             if critical or (flying and self.config.mission.end_action == "return"):
                 action = "return"
-            elif info.state == "active" and info.current_command is not None:
-                action = "cancel"
+            elif info.state == "active" and info.current_command is not None \
+                    and info.current_command.command not in HOMEWARD:
+                action = "cancel"  # never a return or landing: hold it out there, outside a fence say
             if action is not None:
                 try:
                     await self.station.command(drone_id, json.dumps({"cmd": action}).encode(), self.id)

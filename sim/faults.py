@@ -34,6 +34,8 @@ def apply_fault(vehicle: Vehicle, fault: FaultKind | str, value: float | str | N
         vehicle.inject_health_failure(str(value or "accelerometer"))
     elif fault == "health_ok":
         vehicle.inject_health_failure()
+    elif fault == "gust":
+        vehicle.inject_gust(float(value) if value is not None else 30.0)
     elif fault == "gps_loss":
         vehicle.inject_gps("no_fix")
     elif fault == "gps_ok":

@@ -262,6 +262,13 @@ class Vehicle:
     def inject_battery(self, remaining: float) -> None:
         self.battery = max(0.0, min(1.0, remaining))
 
+    def inject_gust(self, east_m: float) -> None:
+        """A gust sets the drone down `east_m` metres east (west if negative) of where it
+        was; the autopilot then holds or flies on from there."""
+        self.east += east_m
+        if self.mode == "hold" and self._target is not None:
+            self._target = (self._target[0], self._target[1] + east_m, self._target[2])
+
     def inject_link_loss(self, lost: bool) -> None:
         """The flight controller stops talking (cable pulled, FC reset)."""
         self.connected = not lost

@@ -22,7 +22,7 @@ Lat = Annotated[float, Meta(ge=-90, le=90)]
 Lon = Annotated[float, Meta(ge=-180, le=180)]
 FaultKind = Literal[
     "rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore",
-    "health_failure", "health_ok", "gps_loss", "gps_ok",
+    "health_failure", "health_ok", "gps_loss", "gps_ok", "gust",
 ]
 ROW_SPACING_M = 5.0
 

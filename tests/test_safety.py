@@ -17,7 +17,7 @@ from ground.config import GroundConfig
 from schemas.errors import CommandRejected
 from schemas.fence import Geofence
 from schemas.geo import destination
-from sim.world import DroneSpec, Spot, World
+from sim.world import DroneSpec, Fault, Spot, World
 
 BASE = (40.633490, -8.660815)
 
@@ -174,5 +174,38 @@ async def test_a_world_fence_reaches_the_agents_too(tmp_path: Path) -> None:
         record = await sim.run_mission(FLY_OUT.replace("40*m", "100*m"), max_s=300)
         assert (record.status, record.cause) == ("failed", "geofence"), record
         assert "geofence: the target" in record.message
+    finally:
+        await sim.close()
+
+
+async def test_a_drone_a_gust_sets_outside_the_fence_returns_and_its_mission_fails_with_cause_geofence(
+        tmp_path: Path) -> None:
+    """Nothing the ground sent took it out: the agent finds it outside, returns it
+    (failsafe), and the mission that flew it ends with cause `geofence`."""
+    gusty = World(origin=Spot(lat=BASE[0], lon=BASE[1], alt=8.2), drones=[
+        DroneSpec(id="drone01", lat=BASE[0], lon=BASE[1], faults=[Fault(at_s=30, fault="gust", value=40.0)])])
+    script = """
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, right=30*m)
+print("near the east edge")
+sleep(60*s)
+print("still flying")
+"""
+    sim = SimField(gusty, ground_config=GroundConfig(data_dir=str(tmp_path), geofence=L_FENCE), data_dir=tmp_path,
+                   agent_config=AgentConfig(telemetry_rate_ms=200, geofence=L_FENCE))
+    await sim.start()
+    try:
+        record = await sim.run_mission(script, max_s=300)
+        log = [line.message for line in sim.mission_log(record.mission_id)]
+        assert (record.status, record.cause) == ("failed", "geofence"), (record, log)
+        assert "near the east edge" in log and "still flying" not in log, log
+        assert "drone01 was found outside the geofence" in record.message, record.message
+        vehicle = sim.vehicles["drone01"]
+        assert vehicle.mode == "return_to_launch", vehicle.mode
+        await sim.clock.advance(90)  # it flies home and lands: inside again
+        north, east, _ = vehicle.local_ned()
+        assert not vehicle.in_air and abs(north) < 1 and abs(east) < 1, (vehicle.mode, north, east)
     finally:
         await sim.close()
