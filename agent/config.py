@@ -15,6 +15,7 @@ import msgspec
 from msgspec import Meta
 
 from agent.link import LostLinkPolicy
+from schemas.config import Security
 from schemas.endpoints import AGENT_PORT, check_endpoints
 from schemas.fence import Geofence
 
@@ -28,6 +29,7 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     mesh_interface: str | None = None  # radio interface on which to find neighbours (multicast scouting)
     lost_link: LostLinkPolicy = msgspec.field(default_factory=LostLinkPolicy)
     geofence: Geofence = msgspec.field(default_factory=Geofence)  # SPEC §11: refused here too, uploaded to the autopilot
+    security: Security = msgspec.field(default_factory=Security)  # SPEC §9: refuse commands the ground did not sign
     probe_period_ms: Annotated[int, Meta(ge=100, le=60_000)] = 1000  # link probes to the ground and neighbours
     probe_window: Annotated[int, Meta(ge=2, le=600)] = 10  # probes per peer that loss, RTT and jitter cover
     telemetry_rate_ms: Annotated[int, Meta(ge=20, le=60_000)] = 1000

@@ -16,6 +16,7 @@ import logging
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import msgspec
 
@@ -29,6 +30,7 @@ from agent.prober import LinkProber
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
 from bus.port import Bus, Sample, echo
+from schemas.auth import verifier_of
 from schemas.bundles import BundleReply, BundleStatus, parse_bundle
 from schemas.codec import decode_sensor, encode
 from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
@@ -74,6 +76,8 @@ class Agent:
             geofence=config.geofence,
         )
         self.handler = CommandHandler(self.drone_id, fc, settings, clock, self._publish_status)
+        security = config.security
+        self.verifier = verifier_of(security.pki_dir, security.ground_key, security.window_s)
         self._seq = 0
         store = BundleStore(Path(config.state_dir) / "bundles.json" if config.state_dir else None)
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
@@ -198,6 +202,15 @@ class Agent:
         """Why a request naming another drone is refused (no name: it is for us)."""
         return f"drone_id: this is {self.drone_id}, not {drone_id}" if drone_id and drone_id != self.drone_id else None
 
+    def _unauthenticated(self, message: Any, message_id: str) -> str | None:
+        """SPEC §9: with the ground's key configured, why a command or bundle is refused."""
+        if self.verifier is None:
+            return None
+        reason = self.verifier.refusal(message, message_id, self.clock.time_ms())
+        if reason is not None:
+            log.warning("%s: refused %s %s: %s", self.drone_id, type(message).__name__.lower(), message_id or "?", reason)
+        return reason
+
     async def _on_bundle(self, selector: str, payload: bytes) -> bytes:
         """A TaskBundle to run, or (no payload, `?id=…`) the record of one."""
         if not payload:
@@ -212,7 +225,7 @@ class Agent:
         except InvalidMessage as exc:
             log.warning("%s: refused a bundle: %s", self.drone_id, exc)
             return encode(BundleReply(bundle_id=_peek(payload, "bundle_id"), accepted=False, reason=str(exc)))
-        wrong = self._not_mine(bundle.wire.drone_id)
+        wrong = self._not_mine(bundle.wire.drone_id) or self._unauthenticated(bundle.wire, bundle.bundle_id)
         if wrong is not None:
             return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong))
         return encode(self.bundles.submit(bundle))
@@ -223,7 +236,7 @@ class Agent:
         except InvalidMessage as exc:
             log.warning("%s: refused a malformed command: %s", self.drone_id, exc)
             return encode(CommandReply(command_id=_peek(payload, "command_id"), accepted=False, reason=str(exc)))
-        wrong = self._not_mine(cmd.drone_id)
+        wrong = self._not_mine(cmd.drone_id) or self._unauthenticated(cmd, cmd.command_id)
         if wrong is not None:
             return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong))
         if not cmd.command_id:

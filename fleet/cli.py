@@ -297,13 +297,14 @@ def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_don
 
 def _add_http_clients() -> None:
     from fleet.mission_cli import mission
+    from fleet.pki import pki
     from fleet.recording_cli import plot, record, replay
     from ground.cli import drone, logs
 
     main.add_command(drone)
     main.add_command(logs)
     main.add_command(mission)
-    for command in (record, replay, plot):
+    for command in (record, replay, plot, pki):
         main.add_command(command)
 
 

@@ -14,7 +14,7 @@ from typing import Annotated
 import msgspec
 from msgspec import Meta
 
-from schemas.config import MissionSettings
+from schemas.config import MissionSettings, Security
 from schemas.endpoints import check_endpoints
 from schemas.fence import Geofence
 
@@ -33,6 +33,31 @@ class BatteryLevels(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     low: Fraction = 0.15  # at or below: warn the operator
 
 
+class MapSpot(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    lat: Annotated[float, Meta(ge=-90, le=90)]
+    lon: Annotated[float, Meta(ge=-180, le=180)]
+
+
+class HeatMark(MapSpot, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """A known heat source, drawn on the map (the keys of a world file's `heat_sources`)."""
+
+    radius: Annotated[float, Meta(gt=0, le=100_000)]  # m
+    temp: float | None = None  # °C at the centre
+
+
+class DashboardSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """What the web dashboard (`GET /`) draws besides the drones; it only draws these."""
+
+    tiles: str | None = None  # raster tile URL template with {z}, {x}, {y} (web mercator); none: a local metres grid
+    ground_station: MapSpot | None = None  # where the ground stands; none: the first drone's home
+    heat_sources: list[HeatMark] = msgspec.field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        missing = [p for p in ("{z}", "{x}", "{y}") if self.tiles is not None and p not in self.tiles]
+        if missing:
+            raise ValueError(f"dashboard.tiles must contain {', '.join(missing)} (e.g. https://tiles.example/{{z}}/{{x}}/{{y}}.png)")
+
+
 class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
     http_host: str = "127.0.0.1"  # 0.0.0.0 exposes the command API to the whole network
@@ -48,6 +73,8 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     command_timeout_ms: Annotated[int, Meta(ge=100, le=60_000)] = 3000  # waiting for an agent's reply
     link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
     geofence: Geofence = msgspec.field(default_factory=Geofence)  # SPEC §11: refused at the ground (409 geofence)
+    security: Security = msgspec.field(default_factory=Security)  # SPEC §9: sign every command and bundle
+    dashboard: DashboardSettings = msgspec.field(default_factory=DashboardSettings)  # SPEC §10: the web page at GET /
 
     def __post_init__(self) -> None:
         check_endpoints(listen=self.listen)

@@ -29,6 +29,7 @@ from ground.describe import describe_step
 from ground.eventlog import EventLog
 from ground.recording import MissionRecordings
 from ground.registry import Event, InfoChanged, LogLine, Registry
+from schemas.auth import T, signer_of
 from schemas.bundles import BundleRecord, BundleReply, new_bundle_id, parse_bundle, sensor_guards
 from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command, new_command_id
@@ -80,6 +81,7 @@ class GroundStation:
         self.recordings: MissionRecordings | None = None
         # Where command and bundle ids come from: random, or seeded in fast time (a
         # simulation replays to the byte, its recording included).
+        self.signer = signer_of(config.security.pki_dir)  # SPEC §9: every command and bundle signed
         self.new_command_id: Callable[[], str] = new_command_id
         self.new_bundle_id: Callable[[], str] = new_bundle_id
 
@@ -164,7 +166,8 @@ class GroundStation:
         elif command.name not in ("arm", "disarm"):  # land, return, cancel…: it gives up its target
             self._claims.pop(drone_id, None)
         try:
-            reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(command), _reply_decoder, "CommandReply")
+            reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(self._signed(command)), _reply_decoder,
+                                                      "CommandReply")
         except BaseException:
             if spot is not None and self._claims.get(drone_id, ("",))[0] == command.command_id:
                 del self._claims[drone_id]
@@ -191,7 +194,8 @@ class GroundStation:
         # Noted before sending: the agent's first status may arrive before its reply.
         self.registry.note_bundle(drone_id, bundle.bundle_id, [describe_step(step) for step in bundle.steps])
         try:
-            reply: BundleReply = await self._deliver(self.keys.bundle(drone_id), encode(bundle.wire), _bundle_reply_decoder, "BundleReply")
+            reply: BundleReply = await self._deliver(self.keys.bundle(drone_id), encode(self._signed(bundle.wire)),
+                                                     _bundle_reply_decoder, "BundleReply")
         except BaseException:
             self.registry.forget_bundle(drone_id, bundle.bundle_id)
             raise
@@ -279,6 +283,9 @@ class GroundStation:
         elif not spots and cmd is None and pos is not None and t.armed and t.landed_state == "in_air":
             spots.append(((pos.lat, pos.lon, pos.alt), "the hovering spot"))
         return spots
+
+    def _signed(self, message: T) -> T:
+        return message if self.signer is None else self.signer.sign(message, self.clock.time_ms())
 
     async def _deliver(self, key: str, payload: bytes, decoder: msgspec.json.Decoder[Any], kind: str) -> Any:
         """Query the agent's queryable and hold it to its reply (`accepted`, `reason`)."""

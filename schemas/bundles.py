@@ -27,6 +27,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import Meta
 
+from schemas.auth import Auth
 from schemas.commands import COMMAND_TYPES, Command, decode_command
 from schemas.errors import InvalidMessage
 from schemas.telemetry import Telemetry
@@ -42,7 +43,7 @@ OPS: dict[str, Callable[[Any, Any], bool]] = {
     "<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge, "==": operator.eq, "!=": operator.ne,
 }
 STEP_FIELDS = frozenset({"until"})
-NOT_IN_STEPS = ("drone_id", "timestamp", "command_id")
+NOT_IN_STEPS = ("drone_id", "timestamp", "command_id", "auth")
 
 
 def new_bundle_id() -> str:
@@ -60,6 +61,7 @@ class TaskBundle(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     on_link_loss: LinkLossPolicy = "continue"
     timeout_s: Annotated[float, Meta(gt=0, le=86_400)] | None = None
     until: dict[str, Any] | None = None
+    auth: Auth | None = None  # the ground's signature (SPEC §9)
 
 
 class BundleReply(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):

@@ -20,6 +20,7 @@ from typing import Annotated, ClassVar, Literal
 import msgspec
 from msgspec import UNSET, Meta, UnsetType
 
+from schemas.auth import Auth
 from schemas.errors import InvalidMessage
 
 CommandMode = Literal["action", "offboard", "custom"]
@@ -50,6 +51,7 @@ class _Command(msgspec.Struct, frozen=True, kw_only=True, tag_field="cmd", omit_
     command_id: str = ""
     timestamp: int = 0
     mode: CommandMode | None = None
+    auth: Auth | None = None  # the ground's signature (SPEC §9); absent on an unsecured fleet
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode != self.MODE:

@@ -28,6 +28,16 @@ class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     clear_wait_s: Annotated[float, Meta(ge=0, le=3600)] = 120.0  # move(..., wait_clear=True): longest wait for a spot
 
 
+class Security(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """SPEC §9, for the ground and the agent. With `pki_dir` (`fleet pki init/issue`) the
+    ground signs every command and bundle with `<pki_dir>/signing.key`, and an agent
+    refuses any that `<pki_dir>/signing.pub` (or `ground_key`) does not verify."""
+
+    pki_dir: str | None = None
+    ground_key: str | None = None  # agent: the ground's public key, if not <pki_dir>/signing.pub
+    window_s: Annotated[float, Meta(gt=0, le=3600)] = 30.0  # agent: how old (or early) a signature may be
+
+
 
 def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[str, Any]) -> Any:
     """Read `path` (YAML) into `kind`, apply non-None overrides, validate strictly."""

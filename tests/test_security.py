@@ -1,0 +1,176 @@
+"""Security (SPEC §9, issue 16): the fleet PKI, and end-to-end command authority —
+the ground signs every command and bundle; an agent that knows its key refuses what is
+unsigned, forged, tampered with, expired or replayed (`unauthenticated`), whatever
+path it came by, while the ground's own commands and missions still fly."""
+
+from __future__ import annotations
+
+import json
+import stat
+from pathlib import Path
+
+import msgspec
+import pytest
+from click.testing import CliRunner
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+
+from agent.config import AgentConfig
+from bus.recording import read
+from fleet.cli import main
+from fleet.compose import SimField
+from ground.config import GroundConfig
+from schemas.auth import Signer, Verifier, load_private_key, load_public_key
+from schemas.bundles import TaskBundle
+from schemas.codec import encode
+from schemas.commands import CommandReply, Goto, decode_command
+from schemas.config import Security
+from sim.world import DroneSpec, Spot, World
+from tests.harness import GroundFleet
+from tests.helpers import until
+
+EXAMPLES = Path(__file__).parent.parent / "examples"
+NOW = 1_700_000_000_000
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    directory = tmp_path_factory.mktemp("pki")
+    runner = CliRunner()
+    assert runner.invoke(main, ["pki", "init", str(directory)]).exit_code == 0
+    for name, role in (("ground", "ground"), ("drone01", "drone")):
+        result = runner.invoke(main, ["pki", "issue", str(directory), name, "--role", role])
+        assert result.exit_code == 0, result.output
+    return directory
+
+
+def test_pki_keys_are_private_certificates_name_their_node_and_nothing_is_overwritten(pki: Path) -> None:
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    for key in ("ca.key", "signing.key", "ground.key", "drone01.key"):
+        assert stat.S_IMODE((pki / key).stat().st_mode) == 0o600, key
+    cert = x509.load_pem_x509_certificate((pki / "drone01.pem").read_bytes())
+    ca = x509.load_pem_x509_certificate((pki / "ca.pem").read_bytes())
+    assert cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)[0].value == "drone01"
+    assert cert.subject.get_attributes_for_oid(NameOID.ORGANIZATIONAL_UNIT_NAME)[0].value == "drone"
+    cert.verify_directly_issued_by(ca)  # raises if the fleet CA did not sign it
+    before = (pki / "drone01.key").read_bytes()
+    runner = CliRunner()
+    again = runner.invoke(main, ["pki", "issue", str(pki), "drone01", "--role", "drone"])
+    assert again.exit_code == 1 and "drone01 already has a certificate" in again.output, again.output
+    assert (pki / "drone01.key").read_bytes() == before
+    twice = runner.invoke(main, ["pki", "init", str(pki)])
+    assert twice.exit_code == 1 and "already holds a fleet PKI" in twice.output, twice.output
+    bad = runner.invoke(main, ["pki", "issue", str(pki), "drone/*", "--role", "drone"])
+    assert bad.exit_code != 0 and "not usable in a key" in bad.output, bad.output
+
+
+def goto(command_id: str = "c1", lat: float = 40.6) -> Goto:
+    return Goto(drone_id="drone01", command_id=command_id, timestamp=NOW, lat=lat, lon=-8.6, alt=20.0)
+
+
+def test_a_verifier_takes_only_fresh_commands_the_ground_signed(pki: Path) -> None:
+    signer = Signer(load_private_key(pki / "signing.key"), "ground")
+    verifier = Verifier(load_public_key(pki / "signing.pub"), window_s=30)
+    signed = signer.sign(goto(), NOW)
+    wire = decode_command(encode(signed))  # what crosses the mesh, decoded at the agent
+    assert verifier.refusal(wire, "c1", NOW + 500) is None
+    assert verifier.refusal(wire, "c1", NOW + 600) == "unauthenticated: c1 was already taken (a replay)"
+
+    rogue = Signer(Ed25519PrivateKey.generate(), "ground")
+    cases = {
+        "unsigned": (goto("c2"), "not signed by the ground"),
+        "forged": (rogue.sign(goto("c3"), NOW), "does not verify"),
+        "tampered": (msgspec.structs.replace(signer.sign(goto("c4"), NOW), lat=41.0), "does not verify"),
+        "renamed signer": (msgspec.structs.replace(signer.sign(goto("c5"), NOW), auth=msgspec.structs.replace(
+            signer.sign(goto("c5"), NOW).auth, ground="other")), "does not verify"),  # type: ignore[arg-type]
+        "expired": (signer.sign(goto("c6"), NOW - 31_000), "outside the 30 s window"),
+        "from the future": (signer.sign(goto("c7"), NOW + 31_000), "outside the 30 s window"),
+    }
+    for case, (message, reason) in cases.items():
+        refusal = verifier.refusal(decode_command(encode(message)), message.command_id, NOW)
+        assert refusal is not None and refusal.startswith("unauthenticated: ") and reason in refusal, (case, refusal)
+    bundle = signer.sign(TaskBundle(drone_id="drone01", bundle_id="b-1", steps=[{"cmd": "arm"}]), NOW)
+    assert verifier.refusal(msgspec.json.decode(encode(bundle), type=TaskBundle), "b-1", NOW) is None
+
+
+def secured_field(pki: Path, tmp_path: Path) -> SimField:
+    world = World(origin=Spot(lat=40.63349, lon=-8.660815, alt=8.2), drones=[
+        DroneSpec(id="drone01", lat=40.63349, lon=-8.660815), DroneSpec(id="drone02", lat=40.63349, lon=-8.66069)])
+    security = Security(pki_dir=str(pki))
+    return SimField(world, ground_config=GroundConfig(data_dir=str(tmp_path), security=security), data_dir=tmp_path,
+                    agent_config=AgentConfig(telemetry_rate_ms=200, security=security))
+
+
+async def test_missions_fly_signed_and_commands_from_anyone_else_are_refused(pki: Path, tmp_path: Path) -> None:
+    sim = secured_field(pki, tmp_path)
+    await sim.start()
+    try:
+        record = await sim.run_mission((EXAMPLES / "two_drones.py").read_text(), max_s=300)
+        assert (record.status, record.cause) == ("finished", "success"), record
+        sent = [m for m in read(tmp_path / "missions" / f"{record.mission_id}.mcap").messages if m.kind == "Command"]
+        assert len(sent) == 8 and all(json.loads(m.data)["auth"]["ground"] == "ground" for m in sent)
+
+        await sim.clock.advance(31)  # the mission's commands are now older than the window
+        # drone02's node (an authenticated mesh member) queries drone01's queryable itself.
+        attacker = sim._bus("drone02")
+        captured = next(m for m in sent if m.topic == "drone/drone01/cmd")
+        rogue = Signer(Ed25519PrivateKey.generate(), "ground")
+        fresh = Goto(drone_id="drone01", command_id="attack-1", timestamp=sim.clock.time_ms(), lat=40.6335, lon=-8.6608, alt=20.0)
+        attempts = {
+            "unsigned": (encode(fresh), "not signed"),
+            "re-signed": (encode(rogue.sign(fresh, sim.clock.time_ms())), "does not verify"),
+            "replayed late": (captured.data, "outside the 30 s window"),
+        }
+        for case, (payload, reason) in attempts.items():
+            reply = msgspec.json.decode(await attacker.query("drone/drone01/cmd", payload), type=CommandReply)
+            assert not reply.accepted and reply.reason is not None and reply.reason.startswith("unauthenticated")
+            assert reason in reply.reason, (case, reply.reason)
+        assert not sim.vehicles["drone01"].in_air or sim.vehicles["drone01"].mode != "mission"
+
+        # Within the window, a captured command is refused as a replay; the ground's own still go.
+        reply = await sim.station.command("drone01", b'{"cmd": "arm"}')
+        assert reply.accepted
+        key = "drone/drone01/cmd"
+        signed_now = sim.station._signed(decode_command(json.dumps(
+            {"cmd": "disarm", "drone_id": "drone01", "command_id": "once"})))
+        first = msgspec.json.decode(await attacker.query(key, encode(signed_now)), type=CommandReply)
+        again = msgspec.json.decode(await attacker.query(key, encode(signed_now)), type=CommandReply)
+        assert first.accepted, first
+        assert not again.accepted and again.reason == "unauthenticated: once was already taken (a replay)", again
+    finally:
+        await sim.close()
+
+
+@pytest.mark.integration
+async def test_a_secured_ground_commands_its_drones_and_a_direct_query_is_refused(pki: Path, tmp_path: Path) -> None:
+    """Real processes: ground and agent configured with the PKI directory; the API's
+    commands fly; a Zenoh client that queries the drone's `cmd` itself is refused."""
+    from bus.zenoh_bus import ZenohBus
+
+    security = {"pki_dir": str(pki)}
+    fleet = GroundFleet(tmp_path, {"drone01": "sim://?lat=40.6334&lon=-8.660815&alt=8.2"},
+                        {"security": security, "telemetry_rate_ms": 200}, security=security)
+    try:
+        async with fleet.client() as http:
+            response = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})
+            assert response.status_code == 200, response.text
+            response = await http.post("/drone/drone01/cmd", json={"cmd": "takeoff", "alt": 3})
+            assert response.status_code == 200, response.text
+            bus = await ZenohBus.open("client", [fleet.ground.endpoint])
+            try:
+                raw = await bus.query("drone/drone01/cmd", b'{"cmd": "land", "drone_id": "drone01", "command_id": "x"}')
+                reply = msgspec.json.decode(raw, type=CommandReply)
+                assert not reply.accepted and reply.reason == "unauthenticated: not signed by the ground", reply
+            finally:
+                await bus.close()
+
+            async def climbed() -> bool:
+                view = (await http.get("/drone/drone01")).json()
+                return view["telem"]["position"]["rel_alt"] > 2.5
+
+            await until(climbed, 30, "drone01 climbing on the ground's signed takeoff (not landing)")
+        log = fleet.agents["drone01"].output()
+        assert "refused goto" not in log and "refused land x: unauthenticated: not signed by the ground" in log, log[-2000:]
+    finally:
+        fleet.stop()
