@@ -318,12 +318,16 @@ def _peek(payload: bytes, field: str) -> str:
 
 async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = None) -> None:
     """The `fleet agent` process: real flight controller, real Zenoh, until cancelled."""
+    from bus.mesh_security import mesh_security
     from bus.zenoh_bus import ZenohBus
 
     clock = clock or SystemClock()
     # MAVSDK runs its blocking calls in the default executor; 6 threads on 2 cores
     # serialise a burst of commands (mavsdk-facts.md §2.1).
     asyncio.get_running_loop().set_default_executor(ThreadPoolExecutor(32, thread_name_prefix="fc"))
+    # Checked before anything starts: a missing certificate is a configuration error.
+    secured = mesh_security(config.security, drone_id, [*config.connect, *config.listen], router=True,
+                            namespace=config.namespace)
     fc = make_flight_controller(config.fc, clock)
     try:
         async with asyncio.timeout(FC_CONNECT_TIMEOUT_S + 2):
@@ -334,7 +338,8 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
     try:
         log.info("%s: flight controller %s connected; router on %s joins the mesh via %s",
                  drone_id, config.fc, ", ".join(config.listen) or "(no listener)", ", ".join(config.connect))
-        bus = await ZenohBus.open("router", config.connect, config.listen, mesh_interface=config.mesh_interface)
+        bus = await ZenohBus.open("router", config.connect, config.listen, mesh_interface=config.mesh_interface,
+                                  extra=secured)
         try:
             await _join(bus, Keys(config.namespace), drone_id)
             agent = Agent(drone_id, config, fc, bus, clock)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
+from typing import Any
 
 import msgspec
 
@@ -22,8 +23,9 @@ def format_sample(sample: Sample) -> str:
     return f"{sample.key} {body}"
 
 
-async def tap(keyexpr: str, connect: list[str], out: Callable[[str], None], count: int | None = None) -> None:
-    bus = await ZenohBus.open("client", connect)
+async def tap(keyexpr: str, connect: list[str], out: Callable[[str], None], count: int | None = None,
+              extra: dict[str, Any] | None = None) -> None:
+    bus = await ZenohBus.open("client", connect, extra=extra)
     done = asyncio.Event()
     seen = 0
 

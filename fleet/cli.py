@@ -29,6 +29,29 @@ EXTRA_OF = {"zenoh": "agent", "mavsdk": "agent", "litestar": "ground", "uvicorn"
 LIBRARIES = ("zenoh", "httpx", "httpcore", "matplotlib", "asyncio", "mavsdk", "grpc", "uvicorn")
 
 
+def secured_client(pki_dir: Path | None, name: str, connect: list[str]) -> dict[str, Any]:
+    """Zenoh settings of a client (`fleet sub`, `record`, `replay`) on a secured mesh."""
+    from bus.mesh_security import mesh_security
+    from schemas.config import Security
+
+    if pki_dir is None:
+        return {}
+    return mesh_security(Security(pki_dir=str(pki_dir), tls=True, name=name), name, connect, router=False)
+
+
+pki_options = [
+    click.option("--pki-dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+                 help="On a secured mesh (SPEC §9): the directory with ca.pem and NAME.pem/NAME.key; endpoints tls/…"),
+    click.option("--name", "cert_name", default="operator", show_default=True, help="The certificate to show, with --pki-dir."),
+]
+
+
+def with_pki(f: Any) -> Any:
+    for option in reversed(pki_options):
+        f = option(f)
+    return f
+
+
 def run_async(main: Coroutine[Any, Any, Any]) -> Any:
     """Run `main` until done, Ctrl-C or SIGTERM; both cancel it so `finally` blocks run."""
 
@@ -187,11 +210,13 @@ def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | N
 @click.argument("keyexpr", default="**")
 @click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
 @click.option("--count", type=click.IntRange(1), help="Exit after this many samples.")
-def sub(keyexpr: str, connect: tuple[str, ...], count: int | None) -> None:
+@with_pki
+def sub(keyexpr: str, connect: tuple[str, ...], count: int | None, pki_dir: Path | None, cert_name: str) -> None:
     """Print live traffic: one line per sample, key and compact JSON."""
     from bus.tap import tap
 
-    run_async(tap(keyexpr, list(connect), lambda line: click.echo(line), count))
+    extra = secured_client(pki_dir, cert_name, list(connect))
+    run_async(tap(keyexpr, list(connect), lambda line: click.echo(line), count, extra))
 
 
 @main.command()

@@ -39,6 +39,7 @@ from agent.fc_sim import SimFlightController
 from agent.runtime import Agent
 from bus.clock import VirtualClock
 from bus.memory import MemoryBus, MemoryNetwork
+from bus.mesh_security import mesh_security
 from bus.zenoh_bus import ZenohBus
 from ground.api import create_app
 from ground.config import GroundConfig
@@ -104,7 +105,8 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     plugins = PluginLibrary.default(config.plugins_path.expanduser())
     out(plugin_summary(plugins))
     try:
-        bus = await ZenohBus.open("router", listen=config.listen)
+        bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
+            config.security, "ground", config.listen, router=True, namespace=config.namespace))
         try:
             station = GroundStation(config, bus, events)
             station.record_missions(data_dir / "missions")

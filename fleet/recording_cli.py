@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from fleet.cli import ENDPOINT, run_async
+from fleet.cli import ENDPOINT, run_async, secured_client, with_pki
 
 CONNECT = click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True,
                        help="Zenoh endpoint of the mesh (repeatable).")
@@ -27,8 +27,9 @@ def _summary(messages: int, channels: int, seconds: float) -> str:
 @click.option("--duration", type=click.FloatRange(min=0, min_open=True), help="Stop after this many seconds (default: Ctrl-C).")
 @click.option("--recover", "broken", type=click.Path(exists=True, dir_okay=False, path_type=Path),
               help="Do not record: rewrite this cut recording (its recorder was killed) as a complete file at --out.")
+@with_pki
 def record(keyexprs: tuple[str, ...], out: Path | None, connect: tuple[str, ...], duration: float | None,
-           broken: Path | None) -> None:
+           broken: Path | None, pki_dir: Path | None, cert_name: str) -> None:
     """Write every message on the mesh (or under KEYEXPRS) to an MCAP file.
 
     One channel per key, a JSON schema per message kind; liveliness tokens are
@@ -44,13 +45,14 @@ def record(keyexprs: tuple[str, ...], out: Path | None, connect: tuple[str, ...]
         state = "was complete" if contents.complete else "was cut short"
         click.echo(f"wrote {target}: {len(contents.messages)} messages ({broken} {state})")
         return
+    extra = secured_client(pki_dir, cert_name, list(connect))
     out = out or Path(time.strftime("fleet-%Y%m%d-%H%M%S.mcap"))
     recorder = Recorder(out)
     started = time.monotonic()
     click.echo(f"recording {', '.join(keyexprs) or '**'} from {', '.join(connect)} to {out} (Ctrl-C to stop)")
 
     async def main() -> None:
-        bus = await ZenohBus.open("client", list(connect))
+        bus = await ZenohBus.open("client", list(connect), extra=extra)
         stop = asyncio.Event()
         if duration is not None:
             asyncio.get_running_loop().call_later(duration, stop.set)
@@ -74,13 +76,15 @@ def record(keyexprs: tuple[str, ...], out: Path | None, connect: tuple[str, ...]
               help="Play this many times faster than recorded.")
 @CONNECT
 @click.option("--hold", is_flag=True, help="At the end, keep the drones' liveliness until Ctrl-C.")
-def replay(path: Path, speed: float, connect: tuple[str, ...], hold: bool) -> None:
+@with_pki
+def replay(path: Path, speed: float, connect: tuple[str, ...], hold: bool, pki_dir: Path | None, cert_name: str) -> None:
     """Publish a recording on the mesh again, with its timing (so `fleet ground` and
     the dashboard show a past flight). Commands and bundles are never replayed."""
     from bus.clock import SystemClock
     from bus.recording import Replay, read
     from bus.zenoh_bus import ZenohBus
 
+    extra = secured_client(pki_dir, cert_name, list(connect))
     contents = read(path)
     if not contents.complete:
         click.echo(f"note: {path} was cut short (its recorder was killed); replaying the {len(contents.messages)} "
@@ -94,7 +98,7 @@ def replay(path: Path, speed: float, connect: tuple[str, ...], hold: bool) -> No
             click.echo(f"replayed {done}/{total} messages")
 
     async def main() -> None:
-        bus = await ZenohBus.open("client", list(connect))
+        bus = await ZenohBus.open("client", list(connect), extra=extra)
         player = Replay(bus, contents, SystemClock(), speed)
         try:
             await player.run(progress)

@@ -34,8 +34,14 @@ class Security(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=
     refuses any that `<pki_dir>/signing.pub` (or `ground_key`) does not verify."""
 
     pki_dir: str | None = None
+    tls: bool = False  # every Zenoh link mutual TLS with the certificate <pki_dir>/<name>.pem; endpoints tls/…
+    name: str | None = None  # this node's certificate in pki_dir (default: the drone id, or "ground")
     ground_key: str | None = None  # agent: the ground's public key, if not <pki_dir>/signing.pub
     window_s: Annotated[float, Meta(gt=0, le=3600)] = 30.0  # agent: how old (or early) a signature may be
+
+    def __post_init__(self) -> None:
+        if self.tls and self.pki_dir is None:
+            raise ValueError("security.tls needs security.pki_dir (the directory of `fleet pki init`)")
 
 
 

@@ -83,6 +83,7 @@ class AgentProcess(ChildProcess):
     """`fleet agent` as a child process."""
 
     def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
+        config.setdefault("listen", [f"{endpoint.split('/')[0]}/127.0.0.1:0"])  # tls/… on a secured mesh
         self.drone_id = self.name = drone_id
         cfg = tmp / f"{drone_id}.yml"
         # Each agent's own router on an ephemeral loopback port: several share this host.
@@ -180,11 +181,11 @@ class GroundProcess(ChildProcess):
 
     def __init__(
         self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), *,
-        zenoh_host: str = "127.0.0.1", **config: Any,
+        zenoh_host: str = "127.0.0.1", scheme: str = "tcp", **config: Any,
     ) -> None:
         self.zenoh_port = free_port()
         self.http_port = free_port()
-        self.endpoint = f"tcp/{zenoh_host}:{self.zenoh_port}"
+        self.endpoint = f"{scheme}/{zenoh_host}:{self.zenoh_port}"
         self.url = f"http://127.0.0.1:{self.http_port}"
         self.data_dir = data_dir or tmp / "ground-data"
         cfg = tmp / f"ground-{self.http_port}.yml"

@@ -37,7 +37,7 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Path:
     directory = tmp_path_factory.mktemp("pki")
     runner = CliRunner()
     assert runner.invoke(main, ["pki", "init", str(directory)]).exit_code == 0
-    for name, role in (("ground", "ground"), ("drone01", "drone")):
+    for name, role in (("ground", "ground"), ("drone01", "drone"), ("drone02", "drone"), ("operator", "operator")):
         result = runner.invoke(main, ["pki", "issue", str(directory), name, "--role", role])
         assert result.exit_code == 0, result.output
     return directory
@@ -172,5 +172,68 @@ async def test_a_secured_ground_commands_its_drones_and_a_direct_query_is_refuse
             await until(climbed, 30, "drone01 climbing on the ground's signed takeoff (not landing)")
         log = fleet.agents["drone01"].output()
         assert "refused goto" not in log and "refused land x: unauthenticated: not signed by the ground" in log, log[-2000:]
+    finally:
+        fleet.stop()
+
+
+@pytest.mark.integration
+async def test_on_a_tls_mesh_only_fleet_certificates_join_and_a_drone_speaks_only_for_itself(
+        pki: Path, tmp_path: Path) -> None:
+    """mTLS on every link and the routers' access rules (real processes): no
+    certificate or a rogue CA's cannot join; with drone02's certificate, telemetry
+    published as drone01 does not reach the ground and a query on drone01's `cmd` gets
+    nothing; an operator's certificate reads."""
+    from bus.port import BusError, Unreachable
+    from bus.zenoh_bus import ZenohBus
+    from fleet.cli import secured_client
+    from schemas.telemetry import Position, Telemetry
+
+    rogue = tmp_path / "rogue"
+    runner = CliRunner()
+    assert runner.invoke(main, ["pki", "init", str(rogue)]).exit_code == 0
+    assert runner.invoke(main, ["pki", "issue", str(rogue), "drone01", "--role", "drone"]).exit_code == 0
+    security = {"pki_dir": str(pki), "tls": True}
+    fleet = GroundFleet(tmp_path, {"drone01": "sim://?lat=40.6334&lon=-8.660815&alt=8.2"},
+                        {"security": security, "telemetry_rate_ms": 200}, security=security, scheme="tls")
+    endpoint = [fleet.ground.endpoint]
+    try:
+        async with fleet.client() as http:  # drone01 registered: its agent joined over mTLS
+            assert endpoint[0].startswith("tls/")
+            assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+            for who, extra in (("no certificate", {}), ("a rogue CA's drone01", secured_client(rogue, "drone01", endpoint))):
+                with pytest.raises(BusError):
+                    await ZenohBus.open("client", endpoint, extra=extra)
+                    pytest.fail(f"{who} joined the mesh")
+
+            operator = await ZenohBus.open("client", endpoint, extra=secured_client(pki, "operator", endpoint))
+            intruder = await ZenohBus.open("client", endpoint, extra=secured_client(pki, "drone02", endpoint))
+            try:
+                seen: list[str] = []
+                operator.subscribe("drone/drone01/telem", lambda s: seen.append(s.key))
+                await until(lambda: seen, 10, "the operator reading drone01's telemetry")
+
+                def telem(drone_id: str, lat: float) -> bytes:
+                    return encode(Telemetry(drone_id=drone_id, timestamp=NOW, armed=False,
+                                            position=Position(lat=lat, lon=10.0, alt=0.0, rel_alt=0.0)))
+
+                for _ in range(5):
+                    intruder.publish("drone/drone01/telem", telem("drone01", 10.0))
+                intruder.publish("drone/drone02/telem", telem("drone02", 11.0))  # its own: this one arrives
+
+                async def drone02_registered() -> bool:
+                    return (await http.get("/drone/drone02")).status_code == 200
+
+                await until(drone02_registered, 10, "drone02's own telemetry at the ground")
+                view = (await http.get("/drone/drone01")).json()
+                assert abs(view["telem"]["position"]["lat"] - 40.6334) < 0.01 and view["telem"]["armed"], view["telem"]
+                with pytest.raises(Unreachable):
+                    await intruder.query("drone/drone01/cmd", b'{"cmd": "disarm", "drone_id": "drone01"}', timeout_s=2)
+                view = (await http.get("/drone/drone01")).json()
+                assert view["telem"]["armed"] and view["info"]["current_command"] is None, view
+            finally:
+                await intruder.close()
+                await operator.close()
+        log = fleet.agents["drone01"].output()
+        assert "refused disarm" not in log  # it never even reached the agent
     finally:
         fleet.stop()

@@ -1,0 +1,118 @@
+"""Mutual TLS and access control on the Zenoh mesh (SPEC §9), as Zenoh configuration.
+
+With `security.tls`, every link of a node is TLS with both ends showing a certificate
+from the fleet CA (`fleet pki`); a node without one, or with one from another CA,
+cannot join. A router (the ground, every agent) also enforces access rules by the
+certificate's common name, generated from the certificates issued into its PKI
+directory (`<name>.pem`, role in the OU):
+
+- a drone (CN = its id; its on-board programs use its certificate) may publish,
+  declare and answer only under `drone/<its id>/**`, query `ground/ping` and other
+  drones' `ping` (link probes), and may never query any `drone/*/cmd` or
+  `drone/*/bundle`;
+- the ground may do everything; an operator (`fleet sub`, `fleet record`) may only
+  subscribe.
+
+A node forwarding for others (the ground; a drone relaying a neighbour) is seen by the
+next router under its own name: a relay can drop what it forwards but cannot make the
+ground take its neighbour's messages as its own unless the relay's rules allow those
+keys — which is why only the ground's router lets every key through, and commands are
+signed end to end besides (schemas/auth.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from schemas.config import Security
+from schemas.errors import ConfigError
+
+ALL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
+                "liveliness_token", "liveliness_query", "declare_liveliness_subscriber"]
+READ_MESSAGES = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
+BOTH = ["ingress", "egress"]
+
+
+def _identities(pki_dir: Path) -> dict[str, str]:
+    """CN → role (OU) of every node certificate in the directory."""
+    from cryptography import x509
+    from cryptography.x509.oid import NameOID
+
+    found: dict[str, str] = {}
+    for pem in sorted(pki_dir.glob("*.pem")):
+        if pem.name == "ca.pem":
+            continue
+        cert = x509.load_pem_x509_certificate(pem.read_bytes())
+        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+        ou = cert.subject.get_attributes_for_oid(NameOID.ORGANIZATIONAL_UNIT_NAME)
+        if cn and ou:
+            found[str(cn[0].value)] = str(ou[0].value)
+    return found
+
+
+def access_control(pki_dir: Path, namespace: str = "") -> dict[str, Any]:
+    """Zenoh `access_control` for a router, default deny."""
+    prefix = f"{namespace}/" if namespace else ""
+    rules: list[dict[str, Any]] = [
+        {"id": "all", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES, "key_exprs": ["**"]},
+        {"id": "read", "permission": "allow", "flows": ["ingress"], "messages": READ_MESSAGES, "key_exprs": ["**"]},
+        {"id": "read-out", "permission": "allow", "flows": ["egress"], "messages": ["put", "delete", "liveliness_token", "reply"],
+         "key_exprs": ["**"]},
+        {"id": "probes", "permission": "allow", "flows": BOTH, "messages": ["query", "reply"],
+         "key_exprs": [f"{prefix}ground/ping", f"{prefix}drone/*/ping"]},
+        # What the ground (and neighbours) declare must reach a drone's router, or it
+        # would not know where to send its own traffic: declarations out, on any key.
+        {"id": "learn", "permission": "allow", "flows": ["egress"],
+         "messages": ["declare_subscriber", "declare_queryable", "declare_liveliness_subscriber", "liveliness_token",
+                      "liveliness_query"], "key_exprs": ["**"]},
+        {"id": "ground-state", "permission": "allow", "flows": BOTH,
+         "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "liveliness_token", "put",
+                      "reply"], "key_exprs": [f"{prefix}ground/**"]},
+        {"id": "no-commands", "permission": "deny", "flows": ["ingress"], "messages": ["query"],
+         "key_exprs": [f"{prefix}drone/*/cmd", f"{prefix}drone/*/bundle"]},
+    ]
+    subjects: list[dict[str, Any]] = []
+    policies: list[dict[str, Any]] = []
+    identities = _identities(pki_dir)
+    if "ground" not in identities.values():  # a drone's directory need not hold the ground's certificate
+        identities["ground"] = "ground"
+    for cn, role in identities.items():
+        subjects.append({"id": cn, "cert_common_names": [cn]})
+        if role == "ground":
+            policies.append({"rules": ["all"], "subjects": [cn]})
+        elif role == "operator":
+            policies.append({"rules": ["read", "read-out"], "subjects": [cn]})
+        else:
+            rules.append({"id": f"own-{cn}", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES,
+                          "key_exprs": [f"{prefix}drone/{cn}/**", f"{prefix}drone/{cn}"]})
+            policies.append({"rules": [f"own-{cn}", "probes", "learn", "ground-state", "no-commands"], "subjects": [cn]})
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
+
+
+def mesh_security(security: Security, name: str, endpoints: list[str], *, router: bool,
+                  namespace: str = "") -> dict[str, Any]:
+    """The Zenoh settings (for `ZenohBus.open(extra=…)`) of a node called `name`."""
+    if not security.tls:
+        return {}
+    assert security.pki_dir is not None
+    pki = Path(security.pki_dir).expanduser()
+    name = security.name or name
+    files = [pki / "ca.pem", pki / f"{name}.pem", pki / f"{name}.key"]
+    missing = [str(f) for f in files if not f.exists()]
+    if missing:
+        raise ConfigError(f"security.tls: missing {', '.join(missing)} (`fleet pki issue {pki} {name} --role …`)")
+    plain = [e for e in endpoints if not e.startswith("tls/")]
+    if plain:
+        raise ConfigError(f"security.tls: every endpoint must be tls/…, not {', '.join(plain)}")
+    extra: dict[str, Any] = {
+        "transport/link/tls/root_ca_certificate": str(files[0]),
+        "transport/link/tls/listen_certificate": str(files[1]),
+        "transport/link/tls/listen_private_key": str(files[2]),
+        "transport/link/tls/connect_certificate": str(files[1]),
+        "transport/link/tls/connect_private_key": str(files[2]),
+        "transport/link/tls/enable_mtls": True,
+    }
+    if router:
+        extra["access_control"] = access_control(pki, namespace)
+    return extra
