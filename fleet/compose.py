@@ -49,6 +49,7 @@ from mission.manager import MissionManager, MissionStore
 from mission.mission import MissionRecord
 from mission.plugins import PluginLibrary, plugin_summary
 from mission.simulate import telemetry_sample, write_result
+from schemas.endpoints import split_host_port
 from schemas.errors import ConfigError
 from schemas.fence import Geofence
 from schemas.fleet import WatchEvent
@@ -97,6 +98,24 @@ def _prepare_data_dir(config: GroundConfig) -> Path:
     return path
 
 
+def _loopback(host: str) -> bool:
+    return host in ("localhost", "::1") or host.startswith("127.")
+
+
+def exposure_warnings(config: GroundConfig) -> list[str]:
+    """What an operator must know before the field sees this ground (SPEC §9)."""
+    warnings = []
+    open_links = [e for e in config.listen if e.partition("/")[0] in ("tcp", "udp", "quic", "ws")
+                  and not _loopback(split_host_port(e.partition("/")[2].partition("#")[0])[0])]
+    if open_links:
+        warnings.append(f"the Zenoh router listens on {', '.join(open_links)} without TLS: any machine that reaches it "
+                        "can join the mesh and publish as any drone (security.tls, `fleet pki`; deploy/ground-secure.yml)")
+    if not _loopback(config.http_host):
+        warnings.append(f"the HTTP API is served on {config.http_host} without authentication: anyone who reaches port "
+                        f"{config.http_port} can command the drones (keep http_host 127.0.0.1, or put it behind a proxy)")
+    return warnings
+
+
 async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda line: None) -> None:
     data_dir = _prepare_data_dir(config)
     sock = _bind(config.http_host, config.http_port)
@@ -104,6 +123,8 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     store = MissionStore(data_dir / "missions.db")
     plugins = PluginLibrary.default(config.plugins_path.expanduser())
     out(plugin_summary(plugins))
+    for warning in exposure_warnings(config):
+        out(f"fleet ground: WARNING: {warning}")
     try:
         bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
             config.security, "ground", config.listen, router=True, namespace=config.namespace))

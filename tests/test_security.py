@@ -65,6 +65,17 @@ def test_pki_keys_are_private_certificates_name_their_node_and_nothing_is_overwr
     assert bad.exit_code != 0 and "not usable in a key" in bad.output, bad.output
 
 
+def test_the_ground_warns_when_it_listens_or_serves_beyond_loopback_unsecured() -> None:
+    from fleet.compose import exposure_warnings
+
+    assert exposure_warnings(GroundConfig(listen=["tcp/127.0.0.1:7447"], data_dir=".")) == []
+    assert exposure_warnings(GroundConfig(listen=["tls/0.0.0.0:7447"], data_dir=".")) == []
+    (mesh,) = exposure_warnings(GroundConfig(listen=["tcp/0.0.0.0:7447", "tls/0.0.0.0:7448"], data_dir="."))
+    assert "tcp/0.0.0.0:7447 without TLS" in mesh and "7448" not in mesh
+    (api,) = exposure_warnings(GroundConfig(listen=["tls/0.0.0.0:7447"], http_host="0.0.0.0", data_dir="."))
+    assert "HTTP API is served on 0.0.0.0 without authentication" in api
+
+
 def goto(command_id: str = "c1", lat: float = 40.6) -> Goto:
     return Goto(drone_id="drone01", command_id=command_id, timestamp=NOW, lat=lat, lon=-8.6, alt=20.0)
 
