@@ -248,3 +248,14 @@ async def test_on_a_tls_mesh_only_fleet_certificates_join_and_a_drone_speaks_onl
         assert "refused disarm" not in log  # it never even reached the agent
     finally:
         fleet.stop()
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in (Path(__file__).parent.parent / "deploy").glob("*.yml")))
+def test_every_deploy_config_loads(name: str) -> None:
+    from schemas.config import load_config
+
+    kind = GroundConfig if name.startswith("ground") else AgentConfig
+    config = load_config(kind, Path(__file__).parent.parent / "deploy" / name, {})
+    if "secure" in name:
+        assert config.security.tls and config.security.pki_dir
+        assert all(e.startswith("tls/") for e in config.listen)
