@@ -79,7 +79,7 @@ class Verifier:
     def __init__(self, key: Ed25519PublicKey, window_s: float = 30.0) -> None:
         self.key = key
         self.window_ms = int(window_s * 1000)
-        self._seen: dict[str, int] = {}  # message id → signing time, for the window
+        self._seen: dict[str, int] = {}  # message id → signing time, oldest first, for the window
 
     def refusal(self, message: Any, message_id: str, now_ms: int) -> str | None:
         from cryptography.exceptions import InvalidSignature
@@ -93,9 +93,11 @@ class Verifier:
             return f"{REASON}: the signature does not verify with the ground's key"
         if abs(now_ms - auth.ts) > self.window_ms:
             return f"{REASON}: signed {(now_ms - auth.ts) / 1000:+.1f} s from now, outside the {self.window_ms / 1000:g} s window"
-        for seen, ts in list(self._seen.items()):
-            if now_ms - ts > 2 * self.window_ms:
-                del self._seen[seen]
+        while self._seen:  # forget what the window refuses anyway (taken in about signing order)
+            oldest, ts = next(iter(self._seen.items()))
+            if now_ms - ts <= 2 * self.window_ms:
+                break
+            del self._seen[oldest]
         if not message_id:
             return f"{REASON}: a signed message must carry its id"
         if message_id in self._seen:
