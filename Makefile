@@ -8,15 +8,20 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: demo test pytest test-fast lint bench lock clean sysdeps
 
-# The emulated radio (SPEC §8) needs iproute2 and nftables; as root on Debian they are
-# installed here (CI runs as root on a fresh machine). Elsewhere the radio tests say
-# what is missing.
+# The emulated radio (SPEC §8) needs iproute2 and nftables, the dashboard tests (SPEC §10)
+# Debian's chromium; as root on Debian the missing ones are installed here, in one
+# apt-get call (CI runs as root on a fresh machine; chromium is large, so only when
+# missing). Elsewhere the tests that need them say what is missing and skip.
 sysdeps:
-	@if ! command -v nft >/dev/null || ! command -v ip >/dev/null; then \
+	@missing=""; \
+	command -v ip >/dev/null || missing="$$missing iproute2"; \
+	command -v nft >/dev/null || missing="$$missing nftables"; \
+	command -v chromium >/dev/null || missing="$$missing chromium"; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	    echo "installing iproute2 and nftables (emulated radio)"; \
-	    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq iproute2 nftables >/dev/null; \
-	  else echo "note: iproute2/nftables missing: the emulated-radio tests will skip (or fail in CI)"; fi; \
+	    echo "installing$$missing (emulated radio, dashboard tests)"; \
+	    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
+	  else echo "note: missing$$missing: the emulated-radio tests (iproute2, nftables) and dashboard tests (chromium) will skip (or fail in CI)"; fi; \
 	fi
 
 # uv (pinned in the lock) installs it about 4x faster than pip: 13 s against 47 s from
@@ -74,6 +79,9 @@ bench: $(STAMP)
 	$(BIN)/python bench/ground_command.py
 	$(BIN)/python bench/bundles.py
 	$(BIN)/python bench/mission_sim.py
+	$(BIN)/python bench/recording.py
+	$(BIN)/python bench/security.py
+	$(BIN)/python bench/dashboard_frames.py
 	$(BIN)/python bench/zenoh_modes.py
 	$(BIN)/python bench/mesh.py  # needs CAP_NET_ADMIN (root), as fleet sim --radio
 

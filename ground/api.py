@@ -5,6 +5,9 @@ into HTTP. Every error, including Litestar's own (bad query parameter, unknown
 route, wrong method), answers `{"error": "...", "detail": ...}`. The command body is
 decoded by the schemas' own decoder (so a 400 names the field exactly as an agent
 would) while the OpenAPI document still describes it as the Command union.
+
+`GET /` serves the web dashboard (SPEC §10): the files of `ground/dashboard/`, read
+from the installed package, and `/dashboard/config.json` with what the page draws.
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ import asyncio
 import logging
 from collections.abc import AsyncIterator, Awaitable
 from dataclasses import dataclass
+from importlib import resources
+from pathlib import PurePath
 from typing import Annotated, Any, Literal
 
 import msgspec
@@ -26,6 +31,7 @@ from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from bus.port import QueryRefused, Unreachable
+from ground.config import HeatMark, MapSpot
 from ground.describe import Level
 from ground.eventlog import format_line
 from ground.station import GroundStation
@@ -36,6 +42,7 @@ from mission.sandbox import ScriptError
 from schemas.bundles import BundleRecord, BundleReply, TaskBundle
 from schemas.commands import Command, CommandReply
 from schemas.errors import CommandRejected, InvalidMessage
+from schemas.fence import Geofence
 from schemas.fleet import DroneInfo, DroneState, WatchEvent
 from schemas.telemetry import SensorReading, Telemetry
 
@@ -343,12 +350,78 @@ def list_plugins(missions: MissionManager) -> PluginListing:
     return missions.plugins.describe() if missions.plugins is not None else PluginListing(plugins=[], errors=[])
 
 
+# ---- the dashboard (SPEC §10): static files from the package, and what the page needs --
+
+
+_ASSET_TYPES = {
+    ".html": "text/html; charset=utf-8", ".css": "text/css; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8", ".svg": "image/svg+xml",
+}
+# The page is small and changes only with the package: served from memory, always
+# revalidated (an upgraded ground is never shown with yesterday's scripts).
+_ASSET_HEADERS = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
+
+
+class DashboardAssets:
+    """The files of `ground/dashboard/`, read once, by name."""
+
+    def __init__(self, files: dict[str, tuple[bytes, str]]) -> None:
+        self.files = files
+
+    @classmethod
+    def load(cls) -> DashboardAssets:
+        root = resources.files("ground") / "dashboard"
+        if not root.is_dir():  # an install without its package data: the API still serves
+            log.warning("the dashboard's files are not installed (%s): GET / answers 404", root)
+            return cls({})
+        return cls({
+            f.name: (f.read_bytes(), _ASSET_TYPES[suffix]) for f in root.iterdir()
+            if f.is_file() and (suffix := PurePath(f.name).suffix) in _ASSET_TYPES
+        })
+
+    def response(self, name: str) -> Response[Any]:
+        if name not in self.files:
+            return _error(404, f"no dashboard file {name!r}", {"file": name})
+        content, media_type = self.files[name]
+        return Response(content, media_type=media_type, headers=_ASSET_HEADERS)
+
+
+class DashboardConfig(msgspec.Struct, frozen=True, kw_only=True):
+    """GET /dashboard/config.json: what the page draws besides the drones."""
+
+    tiles: str | None
+    event_telemetry_ms: int
+    geofence: Geofence
+    ground_station: MapSpot | None
+    heat_sources: list[HeatMark]
+
+
+_INDEX = {
+    "name": "fleet ground", "dashboard": "/", "openapi": "/openapi.json", "drones": "/drone", "missions": "/mission",
+    "plugins": "/plugin", "events": "/events", "logs": "/drone/logs",
+}
+
+
 @get("/", sync_to_thread=False, include_in_schema=False)
-def index() -> dict[str, str]:
-    return {
-        "name": "fleet ground", "openapi": "/openapi.json", "drones": "/drone", "missions": "/mission", "plugins": "/plugin",
-        "events": "/events", "logs": "/drone/logs",
-    }
+def index(request: Request[Any, Any, Any], assets: DashboardAssets) -> Response[Any]:
+    """The dashboard; a client asking for JSON gets the map of the API instead."""
+    if request.accept.best_match(["text/html", "application/json"], "text/html") == "application/json":
+        return Response(_INDEX)
+    return assets.response("index.html")
+
+
+@get("/dashboard/config.json", sync_to_thread=False, include_in_schema=False)
+def dashboard_config(station: GroundStation) -> DashboardConfig:
+    c = station.config
+    return DashboardConfig(
+        tiles=c.dashboard.tiles, event_telemetry_ms=c.event_telemetry_ms, geofence=c.geofence,
+        ground_station=c.dashboard.ground_station, heat_sources=c.dashboard.heat_sources,
+    )
+
+
+@get("/dashboard/{name:str}", sync_to_thread=False, include_in_schema=False)
+def dashboard_file(assets: DashboardAssets, name: str) -> Response[Any]:
+    return assets.response(name)
 
 
 @get("/openapi.json", sync_to_thread=False, include_in_schema=False, media_type="application/vnd.oai.openapi+json")
@@ -391,14 +464,16 @@ def _add_command_components(app: Litestar) -> None:
 
 
 def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
+    assets = DashboardAssets.load()
     return Litestar(
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
-            cancel_mission, events, index, openapi_json,
+            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file,
         ],
         dependencies={
             "station": Provide(lambda: station, sync_to_thread=False),
             "missions": Provide(lambda: missions, sync_to_thread=False),
+            "assets": Provide(lambda: assets, sync_to_thread=False),
         },
         exception_handlers={HTTPException: _http_error, Exception: _internal_error},
         openapi_config=OpenAPIConfig(title="Fleet ground station", version="0.1.0"),

@@ -1,0 +1,495 @@
+"""The web dashboard (SPEC §10) in real Chromium against a real `fleet ground`.
+
+Sim agents fly from the page's buttons and map clicks, missions are submitted and
+watched from it, the ground is restarted under it, and 200 synthetic drones publish
+telemetry at 10 Hz over Zenoh while the page measures its own frame times. Chromium is
+Debian's (`make sysdeps` installs it), driven by Playwright; each test leaves a
+screenshot in its tmp directory (printed), also when it fails.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import http.server
+import math
+import os
+import re
+import shutil
+import struct
+import threading
+import zlib
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from playwright.async_api import Browser, Page, ViewportSize, expect
+
+from bench.dashboard_frames import (
+    DESKTOP,
+    FRAME_LIMIT_MS,
+    SyntheticFleet,
+    launch_chromium,
+    measure_frames,
+    wait_for_drones,
+)
+from schemas.geo import destination, distance_m
+from tests.harness import AgentProcess, GroundFleet, GroundProcess, wait_state
+
+pytestmark = pytest.mark.integration
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+PHONE = ViewportSize(width=390, height=844)
+SCALE_JS = ("(parseFloat(document.querySelector('#scale-label').textContent) * "
+            "(document.querySelector('#scale-label').textContent.endsWith('km') ? 1000 : 1) / "
+            "document.querySelector('#scale-bar').getBoundingClientRect().width)")
+# Deadlines are generous: two cores run five pytest workers, Chromium and the drones.
+UI_S = 30.0
+
+SPAWNS = {"drone01": (40.633490, -8.660815), "drone02": (40.633590, -8.660815), "drone03": (40.633690, -8.660815)}
+FENCE = [[40.634030, -8.661526], [40.634030, -8.660104], [40.632950, -8.660104], [40.632950, -8.661526]]  # 120 m square
+
+
+def chromium() -> str:
+    """Debian's chromium: a missing one fails the run as root (CI: `make sysdeps`
+    installs it), and skips the test elsewhere."""
+    path = shutil.which("chromium") or shutil.which("chromium-browser")
+    if path is None:
+        why = "chromium is not installed (Debian: `make sysdeps` as root, or apt-get install chromium)"
+        if os.geteuid() == 0:
+            pytest.fail(why)
+        pytest.skip(why)
+    return path
+
+
+class Dashboard:
+    """One page of the dashboard, with what the tests read and do on it."""
+
+    def __init__(self, page: Page) -> None:
+        self.page = page
+        self.errors: list[str] = []  # uncaught exceptions in the page
+        page.on("pageerror", lambda exc: self.errors.append(str(exc)))
+
+    async def open(self, url: str) -> None:
+        await self.page.goto(url)
+        await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=UI_S * 1000)
+
+    async def metres_per_pixel(self) -> float:
+        """What the scale bar says."""
+        return float(await self.page.evaluate(f"() => {SCALE_JS}"))
+
+    async def stats(self) -> dict[str, Any]:
+        return dict(await self.page.evaluate("() => window.fleetDashboard.stats"))
+
+    async def screen_of(self, drone_id: str) -> tuple[float, float]:
+        xy = await self.page.evaluate("id => window.fleetDashboard.map.screenOf(id)", drone_id)
+        assert xy is not None, f"{drone_id} is not on the map"
+        return xy[0], xy[1]
+
+    async def click_map(self, x: float, y: float) -> None:
+        box = await self.page.locator("#map").bounding_box()
+        assert box is not None
+        assert 0 < x < box["width"] and 0 < y < box["height"], f"({x:.0f}, {y:.0f}) is off the map ({box})"
+        await self.page.locator("#map").click(position={"x": x, "y": y})
+
+    async def click_map_at(self, lat: float, lon: float) -> None:
+        x, y = await self.page.evaluate("([lat, lon]) => window.fleetDashboard.map.toScreen(lat, lon)", [lat, lon])
+        await self.click_map(x, y)
+
+    async def command(self, cmd: str) -> str:
+        """Press a command button; the message the page shows for its answer."""
+        messages = self.page.locator("#cmd-messages li")
+        before = await messages.count()
+        await self.page.locator(f"#commands button[data-cmd={cmd}]").click()
+        if cmd == "goto":
+            return ""
+        return await self.latest_message(before)
+
+    async def latest_message(self, before: int) -> str:
+        messages = self.page.locator("#cmd-messages li")
+        if before < 8:
+            await expect(messages).to_have_count(before + 1, timeout=UI_S * 1000)
+        else:
+            await expect(messages.first).not_to_have_class(re.compile("old"), timeout=UI_S * 1000)
+        return await messages.first.inner_text()
+
+    async def position(self) -> tuple[float, float]:
+        """The selected drone's position as the panel shows it."""
+        lat, lon = (await self.page.locator("#telem-pos").inner_text()).split(", ")
+        return float(lat), float(lon)
+
+
+@pytest.fixture
+async def browser() -> AsyncIterator[Browser]:
+    async with launch_chromium(chromium()) as browser:
+        yield browser
+
+
+@pytest.fixture
+async def dashboard(browser: Browser, tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterator[Dashboard]:
+    context = await browser.new_context(viewport=DESKTOP)
+    try:
+        dash = Dashboard(await context.new_page())
+        yield dash
+    finally:
+        shot = tmp_path / f"{request.node.name}.png"
+        with contextlib.suppress(Exception):  # the screenshot is for the reader; never the failure
+            await dash.page.screenshot(path=str(shot))
+            print(f"screenshot: {shot}")
+        await context.close()
+
+
+def _fleet(tmp: Path, spawns: dict[str, tuple[float, float]], agent_config: dict[str, Any] | None = None,
+           **ground_config: Any) -> Iterator[GroundFleet]:
+    fcs = {d: f"sim://?lat={lat}&lon={lon}&alt=8.2" for d, (lat, lon) in spawns.items()}
+    fleet = GroundFleet(tmp, fcs, agent_config, **ground_config)
+    try:
+        yield fleet
+    finally:
+        fleet.stop()
+
+
+@pytest.fixture
+def fenced_fleet(tmp_path: Path) -> Iterator[GroundFleet]:
+    yield from _fleet(tmp_path, SPAWNS, geofence={"polygon": FENCE}, dashboard={"heat_sources": [
+        {"lat": 40.633849, "lon": -8.660637, "radius": 50, "temp": 60},
+    ]})
+
+
+@pytest.fixture
+def mission_fleet(tmp_path: Path) -> Iterator[GroundFleet]:
+    # Parked 11 m apart: closer, a takeoff under a hovering drone is a conflict (SPEC §11).
+    spawns = {d: (40.633400, -8.660810 + 0.00013 * i) for i, d in enumerate(("drone01", "drone02"))}
+    yield from _fleet(tmp_path, spawns, {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0},
+                      dashboard={"ground_station": {"lat": 40.633300, "lon": -8.660900}})
+
+
+# ---- 1. drones: select, telemetry, commands, refusals, goto by clicking the map ---------
+
+
+async def served_from_the_package(http: httpx.AsyncClient) -> None:
+    """The page and its files come from the ground with their types; nothing else is needed."""
+    page = await http.get("/")
+    assert page.headers["content-type"].startswith("text/html") and '<canvas id="map"' in page.text
+    sources = re.findall(r'(?:src|href)="([^"]+)"', page.text)
+    assert sources and all(s.startswith("/dashboard/") or s.startswith("data:") for s in sources), sources
+    for name, kind in (("main.js", "text/javascript"), ("map.js", "text/javascript"), ("style.css", "text/css")):
+        asset = await http.get(f"/dashboard/{name}")
+        assert asset.status_code == 200 and asset.headers["content-type"].startswith(kind), (name, asset.headers)
+    for module in re.findall(r'from "\./([a-z_]+\.js)"', (await http.get("/dashboard/main.js")).text):
+        assert (await http.get(f"/dashboard/{module}")).status_code == 200, module
+    missing = await http.get("/dashboard/nothing.js")
+    assert missing.status_code == 404 and "nothing.js" in missing.json()["error"]
+    config = (await http.get("/dashboard/config.json")).json()
+    assert config["geofence"]["polygon"] == FENCE and config["tiles"] is None and config["event_telemetry_ms"] == 500
+    assert config["heat_sources"][0]["radius"] == 50 and config["ground_station"] is None
+    assert (await http.get("/", headers={"accept": "application/json"})).json()["openapi"] == "/openapi.json"
+    assert (await http.get("/openapi.json")).json()["info"]["title"] == "Fleet ground station"
+
+
+@pytest.mark.slow(60)
+async def test_three_drones_fly_from_the_buttons_and_the_map_and_refusals_are_shown(
+    fenced_fleet: GroundFleet, dashboard: Dashboard
+) -> None:
+    fleet, page = fenced_fleet, dashboard.page
+    async with fleet.client() as http:
+        await served_from_the_package(http)
+        await dashboard.open(fleet.ground.url)
+    await expect(page.locator("#map")).to_have_attribute("data-drones", "3", timeout=UI_S * 1000)
+    await expect(page.locator("#drone-list li")).to_have_count(3)
+    assert 0.1 < await dashboard.metres_per_pixel() < 0.4  # the 120 m fence fills the map
+
+    # Selecting drone02 by clicking it on the map shows its telemetry.
+    await dashboard.click_map(*await dashboard.screen_of("drone02"))
+    await expect(page.locator("#detail-id")).to_have_text("drone02")
+    await expect(page.locator("#telem-pos")).to_have_text(re.compile(r"^40\.6335\d\d, -8\.6608\d\d$"), timeout=UI_S * 1000)
+    await expect(page.locator("#telem-battery")).to_have_text(re.compile(r"^\d+% · \d+\.\d\d V$"))
+    await expect(page.locator("#telem-armed")).to_have_text("disarmed")
+    assert float((await page.locator("#telem-alt").inner_text()).split()[0]) < 1.0
+
+    # Refusals are shown with the API's status and reason.
+    assert re.search(r"409 refused: disarmed", await dashboard.command("takeoff")), "takeoff while disarmed"
+    await page.locator("#takeoff-alt").fill("0")
+    refused = await dashboard.command("takeoff")
+    assert "400 invalid" in refused and "(field alt)" in refused, refused
+    await page.locator("#takeoff-alt").fill("10")
+
+    # Arm and take off from the buttons: the altitude on screen climbs.
+    assert "arm accepted" in await dashboard.command("arm")
+    assert "takeoff 10 m accepted" in await dashboard.command("takeoff")
+    await expect(page.locator("#telem-armed")).to_have_text("armed", timeout=UI_S * 1000)
+    await page.wait_for_function(
+        "() => parseFloat(document.querySelector('#telem-alt').textContent) > 8", timeout=60_000,
+    )
+
+    # A goto clicked outside the fence: 409 geofence, shown. (Zoomed out to reach it.)
+    before = await dashboard.metres_per_pixel()
+    await page.locator("#zoom-out").click()
+    await page.wait_for_function(f"() => {SCALE_JS} > {before * 1.9}", timeout=UI_S * 1000)
+    lat, lon = SPAWNS["drone02"]
+    await dashboard.command("goto")
+    await expect(page.locator("#pick-hint")).to_be_visible()
+    count = await page.locator("#cmd-messages li").count()
+    await dashboard.click_map_at(FENCE[0][0] + 0.0003, lon)  # 33 m north of the fence
+    refused = await dashboard.latest_message(count)
+    assert "409 refused: geofence" in refused and "outside the fence" in refused, refused
+    await expect(page.locator("#pick-hint")).to_be_hidden()
+
+    # A goto clicked 25 m east: accepted, and the drone flies there.
+    target_lat, target_lon = destination(lat, lon, 25.0, 90.0)
+    await dashboard.command("goto")
+    count = await page.locator("#cmd-messages li").count()
+    await dashboard.click_map_at(target_lat, target_lon)
+    accepted = await dashboard.latest_message(count)
+    found = re.search(r"goto (-?\d+\.\d+), (-?\d+\.\d+) accepted", accepted)
+    assert found, accepted
+    clicked = float(found.group(1)), float(found.group(2))
+    assert distance_m(*clicked, target_lat, target_lon) < 2.0  # one pixel is about half a metre here
+    start = distance_m(*await dashboard.position(), *clicked)
+    assert start > 15, f"drone02 starts {start:.1f} m from the clicked point"
+    await page.wait_for_function(
+        """([lat, lon]) => {
+            const [a, b] = document.querySelector('#telem-pos').textContent.split(', ').map(Number);
+            const north = (a - lat) * 111195, east = (b - lon) * 111195 * Math.cos(lat * Math.PI / 180);
+            return Math.hypot(north, east) < 3;
+        }""",
+        arg=list(clicked), timeout=90_000,
+    )
+    assert distance_m(*await dashboard.position(), *clicked) < start
+
+    # An agent that died: the drone turns unknown on the page, and a command gets 504.
+    fleet.agents["drone03"].kill()
+    await page.locator("#drone-list li[data-drone=drone03]").click()
+    await expect(page.locator("#detail-state")).to_have_text("unknown", timeout=UI_S * 1000)
+    timed_out = await dashboard.command("return")
+    assert "504 no answer" in timed_out and "drone03" in timed_out, timed_out
+    assert dashboard.errors == []
+
+
+# ---- 2. missions: a syntax error at its line, a mission followed to its end, cancel ---
+
+
+@pytest.mark.slow(70)
+async def test_missions_show_errors_at_their_line_run_live_to_the_end_and_cancel(
+    mission_fleet: GroundFleet, dashboard: Dashboard, tmp_path: Path
+) -> None:
+    fleet, page = mission_fleet, dashboard.page
+    async with fleet.client():
+        await dashboard.open(fleet.ground.url)
+    await expect(page.locator("#map")).to_have_attribute("data-drones", "2", timeout=UI_S * 1000)
+    await page.locator("#tab-missions").click()
+
+    await page.locator("#mission-source").fill("d = assign()\nif d\n    arm(d)\n")
+    await page.locator("#mission-submit").click()
+    error = page.locator("#mission-error")
+    await expect(error).to_be_visible()
+    await expect(error).to_contain_text("line 2, column 5: expected ':'")
+    await expect(error.locator("pre")).to_contain_text("2 | if d")
+
+    await page.locator("#mission-file").set_input_files(EXAMPLES / "two_drones.py")
+    await expect(page.locator("#mission-name")).to_have_value("two_drones.py")
+    await expect(page.locator("#mission-source")).to_have_value(re.compile(r"assign\(any_drone, any_drone\)"))
+    await page.locator("#mission-submit").click()
+    await expect(error).to_be_hidden()
+    status = page.locator("#mission-status")
+    await expect(status).to_have_text("running", timeout=UI_S * 1000)
+    mission_id = (await page.locator("#mission-id").inner_text()).split()[0]
+    row = page.locator(f"#mission-list tr[data-mission={mission_id}]")
+    await expect(row.locator("td").nth(2)).to_have_text("running")
+
+    # Its log grows while it runs: its own lines, then its drones' (live events), then it finishes.
+    log = page.locator("#mission-log li")
+    await expect(log.first).to_have_text(re.compile(r"Mission started$"), timeout=UI_S * 1000)
+    seen = await log.count()
+    await page.wait_for_function(
+        """n => document.querySelectorAll('#mission-log li').length > n
+               && document.querySelector('#mission-status').textContent === 'running'""",
+        arg=seen, timeout=60_000,
+    )
+    await expect(log.filter(has_text=re.compile(r"Assigned drone0[12]"))).to_have_count(2)
+    await expect(log.filter(has_text=re.compile(r"drone0[12]: Start takeoff"))).to_have_count(2, timeout=60_000)
+    seen = await log.count()
+    # Both drones moving in the air: the picture of a mission in progress (docs/dashboard.png).
+    await expect(log.filter(has_text=re.compile(r"drone0[12]: Start go to"))).to_have_count(2, timeout=60_000)
+    await page.screenshot(path=str(tmp_path / "mission-running.png"))
+    await expect(status).to_have_text("finished", timeout=150_000)
+    await expect(page.locator("#mission-cause")).to_have_text("cause: success")
+    await expect(row.locator("td").nth(2)).to_have_text("finished")
+    await expect(log.filter(has_text="Mission finished: success")).to_have_count(1)
+    assert await log.count() > seen
+    await expect(page.locator("#mission-cancel")).to_be_disabled()
+
+    # A waiting mission cancelled from the page.
+    await page.locator("#mission-name").fill("waiting")
+    await page.locator("#mission-source").fill("sleep(60)\n")
+    await page.locator("#mission-submit").click()
+    await expect(page.locator("#mission-id")).not_to_have_text(re.compile(rf"^{mission_id}\b"), timeout=UI_S * 1000)
+    await expect(status).to_have_text("running", timeout=UI_S * 1000)
+    await page.locator("#mission-cancel").click()
+    await expect(status).to_have_text("cancelled", timeout=UI_S * 1000)
+    await expect(page.locator("#mission-cause")).to_have_text("cause: user")
+    assert dashboard.errors == []
+
+
+# ---- 3. the ground restarted under the page --------------------------------------------
+
+
+def _png(rgb: tuple[int, int, int], size: int = 256) -> bytes:
+    """A plain square PNG (no imaging library needed)."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = b"".join(b"\x00" + bytes(rgb) * size for _ in range(size))
+    header = struct.pack(">IIBBBBB", size, size, 8, 2, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b"")
+
+
+class TileServer:
+    """`dashboard.tiles` on 127.0.0.1: a checkerboard of plain tiles, and which were asked for."""
+
+    def __init__(self) -> None:
+        self.requested: list[tuple[int, int, int]] = []
+        tiles = {0: _png((222, 226, 214)), 1: _png((206, 214, 196))}
+        server = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_GET(self) -> None:  # noqa: N802 - the http.server name
+                found = re.fullmatch(r"/(\d+)/(\d+)/(\d+)\.png", self.path)
+                if not found:
+                    self.send_error(404)
+                    return
+                z, x, y = (int(g) for g in found.groups())
+                server.requested.append((z, x, y))
+                body = tiles[(x + y) % 2]
+                self.send_response(200)
+                self.send_header("Content-Type", "image/png")
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args: Any) -> None:
+                pass
+
+        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.template = f"http://127.0.0.1:{self.httpd.server_address[1]}/{{z}}/{{x}}/{{y}}.png"
+        self.thread = threading.Thread(target=self.httpd.serve_forever, name="tile server", daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()
+        self.thread.join(10)
+
+
+def tile_of(lat: float, lon: float, z: int) -> tuple[int, int, int]:
+    """The web mercator tile holding (lat, lon) at zoom z."""
+    n = 2**z
+    y = (1 - math.asinh(math.tan(math.radians(lat))) / math.pi) / 2
+    return z, int((lon + 180) / 360 * n), int(y * n)
+
+
+@pytest.fixture
+def tile_server() -> Iterator[TileServer]:
+    server = TileServer()
+    try:
+        yield server
+    finally:
+        server.close()
+
+
+@pytest.mark.slow(40)
+async def test_a_restarted_ground_is_announced_and_the_page_recovers_without_reload(
+    tmp_path: Path, dashboard: Dashboard, tile_server: TileServer
+) -> None:
+    page = dashboard.page
+    await page.set_viewport_size(PHONE)
+    ground = GroundProcess(tmp_path, dashboard={"tiles": tile_server.template})
+    agent = AgentProcess("drone01", ground.endpoint, tmp_path)
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            await wait_state(http, "drone01", "ready", 30)
+        await dashboard.open(ground.url)
+        row = page.locator("#drone-list li[data-drone=drone01]")
+        await expect(row.locator(".st")).to_have_text("ready", timeout=UI_S * 1000)
+
+        # The phone layout: one column, the map above the panels, nothing wider than the screen.
+        layout = await page.evaluate("""() => ({
+            scroll: document.documentElement.scrollWidth,
+            map: document.querySelector('#map-pane').getBoundingClientRect().toJSON(),
+            side: document.querySelector('#side').getBoundingClientRect().toJSON()})""")
+        assert layout["scroll"] <= PHONE["width"], layout
+        assert layout["map"]["height"] > 200 and layout["side"]["top"] >= layout["map"]["bottom"] - 1, layout
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "1")
+        # With `dashboard.tiles`, the map is web mercator tiles: the drone's own tile is drawn.
+        await page.wait_for_function(
+            "() => [...window.fleetDashboard.map.tiles.values()].some(t => t.ready)", timeout=UI_S * 1000,
+        )
+        here = await page.evaluate("() => window.fleetDashboard.fleet.drones.get('drone01').telem.position")
+        z = max(t[0] for t in tile_server.requested)
+        assert tile_of(here["lat"], here["lon"], z) in tile_server.requested, (here, tile_server.requested)
+
+        await row.click()
+        registered = page.locator("#drone-log li", has_text="drone01 - Registered")
+        await expect(registered).to_have_count(1, timeout=UI_S * 1000)
+        await page.evaluate("() => { window.sameDocument = true; }")
+        await expect(page.locator("#banner")).to_be_hidden()
+
+        await asyncio.to_thread(ground.stop)
+        await expect(page.locator("#banner")).to_be_visible(timeout=UI_S * 1000)
+        await expect(page.locator("#banner")).to_contain_text("Ground unreachable")
+        await expect(page.locator("#conn")).to_have_text("reconnecting")
+
+        ground.start()  # the same ports and data directory
+        await ground.ready()
+        await expect(page.locator("#banner")).to_be_hidden(timeout=UI_S * 1000)
+        await expect(page.locator("#conn")).to_have_text("live")
+        # The restarted ground registers the drone again: its line comes in live.
+        await expect(registered).to_have_count(2, timeout=UI_S * 1000)
+        await expect(row.locator(".st")).to_have_text("ready", timeout=UI_S * 1000)
+        telemetry = (await dashboard.stats())["telemetry"]
+        await page.wait_for_function("n => window.fleetDashboard.stats.telemetry > n + 3", arg=telemetry, timeout=UI_S * 1000)
+        stats = await dashboard.stats()
+        assert stats["connections"] >= 2, stats
+        assert await page.evaluate("() => window.sameDocument === true"), "the page was reloaded"
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "1")
+        await page.screenshot(path=str(tmp_path / "recovered-phone.png"), full_page=True)
+    finally:
+        agent.stop()
+        ground.stop()
+    assert dashboard.errors == []
+
+
+# ---- 4. 200 drones at 10 Hz ------------------------------------------------------------
+
+
+@pytest.mark.slow(40)
+async def test_200_drones_at_10_hz_keep_frames_under_50_ms(tmp_path: Path, browser: Browser, dashboard: Dashboard) -> None:
+    """The frame time held to 50 ms is the main thread's CPU per frame (p95), from
+    Chrome's trace: beside four other workers on two cores the wall-clock interval says
+    more about the machine than the page (it is printed, and its median must stay under
+    50 ms too). bench/dashboard_frames.py, run alone, gives the wall-clock figure."""
+    page = dashboard.page
+    # Telemetry reaches the page at the drones' own 10 Hz (the cap at 100 ms), not 2 Hz.
+    ground = GroundProcess(tmp_path, event_telemetry_ms=100, drone_timeout_ms=60_000)
+    try:
+        await ground.ready()
+        async with SyntheticFleet(ground.endpoint, n=200, rate_hz=10) as synthetic:
+            await dashboard.open(ground.url)
+            await wait_for_drones(page, 200, 60)
+            await page.locator("#drone-list li[data-drone=synth107]").click()
+            await expect(page.locator("#detail-state")).to_have_text("hold")
+            frames = await measure_frames(browser, page, 4.0)
+            print(f"200 drones at 10 Hz: {frames.summary()}")
+            await page.screenshot(path=str(tmp_path / "200-drones.png"))
+            assert synthetic.sent >= 200 * 10 * 8
+        await ground.ready()  # it has worked off the telemetry backlog: SIGTERM is heard
+    finally:
+        ground.stop()
+    assert frames.telemetry / frames.seconds >= 200 * 3, frames.summary()  # the page really takes them in
+    assert frames.redraws / frames.seconds >= 3, frames.summary()  # and draws them
+    assert frames.cpu(0.95) < FRAME_LIMIT_MS, frames.summary()
+    assert frames.interval(0.5) < FRAME_LIMIT_MS, frames.summary()
+    assert dashboard.errors == []
