@@ -253,6 +253,10 @@ def _parse_and_check(source: str, filename: str) -> tuple[ast.Module | None, lis
         return None, [ScriptError(exc.msg, exc.lineno, exc.offset, "syntax")]
     except ValueError as exc:  # e.g. NUL bytes in the source
         return None, [ScriptError(str(exc), None, None, "syntax")]
+    try:  # what only the compiler sees: `return`, `break` or `yield` out of place
+        compile(tree, filename, "exec", dont_inherit=True)
+    except SyntaxError as exc:
+        return None, [ScriptError(exc.msg, exc.lineno, exc.offset, "syntax")]
     checker = _Checker()
     checker.visit(tree)
     return tree, sorted(checker.problems, key=lambda p: (p.line or 0, p.column or 0))

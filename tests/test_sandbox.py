@@ -113,6 +113,15 @@ def test_syntax_error_names_line_and_column() -> None:
     assert info.value.column == 5
 
 
+@pytest.mark.parametrize("source", ["return", "x = 1\nbreak", "yield 3", "def f():\n    nonlocal y\n"])
+def test_what_only_the_compiler_refuses_is_a_syntax_error_with_its_line(source: str) -> None:
+    """Found by the API fuzz test: `POST /mission` with `return` answered 500."""
+    (problem,) = check_mission(source)
+    assert problem.kind == "syntax" and problem.line == source.count("\n", 0, len(source.rstrip("\n"))) + 1
+    with pytest.raises(ScriptError):
+        compile_mission(source)
+
+
 def test_check_lists_every_problem_in_order() -> None:
     problems = check_mission("import os\nx = 1\nopen('f')\ny.__class__\n")
     assert [(p.line, p.column) for p in problems] == [(1, 1), (3, 1), (4, 1)]
