@@ -284,8 +284,10 @@ class Mission:
             if critical or (flying and self.config.mission.end_action == "return"):
                 action = "return"
             elif info.state == "active" and info.current_command is not None \
-                    and info.current_command.command not in HOMEWARD:
-                action = "cancel"  # never a return or landing: hold it out there, outside a fence say
+                    and not (flying and info.current_command.command in HOMEWARD):
+                # Never hold a drone on its way home (outside a fence, say). On the ground a
+                # cancel is harmless and clears a return whose end the ground never heard.
+                action = "cancel"
             if action is not None:
                 try:
                     await self.station.command(drone_id, json.dumps({"cmd": action}).encode(), self.id)
