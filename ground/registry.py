@@ -155,6 +155,12 @@ class Registry:
                 return out  # late samples of a session whose token is gone
             reconnected, first = d.unknown, False
             d.telem, d.last_telem_ms, d.unknown = telem, now_ms, False
+            if d.current is not None and d.current.command in ("return", "land") \
+                    and telem.landed_state == "on_ground" and not telem.armed:
+                # Landed and disarmed: that return or landing is over, also when its end
+                # was sent out of radio range and never heard here.
+                out.append(self._line(now_ms, "info", d, f"Finish {d.current.description.lower()} (landed)"))
+                d.current = None
         info = self._derive(d)
         for message in info.errors:
             if message not in before_errors:

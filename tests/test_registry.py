@@ -200,3 +200,16 @@ def test_a_bundle_record_catches_the_ground_up_once_and_clears_the_stale_step(re
     assert reg.info("drone01").bundle is None  # not stuck at step 2/3
     assert lines(reg.on_bundle_record(record, "drone01", 200)) == []
     assert lines(reg.on_status(status(2, "done"), 300)) == []  # the late status itself
+
+
+def test_a_return_whose_end_was_never_heard_is_over_once_the_drone_is_landed_and_disarmed(reg: Registry) -> None:
+    """Its `finish` was sent out of radio range: the drone would stay `active` for ever."""
+    reg.on_telemetry(telem(armed=True, landed_state="in_air"), 0)
+    reg.on_status(cmd_status("start", "return", "b-1/return", altitude=10.0), 10)
+    reg.on_telemetry(telem(armed=True, landed_state="in_air"), 20)
+    assert reg.info("drone01").state == "active"
+    reg.on_telemetry(telem(armed=True, landed_state="on_ground"), 30)  # landed, not yet disarmed
+    assert reg.info("drone01").state == "active"
+    assert lines(reg.on_telemetry(telem(armed=False, landed_state="on_ground"), 40)) == [
+        "INFO Finish return to launch with altitude 10.0m (landed)"]
+    assert reg.info("drone01").state == "ready" and reg.info("drone01").current_command is None
