@@ -16,7 +16,7 @@ from typing import Any
 import click
 import msgspec
 
-from ground.cli import _cell, _fail, _request, aligned, url_option
+from ground.cli import _cell, _fail, _request, aligned, auth_headers, url_option
 
 EXIT_CODES = {"finished": 0, "failed": 1, "cancelled": 3}
 ENDED = frozenset(EXIT_CODES)
@@ -68,7 +68,7 @@ def submit(url: str, script: Path, name: str, watch: bool) -> None:
     try:
         with httpx.stream(
             "GET", url.rstrip("/") + "/events", params=[("types", "mission"), ("types", "mission_log")],
-            timeout=httpx.Timeout(10.0, read=None),
+            timeout=httpx.Timeout(10.0, read=None), headers=auth_headers(),
         ) as stream:
             created = _request("POST", url, "/mission", content=source.encode(), params=params).json()
             mission_id = created["mission_id"]

@@ -26,12 +26,12 @@ from litestar.datastructures import ResponseHeader
 from litestar.di import Provide
 from litestar.exceptions import HTTPException, ValidationException
 from litestar.openapi import OpenAPIConfig, ResponseSpec
-from litestar.openapi.spec import OpenAPIMediaType, Operation, RequestBody
+from litestar.openapi.spec import Components, OpenAPIMediaType, Operation, RequestBody, SecurityScheme
 from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from bus.port import QueryRefused, Unreachable
-from ground.config import HeatMark, MapSpot
+from ground.config import ROLE_RANK, ApiToken, HeatMark, MapSpot
 from ground.describe import Level
 from ground.eventlog import format_line
 from ground.station import GroundStation
@@ -193,7 +193,7 @@ def show_drone(
     responses=_errors(400, 404, 409, 502, 504), summary="Send a command; 200 when the agent accepted it",
 )
 async def send_command(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[CommandReply]:
-    return await _to_drone(drone_id, station.command(drone_id, await request.body()))
+    return await _to_drone(drone_id, station.command(drone_id, await request.body(), who=_who(request)))
 
 
 async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
@@ -232,7 +232,7 @@ class _BundleOperation(Operation):
     responses=_errors(400, 404, 409, 502, 504), summary="Send a task bundle; 200 when the agent accepted it",
 )
 async def push_bundle(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[BundleReply]:
-    return await _to_drone(drone_id, station.push(drone_id, await request.body()))
+    return await _to_drone(drone_id, station.push(drone_id, await request.body(), who=_who(request)))
 
 
 @get(
@@ -273,7 +273,7 @@ async def submit_mission(
     except UnicodeDecodeError as exc:
         return _error(400, f"the script is not UTF-8 text: {exc}", {"line": None, "column": None})  # type: ignore[return-value]
     try:
-        record = missions.submit(source, name)
+        record = missions.submit(source, name, submitted_by=_who(request))
     except ScriptError as exc:
         return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
     return Response(MissionCreated(mission_id=record.mission_id), status_code=201)
@@ -298,9 +298,10 @@ def show_mission(missions: MissionManager, mission_id: str) -> Response[MissionV
     "/mission/{mission_id:str}", status_code=200, responses=_errors(404, 409),
     summary="Cancel a running mission (cause user)",
 )
-async def cancel_mission(missions: MissionManager, mission_id: str) -> Response[MissionRecord]:
+async def cancel_mission(missions: MissionManager, mission_id: str, request: Request[Any, Any, Any]) -> Response[MissionRecord]:
+    who = _who(request)
     try:
-        record = missions.cancel(mission_id)
+        record = missions.cancel(mission_id, message=f"cancelled by {who}" if who else None)
     except UnknownMission:
         return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
     except MissionEnded as exc:
@@ -463,8 +464,48 @@ def _add_command_components(app: Litestar) -> None:
         schemas.setdefault(name, schema)
 
 
+# ---- who may use the API (SPEC §9) --------------------------------------------------
+
+def _public(path: str) -> bool:
+    """The page and its files are code, not data: served to anyone. Everything else
+    (its config.json included) needs a token once any is configured."""
+    return path == "/" or (path.startswith("/dashboard/") and path != "/dashboard/config.json")
+
+
+def _who(request: Request[Any, Any, Any]) -> str | None:
+    """The name of the token holder who sent this request (None: tokens are off)."""
+    return getattr(request.state, "who", None)
+
+
+def _authorize(tokens: list[ApiToken]) -> Any:
+    by_token = {t.token: t for t in tokens}
+
+    async def authorize(request: Request[Any, Any, Any]) -> Response[ApiError] | None:
+        path = request.url.path
+        if not by_token or _public(path):
+            return None
+        scheme, _, presented = request.headers.get("authorization", "").partition(" ")
+        if scheme.lower() != "bearer":  # an EventSource cannot set headers: ?access_token=
+            presented = request.query_params.get("access_token", "")
+        token = by_token.get(presented.strip())
+        if token is None:
+            response = _error(401, "a valid API token is needed: Authorization: Bearer <token> (api.tokens)",
+                              {"scheme": "bearer"})
+            response.headers["WWW-Authenticate"] = "Bearer"
+            return response
+        needed = "viewer" if request.method in ("GET", "HEAD", "OPTIONS") else "operator"
+        if ROLE_RANK[token.role] < ROLE_RANK[needed]:
+            return _error(403, f"{token.name} is a {token.role}: {request.method} {path} needs the {needed} role",
+                          {"role": token.role, "needed": needed})
+        request.state.who = token.name
+        return None
+
+    return authorize
+
+
 def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     assets = DashboardAssets.load()
+    tokens = station.config.api.all_tokens()
     return Litestar(
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
@@ -476,7 +517,13 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
             "assets": Provide(lambda: assets, sync_to_thread=False),
         },
         exception_handlers={HTTPException: _http_error, Exception: _internal_error},
-        openapi_config=OpenAPIConfig(title="Fleet ground station", version="0.1.0"),
+        openapi_config=OpenAPIConfig(
+            title="Fleet ground station", version="0.1.0",
+            components=Components(security_schemes={"bearer": SecurityScheme(
+                type="http", scheme="bearer", description="api.tokens: viewer (GET), operator (commands, missions), admin")}),
+            security=[{"bearer": []}] if tokens else None,
+        ),
+        before_request=_authorize(tokens),
         on_startup=[_add_command_components],
         debug=False,
         logging_config=None,  # the CLI configures logging, not the framework

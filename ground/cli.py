@@ -8,6 +8,7 @@ that cannot be reached says so and names the URL.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -33,9 +34,16 @@ def _fail(message: str, code: int = 1) -> NoReturn:
     sys.exit(code)
 
 
+def auth_headers() -> dict[str, str]:
+    """`Authorization` from $FLEET_TOKEN, for a ground with api.tokens (SPEC §9)."""
+    token = os.environ.get("FLEET_TOKEN")
+    return {"Authorization": f"Bearer {token}"} if token else {}
+
+
 def _request(method: str, url: str, path: str, **kwargs: Any) -> httpx.Response:
     import httpx  # the ground extra: a drone's `fleet agent` never loads it
 
+    kwargs["headers"] = {**kwargs.get("headers", {}), **auth_headers()}
     try:
         response = httpx.request(method, url.rstrip("/") + path, timeout=10.0, **kwargs)
     except httpx.TransportError as exc:

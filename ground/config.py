@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
+import yaml
 from msgspec import Meta
 
 from schemas.config import MissionSettings, Security
 from schemas.endpoints import check_endpoints
+from schemas.errors import ConfigError
 from schemas.fence import Geofence
 
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
@@ -58,6 +60,39 @@ class DashboardSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
             raise ValueError(f"dashboard.tiles must contain {', '.join(missing)} (e.g. https://tiles.example/{{z}}/{{x}}/{{y}}.png)")
 
 
+Role = Literal["viewer", "operator", "admin"]
+ROLE_RANK: dict[str, int] = {"viewer": 0, "operator": 1, "admin": 2}
+
+
+class ApiToken(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    name: str  # who holds it: named in the event log and the mission record
+    role: Role  # viewer: GET only; operator: commands and missions; admin: everything
+    token: Annotated[str, Meta(min_length=16)]
+
+
+class ApiSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """SPEC §9: with any token, every API request needs `Authorization: Bearer …`."""
+
+    tokens: list[ApiToken] = msgspec.field(default_factory=list)
+    tokens_file: str | None = None  # a YAML list of {name, role, token}, read at start
+
+    def all_tokens(self) -> list[ApiToken]:
+        tokens = list(self.tokens)
+        if self.tokens_file is not None:
+            path = Path(self.tokens_file).expanduser()
+            try:
+                loaded = yaml.safe_load(path.read_text()) or []
+                if isinstance(loaded, dict):  # also {tokens: [...]}
+                    loaded = loaded.get("tokens", [])
+                tokens += msgspec.convert(loaded, list[ApiToken])
+            except (OSError, yaml.YAMLError, msgspec.ValidationError) as exc:
+                raise ConfigError(f"api.tokens_file {path}: {' '.join(str(exc).split())}") from None
+        names = [t.token for t in tokens]
+        if len(set(names)) != len(names):
+            raise ConfigError("api.tokens: the same token is given twice")
+        return tokens
+
+
 class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
     http_host: str = "127.0.0.1"  # 0.0.0.0 exposes the command API to the whole network
@@ -74,6 +109,7 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
     geofence: Geofence = msgspec.field(default_factory=Geofence)  # SPEC §11: refused at the ground (409 geofence)
     security: Security = msgspec.field(default_factory=Security)  # SPEC §9: sign every command and bundle
+    api: ApiSettings = msgspec.field(default_factory=ApiSettings)  # SPEC §9: bearer tokens and roles
     dashboard: DashboardSettings = msgspec.field(default_factory=DashboardSettings)  # SPEC §10: the web page at GET /
 
     def __post_init__(self) -> None:

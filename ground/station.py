@@ -152,7 +152,7 @@ class GroundStation:
 
     # ---- commands ------------------------------------------------------------------
 
-    async def command(self, drone_id: str, body: bytes, mission_id: str | None = None) -> CommandReply:
+    async def command(self, drone_id: str, body: bytes, mission_id: str | None = None, *, who: str | None = None) -> CommandReply:
         """Validate, check and forward one command (SPEC §4 POST /drone/{id}/cmd).
 
         Raises InvalidMessage (400), CommandRejected (404/409) or bus Unreachable (504).
@@ -161,6 +161,7 @@ class GroundStation:
         command = self._stamp(drone_id, body)
         self._check(drone_id, command.name, command.name, mission_id)
         spot = self._check_flight(drone_id, command)
+        self._audit(drone_id, f"{command.name} (command {command.command_id})", who)
         if spot is not None:
             self._claims[drone_id] = (command.command_id, *spot)
         elif command.name not in ("arm", "disarm"):  # land, return, cancel…: it gives up its target
@@ -174,7 +175,7 @@ class GroundStation:
             raise
         return reply
 
-    async def push(self, drone_id: str, body: bytes, mission_id: str | None = None) -> BundleReply:
+    async def push(self, drone_id: str, body: bytes, mission_id: str | None = None, *, who: str | None = None) -> BundleReply:
         """Validate, check and send one task bundle (SPEC §6; POST /drone/{id}/bundle).
 
         The whole bundle is checked here first (400 naming the step and field), then
@@ -191,6 +192,7 @@ class GroundStation:
             if kind not in carried:
                 raise InvalidMessage(f"{label}: {drone_id} carries no {kind} sensor (it has: {', '.join(carried) or 'none'})", field=path)
         self._check(drone_id, "bundle", f"bundle {bundle.bundle_id}", mission_id)
+        self._audit(drone_id, f"bundle {bundle.bundle_id}", who)
         # Noted before sending: the agent's first status may arrive before its reply.
         self.registry.note_bundle(drone_id, bundle.bundle_id, [describe_step(step) for step in bundle.steps])
         try:
@@ -216,6 +218,11 @@ class GroundStation:
             raise CommandRejected(502, f"the agent answered something that is not a bundle record: {exc}") from None
         self._emit(self.registry.on_bundle_record(record, drone_id, self.clock.time_ms()))
         return record
+
+    def _audit(self, drone_id: str, what: str, who: str | None) -> None:
+        """SPEC §9: who sent it, in the event log (when the API knows: tokens are on)."""
+        if who is not None:
+            self._emit([LogLine(timestamp=self.clock.time_ms(), level="info", drone_id=drone_id, message=f"{what} sent by {who}")])
 
     def _registered(self, drone_id: str) -> None:
         if drone_id not in self.registry:

@@ -148,15 +148,18 @@ class MissionManager:
 
     # ---- operations ----------------------------------------------------------------
 
-    def submit(self, source: str, name: str = "", enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
+    def submit(self, source: str, name: str = "", enable: dict[str, dict[str, Any]] | None = None,
+               submitted_by: str | None = None) -> MissionRecord:
         """Compile (ScriptError → 400 with line/column), record as pending, start.
 
         `enable` maps plugin ids to inputs, enabled before the script's first line
         (`fleet mission simulate --enable`)."""
         mission_id = self.store.next_id()
         code = compile_mission(source, filename=f"<mission {mission_id}>")
-        record = MissionRecord(mission_id=mission_id, name=name)
+        record = MissionRecord(mission_id=mission_id, name=name, submitted_by=submitted_by)
         self.store.create(record, source)
+        if submitted_by is not None:  # the audit trail (SPEC §9)
+            self.station.log_ground("info", f"Mission {mission_id} submitted by {submitted_by}")
         mission = Mission(
             record, code, self.station, self.clock,
             deterministic=self.deterministic, seed=next(self._seeds) if self.seed is not None else None,

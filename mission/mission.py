@@ -106,6 +106,7 @@ class MissionRecord(msgspec.Struct, kw_only=True):
     plugins: list[str] = msgspec.field(default_factory=list)
     active_drones: list[str] = msgspec.field(default_factory=list)
     used_drones: list[str] = msgspec.field(default_factory=list)
+    submitted_by: str | None = None  # the API token's holder (SPEC §9), when tokens are on
 
 
 class MissionLogLine(msgspec.Struct, frozen=True, kw_only=True):

@@ -259,3 +259,88 @@ def test_every_deploy_config_loads(name: str) -> None:
     if "secure" in name:
         assert config.security.tls and config.security.pki_dir
         assert all(e.startswith("tls/") for e in config.listen)
+
+
+TOKENS = [{"name": "alice", "role": "operator", "token": "alice-operator-token-0001"},
+          {"name": "victor", "role": "viewer", "token": "victor-viewer-token-0001"},
+          {"name": "ada", "role": "admin", "token": "ada-admin-token-000000001"}]
+
+
+@pytest.mark.integration
+async def test_api_tokens_401_403_and_the_audit_names_the_holder(tmp_path: Path) -> None:
+    """Real ground and agent: no token 401, a viewer's POST 403, an operator's command
+    200; the event log and the mission record name who sent them; the OpenAPI document
+    declares the scheme; the CLI reads FLEET_TOKEN."""
+    import os
+    import subprocess
+
+    from tests.harness import fleet_command
+
+    fleet = GroundFleet(tmp_path, {"drone01": "sim://?lat=40.6334&lon=-8.660815&alt=8.2"}, api={"tokens": TOKENS})
+    try:
+        await fleet.ground.ready()
+        import httpx
+
+        def as_(token: str | None) -> httpx.AsyncClient:
+            headers = {"Authorization": f"Bearer {token}"} if token else {}
+            return httpx.AsyncClient(base_url=fleet.ground.url, timeout=10, headers=headers)
+
+        async with as_(None) as anon, as_("victor-viewer-token-0001") as viewer, as_("alice-operator-token-0001") as alice:
+            refused = await anon.get("/drone")
+            assert refused.status_code == 401 and refused.headers["www-authenticate"] == "Bearer"
+            assert set(refused.json()) == {"error", "detail"} and "Bearer" in refused.json()["error"]
+            assert (await as_("not-a-token-at-all-000").get("/drone")).status_code == 401
+            assert (await anon.get("/")).status_code == 200  # the page itself is public code
+
+            async def registered() -> bool:
+                return (await viewer.get("/drone/drone01")).status_code == 200
+
+            await until(registered, 30, "drone01 registered (read by the viewer)")
+            forbidden = await viewer.post("/drone/drone01/cmd", json={"cmd": "arm"})
+            assert forbidden.status_code == 403, forbidden.text
+            assert forbidden.json()["detail"] == {"role": "viewer", "needed": "operator"}
+            assert (await alice.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+            created = await alice.post("/mission", content=b"print('hello')\n", params={"name": "audited"})
+            assert created.status_code == 201, created.text
+            mission_id = created.json()["mission_id"]
+            record = (await viewer.get(f"/mission/{mission_id}")).json()
+            assert record["submitted_by"] == "alice"
+            log = (await viewer.get("/drone/logs")).text
+            assert "drone01 - arm (command " in log and "sent by alice" in log, log[-1500:]
+            assert f"Mission {mission_id} submitted by alice" in log
+            schema = (await viewer.get("/openapi.json")).json()
+            assert schema["components"]["securitySchemes"]["bearer"] == {
+                "type": "http", "scheme": "bearer", "description": schema["components"]["securitySchemes"]["bearer"]["description"]}
+            assert schema["security"] == [{"bearer": []}]
+
+        env = {**os.environ, "FLEET_TOKEN": "victor-viewer-token-0001"}
+        listed = subprocess.run(fleet_command("drone", "list", "--url", fleet.ground.url), env=env, capture_output=True,
+                                text=True, timeout=60)
+        assert listed.returncode == 0 and "drone01" in listed.stdout, listed.stderr
+        env.pop("FLEET_TOKEN")
+        denied = subprocess.run(fleet_command("drone", "list", "--url", fleet.ground.url), env=env, capture_output=True,
+                                text=True, timeout=60)
+        assert denied.returncode == 1 and "401" in denied.stderr, denied.stderr
+    finally:
+        fleet.stop()
+
+
+def test_bad_token_settings_are_refused_at_start(tmp_path: Path) -> None:
+    from schemas.config import load_config
+    from schemas.errors import ConfigError
+
+    short = tmp_path / "short.yml"
+    short.write_text("api: {tokens: [{name: a, role: operator, token: short}]}\n")
+    with pytest.raises(ConfigError, match="api.tokens"):
+        load_config(GroundConfig, short, {})
+    role = tmp_path / "role.yml"
+    role.write_text("api: {tokens: [{name: a, role: pilot, token: abcdefghijklmnopq}]}\n")
+    with pytest.raises(ConfigError, match="role"):
+        load_config(GroundConfig, role, {})
+    listed = tmp_path / "tokens.yml"
+    listed.write_text("- {name: bob, role: viewer, token: bob-viewer-token-00001}\n")
+    config = GroundConfig(data_dir=".", api=msgspec.convert({"tokens_file": str(listed), "tokens": TOKENS[:1]}, type=type(GroundConfig().api)))
+    assert [t.name for t in config.api.all_tokens()] == ["alice", "bob"]
+    listed.write_text("- {name: bob, role: boss, token: bob-viewer-token-00001}\n")
+    with pytest.raises(ConfigError, match="tokens_file"):
+        config.api.all_tokens()
