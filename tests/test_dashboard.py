@@ -493,3 +493,37 @@ async def test_200_drones_at_10_hz_keep_frames_under_50_ms(tmp_path: Path, brows
     assert frames.cpu(0.95) < FRAME_LIMIT_MS, frames.summary()
     assert frames.interval(0.5) < FRAME_LIMIT_MS, frames.summary()
     assert dashboard.errors == []
+
+
+# ---- 5. a ground with API tokens (SPEC §9) --------------------------------------------
+
+
+@pytest.mark.slow(20)
+async def test_on_a_ground_with_tokens_the_page_asks_once_and_commands_as_its_holder(
+        dashboard: Dashboard, tmp_path: Path) -> None:
+    token = "alice-operator-token-0001"
+    lat, lon = SPAWNS["drone01"]
+    fleet = GroundFleet(tmp_path, {"drone01": f"sim://?lat={lat}&lon={lon}&alt=8.2"},
+                        api={"tokens": [{"name": "alice", "role": "operator", "token": token}]})
+    page = dashboard.page
+    asked: list[str] = []
+
+    async def answer(dialog: Any) -> None:
+        asked.append(dialog.message)
+        await dialog.accept(token)
+
+    page.on("dialog", answer)
+    try:
+        await fleet.ground.ready()
+        await dashboard.open(fleet.ground.url)
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "1", timeout=UI_S * 1000)
+        assert len(asked) == 1 and "API token" in asked[0], asked
+        await page.locator("#drone-list li[data-drone=drone01]").click()
+        await expect(page.locator("#telem-armed")).to_have_text("disarmed", timeout=UI_S * 1000)
+        await dashboard.command("arm")
+        await expect(page.locator("#telem-armed")).to_have_text("armed", timeout=UI_S * 1000)
+        async with httpx.AsyncClient(base_url=fleet.ground.url, headers={"Authorization": f"Bearer {token}"}) as http:
+            log = (await http.get("/drone/logs")).text
+        assert "sent by alice" in log and len(asked) == 1, (asked, log[-800:])
+    finally:
+        fleet.stop()

@@ -1,8 +1,35 @@
 // The ground's HTTP API as the page uses it: every failure becomes a sentence a
 // person can act on (status, the API's own reason, the field or line at fault).
 
-export async function call(method, path, { json, text } = {}) {
+// A ground with `api.tokens` (SPEC §9) answers 401 without one: the page asks for it
+// once, keeps it in this browser (localStorage) and sends it with every request.
+const TOKEN_KEY = "fleet-token";
+
+export function token() {
+  return window.localStorage.getItem(TOKEN_KEY) || "";
+}
+
+/** `url` with ?access_token= for an EventSource, which cannot send headers. */
+export function withToken(url) {
+  const t = token();
+  return t ? `${url}${url.includes("?") ? "&" : "?"}access_token=${encodeURIComponent(t)}` : url;
+}
+
+function askToken() {
+  const given = window.prompt("This ground needs an API token (api.tokens in its configuration):", "");
+  if (given) window.localStorage.setItem(TOKEN_KEY, given.trim());
+  return Boolean(given);
+}
+
+export async function call(method, path, options = {}, retried = false) {
+  const response = await send(method, path, options);
+  if (response.status === 401 && !retried && askToken()) return call(method, path, options, true);
+  return response;
+}
+
+async function send(method, path, { json, text } = {}) {
   const init = { method, headers: {} };
+  if (token()) init.headers.authorization = `Bearer ${token()}`;
   if (json !== undefined) {
     init.body = JSON.stringify(json);
     init.headers["content-type"] = "application/json";
@@ -23,7 +50,7 @@ export async function call(method, path, { json, text } = {}) {
 }
 
 const KINDS = {
-  400: "invalid", 404: "not found", 409: "refused", 413: "too large", 502: "agent error", 504: "no answer",
+  400: "invalid", 401: "unauthorized", 403: "forbidden", 404: "not found", 409: "refused", 413: "too large", 502: "agent error", 504: "no answer",
 };
 
 export function describeFailure(status, body) {

@@ -1,4 +1,5 @@
 // The ground's live events (GET /events, server-sent events), kept connected.
+import { withToken } from "./api.js";
 //
 // EventSource retries on its own only for some failures, and gives up on others (an
 // HTTP error while the ground restarts); so every error closes it and this opens a
@@ -26,7 +27,7 @@ export class EventStream {
 
   start() {
     clearTimeout(this.timer);
-    const source = new EventSource(this.url);
+    const source = new EventSource(withToken(this.url));
     this.source = source;
     source.onopen = () => {
       this.failures = 0;
