@@ -1,5 +1,6 @@
 """Missions on a real ground: `fleet ground` and four `fleet agent --fc sim` over real
-Zenoh, missions submitted over HTTP and with the CLI (issue 5).
+Zenoh, missions submitted over HTTP and with the CLI (issue 5), all on the secured mesh
+(mutual TLS, access rules, signed commands: SPEC §9).
 
 The thesis's scripts 5.3 and 5.4 fly at the same time as a third mission spins in
 `while True: pass`; DELETE ends the spinning one within a second while the ground
@@ -16,7 +17,9 @@ from typing import Any
 
 import httpx
 import pytest
+from click.testing import CliRunner
 
+from fleet.cli import main
 from tests.harness import GroundFleet, GroundProcess, fleet_command
 from tests.helpers import until
 
@@ -29,9 +32,19 @@ DRONES = ("drone01", "drone02", "drone03", "drone04")
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
+    """On the secured mesh (SPEC §9): mTLS on every link, the routers' access rules and
+    signed commands, as a fielded fleet flies."""
     # Parked 11 m apart, as real drones are: closer, a takeoff under a hovering drone is a conflict (SPEC §11).
     fcs = {d: f"sim://?lat=40.633400&lon={-8.660810 + 0.00013 * i:.6f}&alt=8.2" for i, d in enumerate(DRONES)}
-    fleet = GroundFleet(tmp_path_factory.mktemp("missions"), fcs, {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0})
+    pki = tmp_path_factory.mktemp("pki")
+    runner = CliRunner()
+    assert runner.invoke(main, ["pki", "init", str(pki)]).exit_code == 0
+    for name, role in (("ground", "ground"), *((d, "drone") for d in DRONES)):
+        assert runner.invoke(main, ["pki", "issue", str(pki), name, "--role", role]).exit_code == 0
+    security = {"pki_dir": str(pki), "tls": True}
+    fleet = GroundFleet(tmp_path_factory.mktemp("missions"), fcs,
+                        {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0, "security": security},
+                        security=security, scheme="tls")
     yield fleet
     fleet.stop()
 
