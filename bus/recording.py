@@ -25,7 +25,7 @@ from typing import IO, Any
 
 import msgspec
 
-from bus.clock import Clock
+from bus.clock import Clock, SystemClock
 from bus.port import Bus, Declaration, Sample
 from schemas.bundles import BundleStatus, TaskBundle
 from schemas.commands import Command
@@ -157,7 +157,7 @@ class Recorder:
 
 def now_ns_of(clock: Clock) -> Callable[[], int]:
     """Log time from a clock: wall time in ns, or a virtual clock's (reproducible)."""
-    if type(clock).__name__ == "SystemClock":
+    if isinstance(clock, SystemClock):
         return time.time_ns
     return lambda: clock.time_ms() * 1_000_000
 

@@ -79,9 +79,9 @@ class GroundStation:
         # it, from the moment it passed the checks until it ends (its `start` comes later)
         self._claims: dict[str, tuple[str, float, float, float]] = {}
         self.recordings: MissionRecordings | None = None
+        self.signer = signer_of(config.security.pki_dir)  # SPEC §9: every command and bundle signed
         # Where command and bundle ids come from: random, or seeded in fast time (a
         # simulation replays to the byte, its recording included).
-        self.signer = signer_of(config.security.pki_dir)  # SPEC §9: every command and bundle signed
         self.new_command_id: Callable[[], str] = new_command_id
         self.new_bundle_id: Callable[[], str] = new_bundle_id
 
