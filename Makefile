@@ -59,7 +59,7 @@ test: $(STAMP) sysdeps
 	@$(MAKE) --no-print-directory -j2 lint pytest
 
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q -n 5 --maxschedchunk 1
+	$(BIN)/python -m pytest -q -n 5 --maxschedchunk 1 --dist loadgroup
 
 # ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)

@@ -38,7 +38,9 @@ from bench.dashboard_frames import (
 from schemas.geo import destination, distance_m
 from tests.harness import AgentProcess, GroundFleet, GroundProcess, wait_state
 
-pytestmark = pytest.mark.integration
+# One Chromium at a time (`--dist loadgroup`): with 200 drones a page takes a core, and
+# beside it the real-packet radio tests missed their deadlines.
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 PHONE = ViewportSize(width=390, height=844)
