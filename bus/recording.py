@@ -163,32 +163,54 @@ def now_ns_of(clock: Clock) -> Callable[[], int]:
 
 
 class BusRecording:
-    """Everything under a key expression on a bus, samples and liveliness, into a Recorder."""
+    """Everything under a key expression on a bus, samples and liveliness, into one
+    subscription's Recorders: `fleet record`'s one file, or the ground's open mission
+    recordings, added and removed while it runs (one that joins late is told the
+    tokens alive at that moment)."""
 
-    def __init__(self, bus: Bus, recorder: Recorder, keyexpr: str = "**",
+    def __init__(self, bus: Bus, recorders: list[Recorder], keyexpr: str = "**",
                  now_ns: Callable[[], int] = time.time_ns) -> None:
-        self.recorder = recorder
+        self.recorders = list(recorders)
         self.now_ns = now_ns
+        self._alive: set[str] = set()
         self._declarations: list[Declaration] = [
             bus.subscribe(keyexpr, self._on_sample, maxsize=1_000_000),
             bus.watch_liveliness(keyexpr, self._on_liveliness),
         ]
 
+    def add(self, recorder: Recorder) -> None:
+        now = self.now_ns()
+        for key in sorted(self._alive):
+            recorder.write_struct(key, Liveliness(True), now, "Liveliness")
+        self.recorders.append(recorder)
+
+    def remove(self, recorder: Recorder) -> None:
+        self.recorders.remove(recorder)
+
     def _on_sample(self, sample: Sample) -> None:
         if sample.kind == "put":
-            self.recorder.write(sample.key, sample.payload, self.now_ns())
+            now = self.now_ns()
+            for recorder in self.recorders:
+                recorder.write(sample.key, sample.payload, now)
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
-        self.recorder.write_struct(key, Liveliness(alive), self.now_ns(), "Liveliness")
+        (self._alive.add if alive else self._alive.discard)(key)
+        payload, now = msgspec.json.encode(Liveliness(alive)), self.now_ns()
+        for recorder in self.recorders:
+            recorder.write(key, payload, now, "Liveliness")
 
     def tick(self) -> None:
-        self.recorder.tick(self.now_ns())
+        now = self.now_ns()
+        for recorder in self.recorders:
+            recorder.tick(now)
 
     def close(self) -> None:
+        """Stop listening and close the Recorders still here."""
         for declaration in self._declarations:
             declaration.close()
         self._declarations.clear()
-        self.recorder.close()
+        for recorder in self.recorders:
+            recorder.close()
 
 
 # ---- reading -------------------------------------------------------------------------
@@ -321,7 +343,7 @@ class Replay:
 async def record_until_stopped(bus: Bus, recorder: Recorder, keyexpr: str, stop: asyncio.Event,
                                now_ns: Callable[[], int] = time.time_ns) -> BusRecording:
     """`fleet record`'s loop: record until `stop`, closing a chunk every FLUSH_S."""
-    recording = BusRecording(bus, recorder, keyexpr, now_ns)
+    recording = BusRecording(bus, [recorder], keyexpr, now_ns)
     try:
         while not stop.is_set():
             try:

@@ -18,8 +18,8 @@ from typing import Any
 
 import msgspec
 
-from bus.port import Bus, Declaration, Sample
-from bus.recording import Contents, Liveliness, Recorder
+from bus.port import Bus
+from bus.recording import BusRecording, Contents, Recorder
 from ground.config import GroundConfig
 from ground.registry import LogLine, Registry
 from mission.mission import MissionLogLine, MissionRecord
@@ -57,8 +57,7 @@ class MissionRecordings:
         self.geofence = geofence
         self.ground_station = ground_station
         self.open: dict[str, Recorder] = {}
-        self._alive: set[str] = set()  # liveliness tokens seen alive, for a recording that starts later
-        self._declarations: list[Declaration] = []
+        self._mesh: BusRecording | None = None  # one subscription while any mission records
 
     def path(self, mission_id: str) -> Path:
         return self.directory / f"{mission_id}.mcap"
@@ -94,9 +93,8 @@ class MissionRecordings:
             recorder.write(key, payload, self.now_ns())
 
     def tick(self) -> None:
-        now = self.now_ns()
-        for recorder in self.open.values():
-            recorder.tick(now)
+        if self._mesh is not None:
+            self._mesh.tick()
 
     def close(self) -> None:
         for mission_id in list(self.open):
@@ -113,39 +111,23 @@ class MissionRecordings:
             log.error("cannot record mission %s to %s: %s", mission_id, self.path(mission_id), exc)
             return
         self.open[mission_id] = recorder
-        if not self._declarations:
-            self._declarations = [
-                self.bus.subscribe(self.keys.everything(), self._on_sample, maxsize=1_000_000),
-                self.bus.watch_liveliness(self.keys.everything(), self._on_liveliness),
-            ]
-        else:  # the tokens alive now, which the running watch told the others already
-            for key in self._alive:
-                recorder.write_struct(key, Liveliness(True), self.now_ns(), "Liveliness")
+        if self._mesh is None:
+            self._mesh = BusRecording(self.bus, [recorder], self.keys.everything(), self.now_ns)
+        else:
+            self._mesh.add(recorder)
 
     def _finish(self, mission_id: str) -> None:
         recorder = self.open.pop(mission_id)
+        assert self._mesh is not None
+        self._mesh.remove(recorder)
         try:
             recorder.close()
         except OSError as exc:
             log.error("cannot finish the recording of mission %s: %s", mission_id, exc)
         if not self.open:
-            for declaration in self._declarations:
-                declaration.close()
-            self._declarations = []
-            self._alive.clear()
+            self._mesh.close()
+            self._mesh = None
         log.info("mission %s recorded to %s (%d messages)", mission_id, recorder.path, recorder.messages)
-
-    def _on_sample(self, sample: Sample) -> None:
-        if sample.kind == "put":
-            now = self.now_ns()
-            for recorder in self.open.values():
-                recorder.write(sample.key, sample.payload, now)
-
-    def _on_liveliness(self, key: str, alive: bool) -> None:
-        (self._alive.add if alive else self._alive.discard)(key)
-        payload, now = msgspec.json.encode(Liveliness(alive)), self.now_ns()
-        for recorder in self.open.values():
-            recorder.write(key, payload, now, "Liveliness")
 
 
 def result_of_recording(contents: Contents, config: GroundConfig | None = None) -> dict[str, Any]:

@@ -268,3 +268,24 @@ async def test_record_a_sim_flight_then_replay_it_into_a_fresh_ground(tmp_path: 
         for process in reversed(started):
             process.stop()
         fleet.stop()
+
+
+async def test_a_recorder_that_joins_a_running_recording_is_told_which_tokens_are_alive(tmp_path: Path) -> None:
+    """The ground's second concurrent mission shares the first one's subscription."""
+    from bus.recording import BusRecording
+
+    network = MemoryNetwork()
+    bus, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")
+    first, late = Recorder(tmp_path / "first.mcap"), Recorder(tmp_path / "late.mcap")
+    recording = BusRecording(bus, [first], now_ns=lambda: 1_700_000_000_000_000_000)
+    drone.announce("drone/drone01/alive")
+    await until(lambda: first.messages == 1, 5, "the token recorded")
+    recording.add(late)
+    drone.publish("drone/drone01/telem", telemetry("drone01", 40.0, 0))
+    await until(lambda: late.messages == 2, 5, "the telemetry recorded by both")
+    recording.close()
+    for path in (first, late):
+        assert [(m.topic, m.kind) for m in read(path.path).messages] == [  # type: ignore[arg-type]
+            ("drone/drone01/alive", "Liveliness"), ("drone/drone01/telem", "Telemetry")]
+    await drone.close()
+    await bus.close()
