@@ -25,25 +25,15 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import httpx  # noqa: E402
-from click.testing import CliRunner  # noqa: E402
 
 from bus.mesh_security import mesh_security  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
-from fleet.cli import main as fleet_main  # noqa: E402
 from schemas.auth import Signer, Verifier, load_private_key, load_public_key  # noqa: E402
 from schemas.codec import encode  # noqa: E402
 from schemas.commands import Goto, decode_command  # noqa: E402
 from schemas.config import Security  # noqa: E402
-from tests.harness import AgentProcess, GroundProcess  # noqa: E402
+from tests.harness import GroundFleet, make_pki  # noqa: E402
 from tests.helpers import free_port, until  # noqa: E402
-
-
-def make_pki(directory: Path) -> None:
-    runner = CliRunner()
-    assert runner.invoke(fleet_main, ["pki", "init", str(directory)]).exit_code == 0
-    for name, role in (("ground", "ground"), ("drone01", "drone")):
-        assert runner.invoke(fleet_main, ["pki", "issue", str(directory), name, "--role", role]).exit_code == 0
 
 
 def quantiles(samples: list[float]) -> tuple[float, float]:
@@ -52,16 +42,10 @@ def quantiles(samples: list[float]) -> tuple[float, float]:
 
 
 async def command_latency(tmp: Path, commands: int, security: dict[str, Any] | None) -> tuple[float, float]:
-    scheme = "tls" if security else "tcp"
-    ground = GroundProcess(tmp, scheme=scheme, **({"security": security} if security else {}))
-    agent = AgentProcess("drone01", ground.endpoint, tmp, **({"security": security} if security else {}))
+    secured: dict[str, Any] = {"security": security} if security else {}
+    fleet = GroundFleet(tmp, {"drone01": "sim"}, secured, scheme="tls" if security else "tcp", **secured)
     try:
-        await ground.ready()
-        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-            async def registered() -> bool:
-                return (await http.get("/drone/drone01")).status_code == 200
-
-            await until(registered, 30, "drone01 registered")
+        async with fleet.client() as http:
             samples = []
             for _ in range(commands):
                 started = time.perf_counter()
@@ -70,8 +54,7 @@ async def command_latency(tmp: Path, commands: int, security: dict[str, Any] | N
                 assert response.status_code == 200, response.text
         return quantiles(samples)
     finally:
-        agent.stop()
-        ground.stop()
+        fleet.stop()
 
 
 async def fan_in(messages: int, pki: Path | None) -> float:
@@ -124,7 +107,7 @@ async def run(commands: int, messages: int) -> None:
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         pki = tmp / "pki"
-        make_pki(pki)
+        make_pki(pki, {"ground": "ground", "drone01": "drone"})
         (tmp / "plain").mkdir()
         (tmp / "secure").mkdir()
         plain = await command_latency(tmp / "plain", commands, None)

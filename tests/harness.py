@@ -44,6 +44,16 @@ async def open_ground_router(endpoint: str) -> ZenohBus:
     return bus
 
 
+def make_pki(directory: Path, nodes: dict[str, str]) -> Path:
+    """A fleet PKI (SPEC §9) in `directory` with a certificate per node name → role."""
+    from fleet.pki import init, issue
+
+    init(directory)
+    for name, role in nodes.items():
+        issue(directory, name, role)
+    return directory
+
+
 class ChildProcess:
     """A `fleet …` child process logging to a file; always stopped by whoever made it."""
 

@@ -17,10 +17,8 @@ from typing import Any
 
 import httpx
 import pytest
-from click.testing import CliRunner
 
-from fleet.cli import main
-from tests.harness import GroundFleet, GroundProcess, fleet_command
+from tests.harness import GroundFleet, GroundProcess, fleet_command, make_pki
 from tests.helpers import until
 
 pytestmark = pytest.mark.integration
@@ -36,11 +34,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
     signed commands, as a fielded fleet flies."""
     # Parked 11 m apart, as real drones are: closer, a takeoff under a hovering drone is a conflict (SPEC §11).
     fcs = {d: f"sim://?lat=40.633400&lon={-8.660810 + 0.00013 * i:.6f}&alt=8.2" for i, d in enumerate(DRONES)}
-    pki = tmp_path_factory.mktemp("pki")
-    runner = CliRunner()
-    assert runner.invoke(main, ["pki", "init", str(pki)]).exit_code == 0
-    for name, role in (("ground", "ground"), *((d, "drone") for d in DRONES)):
-        assert runner.invoke(main, ["pki", "issue", str(pki), name, "--role", role]).exit_code == 0
+    pki = make_pki(tmp_path_factory.mktemp("pki"), {"ground": "ground", **{d: "drone" for d in DRONES}})
     security = {"pki_dir": str(pki), "tls": True}
     fleet = GroundFleet(tmp_path_factory.mktemp("missions"), fcs,
                         {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0, "security": security},

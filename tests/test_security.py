@@ -25,7 +25,7 @@ from schemas.codec import encode
 from schemas.commands import CommandReply, Goto, decode_command
 from schemas.config import Security
 from sim.world import DroneSpec, Spot, World
-from tests.harness import GroundFleet
+from tests.harness import GroundFleet, make_pki
 from tests.helpers import until
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
@@ -199,10 +199,7 @@ async def test_on_a_tls_mesh_only_fleet_certificates_join_and_a_drone_speaks_onl
     from fleet.cli import secured_client
     from schemas.telemetry import Position, Telemetry
 
-    rogue = tmp_path / "rogue"
-    runner = CliRunner()
-    assert runner.invoke(main, ["pki", "init", str(rogue)]).exit_code == 0
-    assert runner.invoke(main, ["pki", "issue", str(rogue), "drone01", "--role", "drone"]).exit_code == 0
+    rogue = make_pki(tmp_path / "rogue", {"drone01": "drone"})
     security = {"pki_dir": str(pki), "tls": True}
     fleet = GroundFleet(tmp_path, {"drone01": "sim://?lat=40.6334&lon=-8.660815&alt=8.2"},
                         {"security": security, "telemetry_rate_ms": 200}, security=security, scheme="tls")
