@@ -131,7 +131,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
         try:
             station = GroundStation(config, bus, events)
             station.record_missions(data_dir / "missions")
-            missions = MissionManager(station, store, station.clock, plugins=plugins)
+            missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True)
             server = _EmbeddedServer(uvicorn.Config(
                 create_app(station, missions), log_level="warning", lifespan="on",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,

@@ -143,7 +143,12 @@ class GroundStation:
         for listener in list(self._listeners):
             listener(event)
 
-    def assign(self, drone_id: str, mission_id: str) -> None:
+    async def assign(self, drone_id: str, mission_id: str) -> None:
+        """Claim a drone for a mission; 404 if unknown, 409 if another mission holds it."""
+        self._registered(drone_id)
+        holder = self.registry.info(drone_id).mission
+        if holder not in (None, mission_id):
+            raise CommandRejected(409, f"{drone_id} is assigned to mission {holder}")
         self._emit(self.registry.assign(drone_id, mission_id, self.clock.time_ms()))
 
     def release(self, drone_id: str) -> None:
@@ -356,6 +361,7 @@ class GroundStation:
         reading: SensorReading | None = self._from_drone(decode_sensor, sample)
         if reading is not None:
             self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
+            self._tell(WatchEvent("sensor", reading))  # a mission in its own process keeps a copy
 
     def _on_link(self, sample: Sample) -> None:
         quality: LinkQuality | None = self._from_drone(decode_link, sample)

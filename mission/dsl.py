@@ -25,6 +25,7 @@ from mission.mission import Mission, MissionOver
 from mission.relaying import Relays
 from mission.runtime import Stopped, Subroutine, await_
 from mission.sandbox import Guards
+from schemas.errors import CommandRejected
 from schemas.geo import angle_diff_deg, normalize_deg
 from schemas.telemetry import LinkQuality
 
@@ -482,7 +483,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             requests.append(a.ByKind(kind))
         if not requests:
             requests = [a.AnyDrone()]
-        drones = [Drone(m, i) for i in m.assign(requests)]
+        drones = [Drone(m, i) for i in _call(m, m.assign(requests))]
         for wrapper in drones:
             m.add_wrapper(wrapper)
         return drones[0] if len(drones) == 1 else tuple(drones)
@@ -513,7 +514,10 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
         try:
             send(d, {"cmd": "return"}, wait=False)
             m.revoke(old)
-            m.take(new, request)
+            try:
+                _call(m, m.take(new, request))
+            except CommandRejected as exc:  # another mission claimed it first (missions in their own processes)
+                raise m.fail("requirements", f"{new} could not replace {old}: {exc.reason}") from None
             d._id = new
             d._anchor = None
             if not flying:

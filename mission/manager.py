@@ -22,6 +22,7 @@ from typing import Any
 import msgspec
 
 from bus.clock import Clock
+from mission.isolation import IsolatedMission
 from mission.mission import CommandResult, Mission, MissionLogLine, MissionRecord
 from mission.plugins import PluginLibrary
 from mission.port import FleetPort
@@ -48,6 +49,7 @@ CREATE TABLE IF NOT EXISTS mission_log (
 CREATE INDEX IF NOT EXISTS mission_log_mission ON mission_log (mission_id, id);
 """
 _record_decoder = msgspec.json.Decoder(MissionRecord)
+Running = Mission | IsolatedMission
 
 
 class UnknownMission(FleetError, KeyError):
@@ -121,14 +123,19 @@ class MissionManager:
         deterministic: bool = False,
         seed: int | None = None,
         plugins: PluginLibrary | None = None,
+        isolate: bool = False,
     ) -> None:
+        """With `isolate`, every mission runs in a process of its own under the limits
+        `mission.max_memory_mb` and `mission.max_cpu_s` (the ground; ADR 0009);
+        without, on this loop (fast-time simulation, where the clock is virtual)."""
         self.station = station
+        self.isolate = isolate
         self.plugins = plugins
         self.store = store
         self.clock = clock
         self.deterministic = deterministic
         self.seed = seed
-        self._running: dict[str, tuple[Mission, asyncio.Task[MissionRecord]]] = {}
+        self._running: dict[str, tuple[Running, asyncio.Task[MissionRecord]]] = {}
         self._seeds = itertools.count(seed or 0)
         self.commands: list[CommandResult] = []  # every mission's verbs, for simulation results
         self.echo: Callable[[str, MissionLogLine], None] | None = None  # progress printing
@@ -160,19 +167,24 @@ class MissionManager:
         self.store.create(record, source)
         if submitted_by is not None:  # the audit trail (SPEC §9)
             self.station.log_ground("info", f"Mission {mission_id} submitted by {submitted_by}")
-        mission = Mission(
-            record, code, self.station, self.clock,
-            deterministic=self.deterministic, seed=next(self._seeds) if self.seed is not None else None,
-            on_change=self._on_change, on_log=self._on_log, plugins=self.plugins, enable=enable,
-        )
-        mission.commands = self.commands
+        mission: Running
+        if self.isolate:
+            mission = IsolatedMission(record, source, self.station, self.clock, on_change=self._on_change,
+                                      on_log=self._on_log, plugins=self.plugins, enable=enable)
+        else:
+            mission = Mission(
+                record, code, self.station, self.clock,
+                deterministic=self.deterministic, seed=next(self._seeds) if self.seed is not None else None,
+                on_change=self._on_change, on_log=self._on_log, plugins=self.plugins, enable=enable,
+            )
+            mission.commands = self.commands
         self.station.log_ground("info", f"Mission {mission_id} submitted" + (f" ({name})" if name else ""))
         task = asyncio.get_running_loop().create_task(self._run(mission), name=f"mission {mission_id}")
         self._running[mission_id] = (mission, task)
         self._broadcast(record)
         return msgspec.structs.replace(record)
 
-    async def _run(self, mission: Mission) -> MissionRecord:
+    async def _run(self, mission: Running) -> MissionRecord:
         try:
             return await mission.run()
         finally:
@@ -223,11 +235,11 @@ class MissionManager:
 
     # ---- persistence and events ----------------------------------------------------
 
-    def _on_change(self, mission: Mission) -> None:
+    def _on_change(self, mission: Running) -> None:
         self.store.save(mission.record)
         self._broadcast(mission.record)
 
-    def _on_log(self, mission: Mission, line: MissionLogLine) -> None:
+    def _on_log(self, mission: Running, line: MissionLogLine) -> None:
         self.store.append(mission.id, line)
         if self.echo is not None:
             self.echo(mission.id, line)

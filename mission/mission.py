@@ -82,6 +82,7 @@ class _PendingBundle:
     done: asyncio.Future[BundleRecord]
 
 
+CLAIM_TRIES = 3  # picks of free drones when another mission claims one first
 DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
 # Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
 # them (relative ones — move by offsets, turn, offboard — would not mean the same again).
@@ -274,28 +275,7 @@ class Mission:
         self.changed()
 
     async def _leave(self, drone_id: str) -> None:
-        """Hold a flying drone (or send it home) and release it."""
-        registry = self.station.registry
-        if drone_id in registry:
-            info = registry.info(drone_id)
-            telem = registry.telemetry(drone_id)
-            flying = telem.armed and telem.landed_state != "on_ground"
-            critical = drone_id in self._critical and self.config.mission.return_on_critical_battery
-            action = None
-            if critical or (flying and self.config.mission.end_action == "return"):
-                action = "return"
-            elif info.state == "active" and info.current_command is not None \
-                    and not (flying and info.current_command.command in HOMEWARD):
-                # Never hold a drone on its way home (outside a fence, say). On the ground a
-                # cancel is harmless and clears a return whose end the ground never heard.
-                action = "cancel"
-            if action is not None:
-                try:
-                    await self.station.command(drone_id, json.dumps({"cmd": action}).encode(), self.id)
-                    self.log("info", f"{drone_id}: {'return to launch' if action == 'return' else 'hold'} at mission end")
-                except Exception as exc:  # noqa: BLE001 - the drone is released anyway
-                    self.log("warn", f"{drone_id}: could not {action} at mission end: {exc}")
-        self.station.release(drone_id)
+        await leave(self.station, self.id, drone_id, critical=drone_id in self._critical, log=self.log)
 
     # ---- failures from subroutines ------------------------------------------------
 
@@ -307,6 +287,8 @@ class Mission:
         prefix = (f"{filename.strip('<>')} " if in_plugin else "") + (f"line {where}: " if where else "")
         if isinstance(exc, SecurityViolation):
             self.end("security", f"{prefix}{exc}")
+        elif isinstance(exc, MemoryError):  # a mission's process is limited by mission.max_memory_mb
+            self.end("security", f"{prefix}the script ran out of memory (mission.max_memory_mb)")
         elif isinstance(exc, Exception) and in_plugin:
             self.end("plugin_error", f"{prefix}{type(exc).__name__}: {exc} (in {sub.name})")
         elif isinstance(exc, Exception):  # UnitError, NameError, ZeroDivisionError, …
@@ -452,19 +434,36 @@ class Mission:
             ))
         return out
 
-    def assign(self, requests: list[a.Request]) -> list[str]:
-        if self.ending:
-            raise MissionOver(self.record.message or "")
-        try:
-            ids = a.assign_many(requests, self.free_candidates())
-        except a.Unfulfilled as exc:
-            raise self.fail("requirements", str(exc)) from None
-        for drone_id, request in zip(ids, requests, strict=True):
-            self.take(drone_id, request)
-        return ids
+    async def assign(self, requests: list[a.Request]) -> list[str]:
+        """Pick free drones for `requests` and claim them at the ground. A mission in
+        its own process picks from its copy of the registry; should another mission
+        have claimed one of them meanwhile, the ground refuses and it picks again."""
+        for attempt in range(1, CLAIM_TRIES + 1):
+            if self.ending:
+                raise MissionOver(self.record.message or "")
+            try:
+                ids = a.assign_many(requests, self.free_candidates())
+            except a.Unfulfilled as exc:
+                raise self.fail("requirements", str(exc)) from None
+            taken: list[str] = []
+            try:
+                for drone_id, request in zip(ids, requests, strict=True):
+                    await self.take(drone_id, request)
+                    taken.append(drone_id)
+                return ids
+            except CommandRejected as exc:
+                for drone_id in taken:
+                    del self.requests[drone_id]
+                    self.station.release(drone_id)
+                self.changed()
+                if attempt == CLAIM_TRIES:
+                    raise self.fail("requirements", f"could not claim drones: {exc.reason}") from None
+                self.log("info", f"{exc.reason}; choosing again")
+        raise AssertionError("unreachable")
 
-    def take(self, drone_id: str, request: a.Request) -> None:
-        self.station.assign(drone_id, self.id)
+    async def take(self, drone_id: str, request: a.Request) -> None:
+        """Claim one drone; raises CommandRejected if another mission holds it."""
+        await self.station.assign(drone_id, self.id)
         self.requests[drone_id] = request
         if drone_id not in self.record.used_drones:
             self.record.used_drones.append(drone_id)
@@ -636,6 +635,34 @@ class Mission:
             await self.station.command(drone_id, b'{"cmd": "cancel"}', self.id)
         except Exception as exc:  # noqa: BLE001 - best effort; the mission goes on
             self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
+
+
+
+async def leave(station: FleetPort, mission_id: str, drone_id: str, *, critical: bool,
+                log: Callable[[Literal["info", "warn", "error"], str], None]) -> None:
+    """What a mission's end does to one of its drones: hold it if flying (or send it
+    home, by config or at critical battery), then release it."""
+    registry = station.registry
+    settings = station.config.mission
+    if drone_id in registry:
+        info = registry.info(drone_id)
+        telem = registry.telemetry(drone_id)
+        flying = telem.armed and telem.landed_state != "on_ground"
+        action = None
+        if (critical and settings.return_on_critical_battery) or (flying and settings.end_action == "return"):
+            action = "return"
+        elif info.state == "active" and info.current_command is not None \
+                and not (flying and info.current_command.command in HOMEWARD):
+            # Never hold a drone on its way home (outside a fence, say). On the ground a
+            # cancel is harmless and clears a return whose end the ground never heard.
+            action = "cancel"
+        if action is not None:
+            try:
+                await station.command(drone_id, json.dumps({"cmd": action}).encode(), mission_id)
+                log("info", f"{drone_id}: {'return to launch' if action == 'return' else 'hold'} at mission end")
+            except Exception as exc:  # noqa: BLE001 - the drone is released anyway
+                log("warn", f"{drone_id}: could not {action} at mission end: {exc}")
+    station.release(drone_id)
 
 
 def script_frame(exc: BaseException) -> tuple[str, int | None]:

@@ -102,6 +102,7 @@ class Plugin:
     vars: tuple[str, ...]
     verbs: tuple[str, ...]
     doc: str = ""
+    source: str = field(default="", repr=False)  # what was loaded: a mission's own process loads it again
 
     def describe(self) -> PluginView:
         return PluginView(id=self.id, type=self.type, path=self.path, doc=self.doc,
@@ -211,7 +212,8 @@ def _check_name(name: Any, what: str, reserved: Iterable[str]) -> None:
         raise PluginError(f"{what} name {name!r} is already a mission verb or name")
 
 
-def validate(decl: dict[str, Any], namespace: dict[str, Any], path: str, code: types.CodeType, reserved: frozenset[str]) -> Plugin:
+def validate(decl: dict[str, Any], namespace: dict[str, Any], path: str, code: types.CodeType, reserved: frozenset[str],
+             source: str = "") -> Plugin:
     plugin_id = decl["id"]
     if not isinstance(plugin_id, str) or not ID_PATTERN.match(plugin_id):
         raise PluginError(f"id must be 1-64 letters, digits, '_' or '-', got {plugin_id!r}")
@@ -246,17 +248,19 @@ def validate(decl: dict[str, Any], namespace: dict[str, Any], path: str, code: t
             raise PluginError("callback= is for type=monitoring plugins")
     doc = decl["doc"] if isinstance(decl["doc"], str) else ""
     return Plugin(id=plugin_id, type=kind, path=path, code=code, inputs=inputs,
-                  vars=tuple(variables), verbs=verbs, doc=doc.strip())
+                  vars=tuple(variables), verbs=verbs, doc=doc.strip(), source=source)
 
 
-def load_plugin(path: Path) -> Plugin:
-    """Compile, run once with verbs disabled, check the declaration. Raises PluginError."""
+def load_plugin(path: Path, source: str | None = None) -> Plugin:
+    """Compile, run once with verbs disabled, check the declaration. Raises PluginError.
+    With `source`, the file is not read (the text it held when the ground loaded it)."""
     from mission.dsl import VERB_NAMES, common_names
 
-    try:
-        source = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PluginError(f"cannot read: {exc}") from None
+    if source is None:
+        try:
+            source = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise PluginError(f"cannot read: {exc}") from None
     try:
         code = compile_mission(source, filename=f"<plugin {path.name}>")
     except ScriptError as exc:
@@ -289,7 +293,7 @@ def load_plugin(path: Path) -> Plugin:
         from mission.mission import script_line
 
         raise PluginError(f"{type(exc).__name__}: {exc}", script_line(exc)) from None
-    return validate(declare.one(), namespace, str(path), code, reserved)
+    return validate(declare.one(), namespace, str(path), code, reserved, source)
 
 
 class PluginLibrary:
@@ -322,6 +326,18 @@ class PluginLibrary:
                 log.warning("plugin %r from %s overrides the one from %s", plugin.id, path, previous.path)
             self.plugins[plugin.id] = plugin
             log.info("plugin %r (%s) loaded from %s", plugin.id, plugin.type, path)
+
+    @classmethod
+    def from_sources(cls, sources: Iterable[tuple[str, str]]) -> PluginLibrary:
+        """The library again from `sources()` (in a mission's own process)."""
+        library = cls()
+        for path, source in sources:
+            plugin = load_plugin(Path(path), source)
+            library.plugins[plugin.id] = plugin
+        return library
+
+    def sources(self) -> list[tuple[str, str]]:
+        return [(p.path, p.source) for p in self.plugins.values()]
 
     def get(self, plugin_id: str) -> Plugin | None:
         return self.plugins.get(plugin_id)

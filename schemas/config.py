@@ -26,6 +26,10 @@ class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     end_action: Literal["hold", "return"] = "hold"  # what flying drones do when their mission ends
     link_grace_s: Annotated[float, Meta(ge=0, le=3600)] = 30.0  # how long a mission waits for a drone whose link is lost
     clear_wait_s: Annotated[float, Meta(ge=0, le=3600)] = 120.0  # move(..., wait_clear=True): longest wait for a spot
+    # Each mission's script runs in a process of its own on the ground (SPEC §9, ADR 0009): what it
+    # may allocate beyond the runtime's own memory, and the CPU time it may use in all.
+    max_memory_mb: Annotated[int, Meta(ge=16, le=1_048_576)] = 1024
+    max_cpu_s: Annotated[float, Meta(ge=1, le=1_000_000)] = 3600.0
 
 
 class Security(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

@@ -58,6 +58,6 @@ class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
 class WatchEvent(msgspec.Struct, frozen=True):
     """One thing that happened, as the ground hands it to watchers and missions."""
 
-    kind: str  # telemetry | status | drone | log | mission | mission_log | end
+    kind: str  # telemetry | status | drone | sensor (missions only) | log | mission | mission_log | end
     data: Any
     id: int | None = None  # log lines: their row id in the event log

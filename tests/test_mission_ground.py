@@ -77,6 +77,9 @@ async def telemetry_seq(http: httpx.AsyncClient, drone_id: str) -> int:
 @pytest.mark.slow(45)
 async def test_examples_fly_while_a_spinning_mission_is_cancelled_within_a_second(http: httpx.AsyncClient) -> None:
     sync = await submit(http, (EXAMPLES / "synchronisation.py").read_text(), "5.4")
+    # Each mission runs in its own process: they claim drones in the order they get to
+    # `assign`, not the order they were sent. 5.4 names drone01 and drone02; 5.3 takes any two.
+    await until(lambda: _claimed(http, sync, 2), 10, "5.4 to claim its drones")
     two = await submit(http, (EXAMPLES / "two_drones.py").read_text(), "5.3")
     spin = await submit(http, "x = 0\nwhile True:\n    pass\n", "spin")
     await until(lambda: _status(http, spin, "running"), 10, "the spinning mission to run")
@@ -110,6 +113,10 @@ async def test_examples_fly_while_a_spinning_mission_is_cancelled_within_a_secon
 
 async def _status(http: httpx.AsyncClient, mission_id: str, status: str) -> bool:
     return (await record(http, mission_id))["status"] == status
+
+
+async def _claimed(http: httpx.AsyncClient, mission_id: str, n: int) -> bool:
+    return len((await record(http, mission_id))["active_drones"]) == n
 
 
 async def _seq_above(http: httpx.AsyncClient, drone_id: str, seq: int) -> bool:
