@@ -153,7 +153,7 @@ async def read_frame(reader: asyncio.StreamReader) -> bytes | None:
         if size > MAX_FRAME:
             raise ValueError(f"a frame of {size} bytes (the limit is {MAX_FRAME})")
         return await reader.readexactly(size)
-    except asyncio.IncompleteReadError:
+    except (asyncio.IncompleteReadError, ConnectionResetError):  # the other side is gone (killed, say)
         return None
 
 
@@ -341,7 +341,17 @@ def main(sock: socket.socket, start: bytes, max_memory_mb: int, max_cpu_s: float
     sys.stdout.flush()
 
 
+def _out_of_memory(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    """Out of memory outside the script (an event, a frame): end the process; the
+    ground tells the mission's end from its exit status."""
+    if isinstance(context.get("exception"), MemoryError):
+        os.write(2, b"fleet mission worker: out of memory (mission.max_memory_mb)\n")
+        os._exit(MEMORY_EXIT)
+    loop.default_exception_handler(context)
+
+
 async def _serve(sock: socket.socket, start: Start) -> None:
+    asyncio.get_running_loop().set_exception_handler(_out_of_memory)
     reader, writer = await asyncio.open_unix_connection(sock=sock)
     port = WorkerPort(start.settings, lambda message: writer.write(frame(message)))
     for event in start.snapshot:
@@ -356,6 +366,8 @@ async def _serve(sock: socket.socket, start: Start) -> None:
     run = asyncio.ensure_future(mission.run())
     listen = asyncio.ensure_future(_listen(reader, port, mission, writer))
     await asyncio.wait([run, listen], return_when=asyncio.FIRST_COMPLETED)
+    if listen.done() and isinstance(listen.exception(), MemoryError):
+        raise MemoryError
     if run.done():
         writer.write(frame(Done(run.result())))
         listen.cancel()

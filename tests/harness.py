@@ -256,3 +256,35 @@ async def wait_state(http: httpx.AsyncClient, drone_id: str, state: str, timeout
         return await drone_state(http, drone_id) == state
 
     await until(reached, timeout_s, f"{drone_id} {state}")
+
+
+# ---- missions over HTTP ----------------------------------------------------
+
+
+async def submit(http: httpx.AsyncClient, source: str, name: str = "") -> str:
+    response = await http.post("/mission", content=source.encode(), params={"name": name})
+    assert response.status_code == 201, response.text
+    return str(response.json()["mission_id"])
+
+
+async def record(http: httpx.AsyncClient, mission_id: str) -> dict[str, Any]:
+    response = await http.get(f"/mission/{mission_id}")
+    assert response.status_code == 200, response.text
+    return dict(response.json())
+
+
+async def ended(http: httpx.AsyncClient, mission_id: str, timeout_s: float) -> dict[str, Any]:
+    async def done() -> dict[str, Any] | None:
+        r = await record(http, mission_id)
+        return r if r["end"] is not None else None
+
+    return dict(await until(done, timeout_s, f"mission {mission_id} to end"))
+
+
+async def telemetry_seq(http: httpx.AsyncClient, drone_id: str) -> int:
+    response = await http.get(f"/drone/{drone_id}", params={"data": "telem"})
+    return int(response.json()["telem"]["seq"])
+
+
+async def seq_above(http: httpx.AsyncClient, drone_id: str, seq: int) -> bool:
+    return await telemetry_seq(http, drone_id) > seq

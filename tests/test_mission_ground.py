@@ -13,12 +13,21 @@ import subprocess
 import time
 from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
-from typing import Any
 
 import httpx
 import pytest
 
-from tests.harness import GroundFleet, GroundProcess, fleet_command, make_pki
+from tests.harness import (
+    GroundFleet,
+    GroundProcess,
+    ended,
+    fleet_command,
+    make_pki,
+    record,
+    seq_above,
+    submit,
+    telemetry_seq,
+)
 from tests.helpers import until
 
 pytestmark = pytest.mark.integration
@@ -49,31 +58,6 @@ async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
         yield client
 
 
-async def submit(http: httpx.AsyncClient, source: str, name: str = "") -> str:
-    response = await http.post("/mission", content=source.encode(), params={"name": name})
-    assert response.status_code == 201, response.text
-    return str(response.json()["mission_id"])
-
-
-async def record(http: httpx.AsyncClient, mission_id: str) -> dict[str, Any]:
-    response = await http.get(f"/mission/{mission_id}")
-    assert response.status_code == 200, response.text
-    return dict(response.json())
-
-
-async def ended(http: httpx.AsyncClient, mission_id: str, timeout_s: float) -> dict[str, Any]:
-    async def done() -> dict[str, Any] | None:
-        r = await record(http, mission_id)
-        return r if r["end"] is not None else None
-
-    return dict(await until(done, timeout_s, f"mission {mission_id} to end"))
-
-
-async def telemetry_seq(http: httpx.AsyncClient, drone_id: str) -> int:
-    response = await http.get(f"/drone/{drone_id}", params={"data": "telem"})
-    return int(response.json()["telem"]["seq"])
-
-
 @pytest.mark.slow(45)
 async def test_examples_fly_while_a_spinning_mission_is_cancelled_within_a_second(http: httpx.AsyncClient) -> None:
     sync = await submit(http, (EXAMPLES / "synchronisation.py").read_text(), "5.4")
@@ -86,7 +70,7 @@ async def test_examples_fly_while_a_spinning_mission_is_cancelled_within_a_secon
 
     # While it spins, the ground still takes telemetry in and answers HTTP.
     seq = await telemetry_seq(http, "drone01")
-    await until(lambda: _seq_above(http, "drone01", seq + 5), 5, "telemetry to keep flowing during the spin")
+    await until(lambda: seq_above(http, "drone01", seq + 5), 5, "telemetry to keep flowing during the spin")
 
     started = time.monotonic()
     response = await http.delete(f"/mission/{spin}")
@@ -117,10 +101,6 @@ async def _status(http: httpx.AsyncClient, mission_id: str, status: str) -> bool
 
 async def _claimed(http: httpx.AsyncClient, mission_id: str, n: int) -> bool:
     return len((await record(http, mission_id))["active_drones"]) == n
-
-
-async def _seq_above(http: httpx.AsyncClient, drone_id: str, seq: int) -> bool:
-    return await telemetry_seq(http, drone_id) > seq
 
 
 async def test_scripts_that_do_not_compile_get_400_with_line_and_column(http: httpx.AsyncClient) -> None:
