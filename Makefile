@@ -79,6 +79,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/ground_command.py
 	$(BIN)/python bench/bundles.py
 	$(BIN)/python bench/mission_sim.py
+	$(BIN)/python bench/mission_process.py
 	$(BIN)/python bench/recording.py
 	$(BIN)/python bench/security.py
 	$(BIN)/python bench/dashboard_frames.py

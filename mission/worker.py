@@ -19,6 +19,7 @@ refusal to claim a drone arrives after the event that showed another mission too
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import logging
 import math
@@ -48,6 +49,7 @@ from schemas.telemetry import SensorReading, Telemetry
 log = logging.getLogger(__name__)
 
 MAX_FRAME = 16 * 2**20  # bytes; a record, a log line or a reply is far smaller
+CLOSE_WAIT_S = 5.0  # after Done: how long the worker waits for the ground to close
 MEMORY_EXIT = 3  # the worker's exit status when it ran out of memory outside the script
 EVENT_KINDS = ("telemetry", "status", "drone", "sensor")
 Op = Literal["assign", "command", "push", "bundle_record"]
@@ -153,7 +155,7 @@ async def read_frame(reader: asyncio.StreamReader) -> bytes | None:
         if size > MAX_FRAME:
             raise ValueError(f"a frame of {size} bytes (the limit is {MAX_FRAME})")
         return await reader.readexactly(size)
-    except (asyncio.IncompleteReadError, ConnectionResetError):  # the other side is gone (killed, say)
+    except (asyncio.IncompleteReadError, ConnectionError):  # the other side is gone (killed, say)
         return None
 
 
@@ -370,6 +372,10 @@ async def _serve(sock: socket.socket, start: Start) -> None:
         raise MemoryError
     if run.done():
         writer.write(frame(Done(run.result())))
+        # Closing now would make the ground's next event fail (EPIPE), and its reader
+        # drop the Done still buffered: wait for the ground to close first.
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(listen), CLOSE_WAIT_S)
         listen.cancel()
     else:  # the ground is gone: nobody to tell, nothing to send commands through
         run.cancel()
