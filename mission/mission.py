@@ -637,7 +637,6 @@ class Mission:
             self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
 
 
-
 async def leave(station: FleetPort, mission_id: str, drone_id: str, *, critical: bool,
                 log: Callable[[Literal["info", "warn", "error"], str], None]) -> None:
     """What a mission's end does to one of its drones: hold it if flying (or send it

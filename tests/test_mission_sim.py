@@ -20,6 +20,7 @@ import pytest
 
 from fleet.compose import SimField
 from mission.mission import MissionRecord
+from schemas.errors import CommandRejected
 from sim.projection import LocalFrame
 from sim.world import Fault, World
 
@@ -198,6 +199,35 @@ async def test_unexpected(monkeypatch: pytest.MonkeyPatch) -> None:
     record, _, _ = await fly("sleep(5)\nd = assign()\narm(d)\n", world_with(), during=broken_station)
     assert cause(record) == ("failed", "unexpected")
     assert "station bug" in (record.message or "")
+
+
+@pytest.mark.parametrize("refusals", [1, 3])
+async def test_a_claim_another_mission_won_is_tried_again(monkeypatch: pytest.MonkeyPatch, refusals: int) -> None:
+    """Missions in their own processes pick drones from a copy of the registry: the
+    ground refuses a drone another mission claimed meanwhile (409), and the mission
+    picks again, up to three times, releasing what it had claimed in that pick."""
+    claims: list[str] = []
+
+    async def contested(field: SimField, mission_id: str) -> None:
+        original = field.station.assign
+
+        async def assign(drone_id: str, mission: str) -> None:
+            claims.append(drone_id)
+            if len(claims) % 2 == 0 and len(claims) <= 2 * refusals:  # the second drone of each pick is taken
+                raise CommandRejected(409, f"{drone_id} is assigned to mission m99")
+            await original(drone_id, mission)
+
+        monkeypatch.setattr(field.station, "assign", assign)
+
+    record, field, log = await fly("sleep(1)\na, b = assign(any_drone, any_drone)\nprint(a.id, b.id)\n",
+                                   world_with(), during=contested)
+    if refusals == 1:
+        assert cause(record) == ("finished", "success"), record
+        assert "is assigned to mission m99; choosing again" in "\n".join(log), log
+        assert len(claims) == 4 and sorted(record.used_drones) == sorted(set(claims)), (claims, record)
+    else:
+        assert cause(record) == ("failed", "requirements"), record
+        assert "could not claim drones" in (record.message or "") and len(claims) == 6, (record, claims)
 
 
 # ---- runtime behaviour -----------------------------------------------------------------
