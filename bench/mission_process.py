@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import statistics
 import sys
 import tempfile
@@ -27,10 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx  # noqa: E402
 
+from bench.procstat import cpu_seconds, rss_mib  # noqa: E402
 from tests.harness import GroundFleet, ended, record, submit  # noqa: E402
 from tests.helpers import until  # noqa: E402
-
-TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def children(pid: int) -> list[int]:
@@ -44,18 +42,6 @@ def children(pid: int) -> list[int]:
             if int(fields[1]) == pid:
                 out.append(int(entry.name))
     return out
-
-
-def cpu_s(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS
-
-
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return 0.0
 
 
 async def running(http: httpx.AsyncClient, mission_id: str) -> bool:
@@ -99,11 +85,11 @@ async def main() -> None:
                 workers = [c for server in children(ground) for c in children(server)]
                 assert len(workers) == 1, (before, workers)
                 worker = workers[0]
-                c0, t0 = cpu_s(worker), time.monotonic()
+                c0, t0 = cpu_seconds(worker), time.monotonic()
                 await asyncio.sleep(args.period)  # a bench measures over a period: nothing to wait for
-                used, elapsed = cpu_s(worker) - c0, time.monotonic() - t0
+                used, elapsed = cpu_seconds(worker) - c0, time.monotonic() - t0
                 events = args.drones * 10 * elapsed
-                print(f"worker: RSS {rss_mb(worker):.0f} MB (ground {rss_mb(ground):.0f} MB); CPU {used:.2f} s over "
+                print(f"worker: RSS {rss_mib(worker):.0f} MB (ground {rss_mib(ground):.0f} MB); CPU {used:.2f} s over "
                       f"{elapsed:.0f} s for ≈{events:.0f} telemetry events = {used / events * 1e6:.0f} µs per event")
                 await http.delete(f"/mission/{waiting}")
         finally:

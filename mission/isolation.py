@@ -31,7 +31,7 @@ import msgspec
 
 from bus.clock import Clock
 from mission import worker
-from mission.mission import CAUSES, STOP_GRACE_S, CommandResult, MissionLogLine, MissionRecord, leave
+from mission.mission import CAUSES, STOP_GRACE_S, MissionLogLine, MissionRecord, leave, mark_ended
 from mission.plugins import PluginLibrary
 from mission.port import FleetPort
 from schemas.errors import CommandRejected
@@ -75,7 +75,6 @@ class IsolatedMission:
         self._on_log = on_log
         self.plugins = plugins
         self.enable = enable
-        self.commands: list[CommandResult] = []  # fast-time results only; a process mission runs on the ground
         self._writer: asyncio.StreamWriter | None = None
         self._process: Any = None
         self._exited: asyncio.Future[None] | None = None
@@ -97,8 +96,7 @@ class IsolatedMission:
         if self.record.cause is not None or self._requested is not None:
             return False
         self._requested = (cause, message)
-        self.record.status, default = CAUSES[cause]
-        self.record.cause, self.record.message = cause, message or default
+        mark_ended(self.record, cause, message)  # its log line is the worker's to write
         if self._process is not None:
             self._send(worker.End(cause, message))
             self._spawn(self._expect_ack())
@@ -271,10 +269,7 @@ class IsolatedMission:
 
     async def _conclude(self, cause: str, message: str | None) -> None:
         """End the mission here, as `Mission.end` and its wind-down would."""
-        status, default = CAUSES[cause]
-        self.record.status, self.record.cause, self.record.message = status, cause, message or default
-        level: Literal["info", "warn", "error"] = "warn" if status == "cancelled" else "error"
-        self._log(level, f"Mission {status}: {cause}" + (f" - {message}" if message else ""))
+        self._log(*mark_ended(self.record, cause, message))
         registry = self.station.registry
         for drone_id in registry.ids():
             info = registry.info(drone_id)

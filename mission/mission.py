@@ -235,13 +235,7 @@ class Mission:
         """Conclude the mission with `cause` (the first call wins); True if this one did."""
         if self.ending:
             return False
-        status, default = CAUSES[cause]
-        self.record.cause = cause
-        self.record.message = message or default
-        self.record.status = status
-        level: Literal["info", "warn", "error"] = (
-            "info" if status == "finished" else ("warn" if status == "cancelled" else "error"))
-        self.log(level, f"Mission {status}: {cause}" + (f" - {message}" if message else ""))
+        self.log(*mark_ended(self.record, cause, message))
         if self.scheduler is not None:
             self.scheduler.stop_all()
         self._ended.set()
@@ -635,6 +629,14 @@ class Mission:
             await self.station.command(drone_id, b'{"cmd": "cancel"}', self.id)
         except Exception as exc:  # noqa: BLE001 - best effort; the mission goes on
             self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
+
+
+def mark_ended(record: MissionRecord, cause: str, message: str | None) -> tuple[Literal["info", "warn", "error"], str]:
+    """Set the record's status, cause and message for `cause`; returns the log line that says so."""
+    status, default = CAUSES[cause]
+    record.status, record.cause, record.message = status, cause, message or default
+    level: Literal["info", "warn", "error"] = "info" if status == "finished" else ("warn" if status == "cancelled" else "error")
+    return level, f"Mission {status}: {cause}" + (f" - {message}" if message else "")
 
 
 async def leave(station: FleetPort, mission_id: str, drone_id: str, *, critical: bool,

@@ -27,7 +27,6 @@ import os
 import resource
 import signal
 import socket
-import sys
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -338,17 +337,19 @@ def main(sock: socket.socket, start: bytes, max_memory_mb: int, max_cpu_s: float
     try:
         asyncio.run(_serve(sock, msgspec.msgpack.decode(start, type=Start)))
     except MemoryError:
-        os.write(2, b"fleet mission worker: out of memory (mission.max_memory_mb)\n")
-        os._exit(MEMORY_EXIT)
-    sys.stdout.flush()
+        _exit_out_of_memory()
+
+
+def _exit_out_of_memory() -> None:
+    """Out of memory outside the script (an event, a frame): the ground tells the
+    mission's end from this exit status."""
+    os.write(2, b"fleet mission worker: out of memory (mission.max_memory_mb)\n")
+    os._exit(MEMORY_EXIT)
 
 
 def _out_of_memory(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
-    """Out of memory outside the script (an event, a frame): end the process; the
-    ground tells the mission's end from its exit status."""
     if isinstance(context.get("exception"), MemoryError):
-        os.write(2, b"fleet mission worker: out of memory (mission.max_memory_mb)\n")
-        os._exit(MEMORY_EXIT)
+        _exit_out_of_memory()
     loop.default_exception_handler(context)
 
 

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import time
 from collections.abc import AsyncIterator, Iterator
-from pathlib import Path
 
 import httpx
 import pytest
 
+from bench.procstat import rss_mib
 from tests.harness import GroundFleet, ended, record, seq_above, submit, telemetry_seq
 from tests.helpers import until
 
@@ -58,18 +58,11 @@ async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
         yield client
 
 
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    raise AssertionError(f"no VmRSS for {pid}")
-
-
 @pytest.mark.slow(40)
 async def test_scripts_over_their_limits_fail_security_while_a_flight_finishes(fleet: GroundFleet,
                                                                                 http: httpx.AsyncClient) -> None:
     assert fleet.ground.proc is not None
-    ground_rss = rss_mb(fleet.ground.proc.pid)
+    ground_rss = rss_mib(fleet.ground.proc.pid)
     flight = await submit(http, FLIGHT, "flight")
     hog = await submit(http, HOG, "hog")
     c_spin = await submit(http, C_SPIN, "c-spin")
@@ -94,7 +87,7 @@ async def test_scripts_over_their_limits_fail_security_while_a_flight_finishes(f
     flown = await ended(http, flight, 60)
     assert (flown["status"], flown["cause"]) == ("finished", "success"), flown
     # The gigabytes were never the ground's: its own memory stayed where it was.
-    assert rss_mb(fleet.ground.proc.pid) < ground_rss + 100, (ground_rss, rss_mb(fleet.ground.proc.pid))
+    assert rss_mib(fleet.ground.proc.pid) < ground_rss + 100, (ground_rss, rss_mib(fleet.ground.proc.pid))
 
 
 @pytest.mark.slow(30)
