@@ -196,7 +196,9 @@ class MissionManager:
 
     def cancel(self, mission_id: str, cause: str = "user", message: str | None = None) -> MissionRecord:
         entry = self._running.get(mission_id)
-        if entry is None:
+        # A record with its end has ended, even while its task finishes (a mission's own
+        # process reports the end before it exits).
+        if entry is None or entry[0].record.end is not None:
             if self.store.get(mission_id) is None:
                 raise UnknownMission(mission_id)
             raise MissionEnded(f"mission {mission_id} already ended")
