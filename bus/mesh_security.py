@@ -10,14 +10,21 @@ directory (`<name>.pem`, role in the OU):
   declare and answer only under `drone/<its id>/**`, query `ground/ping` and other
   drones' `ping` (link probes), and may never query any `drone/*/cmd` or
   `drone/*/bundle`;
+- a relay (a drone issued `--role relay`) may also carry every other drone's traffic:
+  all messages under `drone/**`, both ways, commands and bundles included;
 - the ground may do everything; an operator (`fleet sub`, `fleet record`) may only
   subscribe.
 
-A node forwarding for others (the ground; a drone relaying a neighbour) is seen by the
-next router under its own name: a relay can drop what it forwards but cannot make the
-ground take its neighbour's messages as its own unless the relay's rules allow those
-keys — which is why only the ground's router lets every key through, and commands are
-signed end to end besides (schemas/auth.py).
+Zenoh applies these rules per link, to the node at its other end, not to whoever
+first sent a message: a router forwarding for others is seen by the next router under
+its own name. So a drone whose traffic reaches the ground through a neighbour gets
+through only if that neighbour holds a relay certificate — on the ground's router,
+which checks the relay's link, and on its own router, which takes the ground's
+commands from the relay. What that lets a relay do (measured in
+tests/test_security.py): drop or delay what it forwards, read it, and publish as any
+drone; it cannot command one — commands and bundles are signed end to end
+(schemas/auth.py) and an agent refuses any the ground did not sign. A plain drone can
+do none of this, so issue `relay` only to the drones a mission may send as relays.
 """
 
 from __future__ import annotations
@@ -69,6 +76,8 @@ def access_control(pki_dir: Path, namespace: str = "") -> dict[str, Any]:
         {"id": "ground-state", "permission": "allow", "flows": BOTH,
          "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "liveliness_token", "put",
                       "reply"], "key_exprs": [f"{prefix}ground/**"]},
+        {"id": "forward", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES,
+         "key_exprs": [f"{prefix}drone/**"]},
         {"id": "no-commands", "permission": "deny", "flows": ["ingress"], "messages": ["query"],
          "key_exprs": [f"{prefix}drone/*/cmd", f"{prefix}drone/*/bundle"]},
     ]
@@ -81,6 +90,8 @@ def access_control(pki_dir: Path, namespace: str = "") -> dict[str, Any]:
         subjects.append({"id": cn, "cert_common_names": [cn]})
         if role == "ground":
             policies.append({"rules": ["all"], "subjects": [cn]})
+        elif role == "relay":
+            policies.append({"rules": ["forward", "probes", "learn", "ground-state"], "subjects": [cn]})
         elif role == "operator":
             policies.append({"rules": ["read", "read-out"], "subjects": [cn]})
         else:
@@ -115,4 +126,5 @@ def mesh_security(security: Security, name: str, endpoints: list[str], *, router
     }
     if router:
         extra["access_control"] = access_control(pki, namespace)
+        extra["transport/link/tls/verify_name_on_connect"] = security.verify_names
     return extra

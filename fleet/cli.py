@@ -276,7 +276,11 @@ def sensor() -> None:
 @click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
 @click.option("--rate-ms", type=int, help="Publish period in milliseconds (default 200).")
 @click.option("--count", type=click.IntRange(1), help="Exit after publishing this many readings.")
-def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: tuple[str, ...], rate_ms: int | None, count: int | None) -> None:
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="On a secured mesh (SPEC §9): the directory with ca.pem and the drone's NAME.pem/NAME.key; endpoints tls/…")
+@click.option("--name", "cert_name", help="The certificate to show, with --pki-dir (default: the drone id).")
+def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: tuple[str, ...], rate_ms: int | None,
+                       count: int | None, pki_dir: Path | None, cert_name: str | None) -> None:
     """Thesis example 21: the temperature where DRONE is, from a heat field, on drone/<id>/sensor/temperature."""
     from schemas.config import load_config
     from sim.sensors import HeatConfig, run_temperature_sensor
@@ -285,7 +289,8 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
     if config.drone_id is None:
         raise ConfigError("give --drone ID (or drone_id in the config)")
     checked_id(config.drone_id, f"{config_path}: drone_id")
-    run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count))
+    extra = secured_client(pki_dir, cert_name or config.drone_id, list(connect))
+    run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count, extra))
 
 
 @main.command()

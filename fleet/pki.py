@@ -19,7 +19,7 @@ import click
 
 from schemas.keys import check_id
 
-ROLES = ("drone", "ground", "operator")
+ROLES = ("drone", "relay", "ground", "operator")  # relay: a drone that may carry its neighbours' traffic
 CA_YEARS, NODE_YEARS = 10, 2
 
 

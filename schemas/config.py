@@ -42,6 +42,11 @@ class Security(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=
     name: str | None = None  # this node's certificate in pki_dir (default: the drone id, or "ground")
     ground_key: str | None = None  # agent: the ground's public key, if not <pki_dir>/signing.pub
     window_s: Annotated[float, Meta(gt=0, le=3600)] = 30.0  # agent: how old (or early) a signature may be
+    # A router dialling a neighbour (a drone: the ground, relays) checks that the address
+    # it dialled is in the neighbour's certificate. Off by default: routers know a node by
+    # its certificate's CN, which their access rules check (ADR 0010), and the addresses
+    # they learn by gossip are every interface of the neighbour.
+    verify_names: bool = False
 
     def __post_init__(self) -> None:
         if self.tls and self.pki_dir is None:

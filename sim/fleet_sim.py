@@ -24,6 +24,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
+
+from schemas.config import Security, read_yaml
+from schemas.errors import ConfigError
 from sim.faults import FaultChannel, apply_fault, open_fault_channel
 from sim.mavlink_endpoint import MavlinkVehicle
 from sim.radio import Spot3, spot_of
@@ -48,6 +52,16 @@ def _find(vehicles: dict[str, SimVehicle], name: str) -> SimVehicle:
     if name not in vehicles:
         raise ValueError(f"unknown drone {name!r} (have {', '.join(vehicles)})")
     return vehicles[name]
+
+
+def agent_security(agent_config: Path | None) -> Security:
+    """The `security` section of the agents' config: on the radio it decides the scheme
+    of every endpoint the sim hands its agents and sensors."""
+    section = read_yaml(agent_config).get("security") if agent_config is not None else None
+    try:
+        return msgspec.convert(section or {}, Security)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(f"{agent_config}: security: {str(exc).replace('$.', '')}") from None
 
 
 def status_line(v: SimVehicle) -> str:
@@ -82,7 +96,7 @@ async def run_sim(
     children: list[subprocess.Popen[bytes]] = []
     control_transport: asyncio.BaseTransport | None = None
     loop = asyncio.get_running_loop()
-    field = RadioField(world, [s.id for s in specs], ground_port).up() if radio else None
+    field = RadioField(world, [s.id for s in specs], ground_port, agent_security(agent_config)).up() if radio else None
     scratch = tempfile.TemporaryDirectory(prefix="fleet-sim-")
     try:
         if field is not None:

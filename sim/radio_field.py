@@ -5,7 +5,9 @@ following where the vehicles are (SPEC §8: updated `radio.update_hz` times a se
 5 by default), from the same RadioModel fast-time simulation uses. It also builds
 the command lines that put a drone's agent and sensor programs inside the drone's
 namespace: the agent connects to the ground's radio address and listens for its
-on-board programs and neighbours on its own; the sensors connect to that agent.
+on-board programs and neighbours on its own; the sensors connect to that agent. On a
+secured mesh (the agents' `security.tls`, SPEC §9) every one of those links is
+mutual TLS, and each sensor shows its drone's certificate.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pathlib import Path
 import msgspec
 import yaml
 
+from schemas.config import Security
 from schemas.endpoints import AGENT_PORT
 from sim.radio import GROUND, Spot3, distance_3d, link_losses
 from sim.radio_net import RadioNet
@@ -29,9 +32,11 @@ RADIO_INTERFACE = "radio0"
 
 
 class RadioField:
-    def __init__(self, world: World, drone_ids: list[str], ground_port: int) -> None:
+    def __init__(self, world: World, drone_ids: list[str], ground_port: int, security: Security | None = None) -> None:
         self.world = world
         self.ground_port = ground_port
+        self.security = security or Security()
+        self.scheme = "tls" if self.security.tls else "tcp"
         self.net = RadioNet(drone_ids, world.radio_model)
         self.ground = world.ground_spot3()
         self.losses: dict[tuple[str, str], int] = {}
@@ -45,7 +50,7 @@ class RadioField:
 
     @property
     def ground_endpoint(self) -> str:
-        return f"tcp/{self.net.ground_address}:{self.ground_port}"
+        return f"{self.scheme}/{self.net.ground_address}:{self.ground_port}"
 
     def update(self, where: Mapping[str, Spot3]) -> None:
         """Apply the model to the drones' current positions (one nft transaction)."""
@@ -63,7 +68,7 @@ class RadioField:
 
     def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None) -> list[str]:
         args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "agent", "--id", drone_id,
-                "--fc", fc, "--connect", self.ground_endpoint, "--listen", f"tcp/0.0.0.0:{AGENT_PORT}",
+                "--fc", fc, "--connect", self.ground_endpoint, "--listen", f"{self.scheme}/0.0.0.0:{AGENT_PORT}",
                 "--mesh-interface", RADIO_INTERFACE]
         return args + (["--config", str(agent_config)] if agent_config is not None else [])
 
@@ -73,8 +78,12 @@ class RadioField:
             return None
         heat = config_dir / f"{drone_id}-heat.yml"
         heat.write_text(yaml.safe_dump(msgspec.to_builtins(self.world.heat_config())))
-        return [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "sensor", "temperature",
-                "--drone", drone_id, "--config", str(heat), "--connect", f"tcp/127.0.0.1:{AGENT_PORT}"]
+        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "sensor", "temperature",
+                "--drone", drone_id, "--config", str(heat), "--connect", f"{self.scheme}/127.0.0.1:{AGENT_PORT}"]
+        if self.security.tls:
+            assert self.security.pki_dir is not None
+            args += ["--pki-dir", self.security.pki_dir, "--name", self.security.name or drone_id]
+        return args
 
     def describe(self) -> list[str]:
         lines = [f"radio: {self.net.subnet}, ground {self.net.ground_address} (agents connect to {self.ground_endpoint}); "

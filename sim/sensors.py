@@ -118,11 +118,12 @@ async def _announce(bus: Bus, drone_id: str, kind: str, rate_ms: int, clock: Clo
 
 
 async def run_temperature_sensor(drone_id: str, config: HeatConfig, connect: list[str],
-                                 out: Callable[[str], None], count: int | None = None) -> None:
+                                 out: Callable[[str], None], count: int | None = None,
+                                 extra: dict[str, Any] | None = None) -> None:
     """`fleet sensor temperature`: a Zenoh client next to the drone's agent."""
     from bus.zenoh_bus import ZenohBus
 
-    bus = await ZenohBus.open("client", connect=connect, wait=True)  # the agent may start later
+    bus = await ZenohBus.open("client", connect=connect, wait=True, extra=extra)  # the agent may start later
     done = asyncio.Event()
 
     def show(reading: SensorReading) -> None:

@@ -13,6 +13,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -253,6 +254,88 @@ async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildPr
         back_at = _now()
         await until(lambda: _reachable(http, "droneB"), 15, "droneB reachable again")
         assert _now() - back_at <= 5.0, f"droneB came back {_now() - back_at:.1f} s after droneA was in range again"
+
+
+INJECT = """
+import asyncio, json, sys
+from bus.zenoh_bus import ZenohBus
+from fleet.cli import secured_client
+
+async def main(pki, name, target):
+    endpoint = ["tls/127.0.0.1:7448"]
+    bus = await ZenohBus.open("client", endpoint, extra=secured_client(pki, name, endpoint))
+    try:
+        print((await bus.query(f"drone/{target}/cmd", json.dumps(
+            {"cmd": "arm", "drone_id": target, "command_id": "injected"}).encode(), timeout_s=5)).decode())
+    finally:
+        await bus.close()
+
+asyncio.run(main(*sys.argv[1:]))
+"""
+
+
+@pytest.mark.slow(40)
+async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
+        tmp_path: Path, processes: list[ChildProcess]) -> None:
+    """Issue 16 on real packets, every link mutual TLS with the routers' access rules:
+    droneB (105 m north, with its temperature sensor) is reachable only through droneA
+    (50 m), issued `--role relay`;
+    droneD (105 m south) only through droneC, a plain drone. The ground hears and
+    commands droneB through droneA. droneC talks to droneD (its link reports say so) but
+    does not carry it: droneD never reaches the ground. A command droneA's certificate
+    injects from droneA's namespace reaches droneB and is refused `unauthenticated`."""
+    from bus.zenoh_bus import ZenohBus
+    from fleet.cli import secured_client
+    from tests.harness import make_pki
+
+    pki = make_pki(tmp_path / "pki", {"ground": "ground", "droneA": "relay", "droneB": "drone", "droneC": "drone",
+                                      "droneD": "drone", "operator": "operator"})
+    security = {"pki_dir": str(pki), "tls": True}
+    ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0", scheme="tls", security=security)
+    processes.append(ground)
+    await ground.ready()
+    a, b, c, d = north(50), north(105), north(-50), north(-105)
+    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1]}, {"id": "droneB", "lat": b[0], "lon": b[1], "sensors": ["temperature"]},
+                                      {"id": "droneC", "lat": c[0], "lon": c[1]}, {"id": "droneD", "lat": d[0], "lon": d[1]}],
+                   lost_link={"timeout_s": 60, "action": "continue"}, security=security)
+    processes.append(sim)
+    await sim.up()
+    loopback = [f"tls/127.0.0.1:{ground.zenoh_port}"]
+    operator = await ZenohBus.open("client", loopback, extra=secured_client(pki, "operator", loopback))
+    reports: list[dict[str, Any]] = []
+    try:
+        operator.subscribe("drone/droneC/link", lambda sample: reports.append(json.loads(sample.payload)))
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            await until(lambda: state_is(http, "droneB", "ready"), 60, "droneB ready at the ground (through droneA)")
+            await until(lambda: 'iifname "d1" oifname "g" drop' in sim.rules(), 10, "droneB-ground total loss")
+            assert 'iifname "g" oifname "d1" drop' in sim.rules()
+            # The on-board sensor speaks mTLS to droneB's agent, and its readings come through droneA.
+            await until(lambda: _temperature(http, "droneB"), 30, "droneB's temperature readings at the ground")
+            await command(http, "droneB", cmd="arm")  # signed by the ground, carried by droneA, accepted by droneB
+            await command(http, "droneB", cmd="disarm")
+
+            injected = subprocess.run(["ip", "netns", "exec", sim.netns("droneA"), sys.executable, "-c", INJECT,
+                                       str(pki), "droneA", "droneB"], capture_output=True, text=True, timeout=60,
+                                      cwd=Path(__file__).parent.parent)
+            assert injected.returncode == 0, injected.stderr[-3000:]
+            reply = json.loads(injected.stdout.splitlines()[-1])
+            assert not reply["accepted"] and reply["reason"] == "unauthenticated: not signed by the ground", reply
+
+            # droneC hears droneD well, yet the ground never learns of droneD.
+            await until(lambda: any(r["peer"] == "droneD" and r["quality"] >= 0.5 for r in reports), 60,
+                        "droneC's link reports on droneD")
+            await until(lambda: state_is(http, "droneC", "ready"), 30, "droneC ready at the ground")
+            assert (await http.get("/drone/droneD")).status_code == 404
+            assert 'iifname "d3" oifname "g" drop' in sim.rules()  # droneD has no link of its own to the ground
+            assert not (await drone(http, "droneB"))["telem"]["armed"]  # type: ignore[index]
+    finally:
+        await operator.close()
+    assert "refused arm injected: unauthenticated: not signed by the ground" in sim.output()
+
+
+async def _temperature(http: httpx.AsyncClient, drone_id: str) -> bool:
+    view = (await http.get(f"/drone/{drone_id}", params={"data": "sensors"})).json()
+    return any(r["type"] == "temperature" for r in view.get("sensors") or [])
 
 
 SURVEY_ALONE = """

@@ -247,6 +247,42 @@ async def test_on_a_tls_mesh_only_fleet_certificates_join_and_a_drone_speaks_onl
         fleet.stop()
 
 
+@pytest.mark.integration
+async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path, tmp_path: Path) -> None:
+    """ADR 0010: a drone's router dialling a neighbour at an address the neighbour's
+    certificate does not name (here 127.0.0.2; on a radio mesh, any address learnt by
+    gossip) still joins, unless `security.verify_names`; a rogue CA's certificate never
+    does; a client (`fleet sub`, an on-board program) always checks the name."""
+    from bus.mesh_security import mesh_security
+    from bus.port import BusError
+    from bus.zenoh_bus import ZenohBus
+    from fleet.cli import secured_client
+    from tests.helpers import free_port
+
+    rogue = make_pki(tmp_path / "rogue", {"drone01": "drone"})
+    endpoint = [f"tls/127.0.0.2:{free_port()}"]
+    ground = await ZenohBus.open("router", listen=endpoint, extra=mesh_security(
+        Security(pki_dir=str(pki), tls=True), "ground", endpoint, router=True))
+
+    async def dial(directory: Path, **security: bool) -> None:
+        extra = mesh_security(Security(pki_dir=str(directory), tls=True, **security), "drone01", endpoint, router=True)
+        # Fail the open instead of retrying for ever, as an agent's router does.
+        node = await ZenohBus.open("router", connect=endpoint, extra={**extra, "connect/exit_on_failure": True,
+                                                                      "connect/timeout_ms": 2000})
+        await node.close()
+
+    try:
+        await dial(pki)
+        with pytest.raises(BusError):
+            await dial(pki, verify_names=True)
+        with pytest.raises(BusError):
+            await dial(rogue)
+        with pytest.raises(BusError):
+            await ZenohBus.open("client", endpoint, extra=secured_client(pki, "operator", endpoint))
+    finally:
+        await ground.close()
+
+
 @pytest.mark.parametrize("name", sorted(p.name for p in (Path(__file__).parent.parent / "deploy").glob("*.yml")))
 def test_every_deploy_config_loads(name: str) -> None:
     from schemas.config import load_config
