@@ -58,6 +58,15 @@ def _identities(pki_dir: Path) -> dict[str, str]:
     return found
 
 
+def relays_of(security: Security) -> frozenset[str] | None:
+    """The drones whose certificates in the PKI directory make them relays; None when
+    the mesh is not secured (no access rules: every drone may carry others' traffic)."""
+    if not security.tls:
+        return None
+    assert security.pki_dir is not None
+    return frozenset(cn for cn, role in _identities(Path(security.pki_dir).expanduser()).items() if role == "relay")
+
+
 def access_control(pki_dir: Path, namespace: str = "") -> dict[str, Any]:
     """Zenoh `access_control` for a router, default deny."""
     prefix = f"{namespace}/" if namespace else ""

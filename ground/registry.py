@@ -84,9 +84,13 @@ class _Drone:
 
 
 class Registry:
-    def __init__(self, config: GroundConfig) -> None:
+    def __init__(self, config: GroundConfig, relays: frozenset[str] | None = None) -> None:
         self.config = config
         self._drones: dict[str, _Drone] = {}
+        self.relays = relays  # on a secured mesh, the drones that may relay; None: every drone
+
+    def may_relay(self, drone_id: str) -> bool:
+        return self.relays is None or drone_id in self.relays
 
     # ---- queries -------------------------------------------------------------------
 

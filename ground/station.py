@@ -22,6 +22,7 @@ from typing import Any, NoReturn
 import msgspec
 
 from bus.clock import Clock, SystemClock
+from bus.mesh_security import relays_of
 from bus.port import Bus, Declaration, QueryRefused, Sample, echo
 from bus.recording import now_ns_of
 from ground.config import GroundConfig
@@ -70,7 +71,7 @@ class GroundStation:
         self.events = events
         self.clock = clock or SystemClock()
         self.keys = Keys(config.namespace)
-        self.registry = Registry(config)
+        self.registry = Registry(config, relays_of(config.security))  # who the mesh lets relay
         self._watchers: set[Watcher] = set()
         self._watches_ended = False
         self._listeners: list[Callable[[WatchEvent], None]] = []

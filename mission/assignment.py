@@ -2,10 +2,11 @@
 
 Requests come by id, by sensors, near a position, by type, or for any drone. Several
 at once are served in the thesis's priority order — ids first, then sensor requests
-(more sensors first), then proximity, then any — so the constrained requests pick
-before the easy ones take their drones. Among fitting drones: the closest for a
-proximity request; otherwise the one with the fewest sensors (keep rare sensors free
-for whoever needs them); ties go to the most battery. If any request cannot be met,
+(more sensors first), then proximity, then drones that may relay, then any — so the
+constrained requests pick before the easy ones take their drones. Among fitting
+drones: the closest for a proximity request; otherwise the one with the fewest sensors
+(keep rare sensors free for whoever needs them), then one that may not relay; ties go
+to the most battery. If any request cannot be met,
 none is: the mission fails with cause `requirements`.
 """
 
@@ -28,6 +29,7 @@ class Candidate:
     lat: float | None = None
     lon: float | None = None
     kind: str | None = None  # drone type (thesis future work 7), when the operator declares one
+    relay: bool = True  # may carry other drones' traffic (on a secured mesh: issued `--role relay`)
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,16 @@ class AnyDrone:
     pass
 
 
-Request = ById | BySensors | Near | ByKind | AnyDrone
+@dataclass(frozen=True)
+class AnyRelay:
+    """A drone that may relay for others: any drone, except on a secured mesh (SPEC §9),
+    where only those issued `--role relay` carry their neighbours' traffic."""
+
+    def __repr__(self) -> str:
+        return "any_relay"
+
+
+Request = ById | BySensors | Near | ByKind | AnyRelay | AnyDrone
 
 
 class Unfulfilled(FleetError):
@@ -77,6 +88,8 @@ def describe(request: Request) -> str:
             return f"the drone nearest {lat:.6f}, {lon:.6f}"
         case ByKind(kind):
             return f"a drone of type {kind!r}"
+        case AnyRelay():
+            return "a drone that may relay (on a secured mesh: issued --role relay)"
     return "any drone"
 
 
@@ -96,7 +109,9 @@ def _rank(request: Request) -> tuple[int, int]:
             return (2, 0)
         case Near():
             return (3, 0)
-    return (4, 0)
+        case AnyRelay():
+            return (4, 0)
+    return (5, 0)
 
 
 def _distance(c: Candidate, lat: float, lon: float) -> float:
@@ -112,6 +127,8 @@ def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
             fitting = [c for c in free if sensors <= c.sensors]
         case ByKind(kind):
             fitting = [c for c in free if c.kind == kind]
+        case AnyRelay():
+            fitting = [c for c in free if c.relay]
         case Near() | AnyDrone():
             fitting = list(free)
     if not fitting:
@@ -124,7 +141,8 @@ def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
         if not located:
             raise Unfulfilled(request, "no free drone reports a position")
         return min(located, key=lambda c: (_distance(c, request.lat, request.lon), -c.battery, c.drone_id))
-    return min(fitting, key=lambda c: (len(c.sensors), -c.battery, c.drone_id))
+    # Keep rare sensors, and the right to relay, free for whoever needs them.
+    return min(fitting, key=lambda c: (len(c.sensors), c.relay, -c.battery, c.drone_id))
 
 
 def assign_many(requests: Sequence[Request], free: Sequence[Candidate]) -> list[str]:

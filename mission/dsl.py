@@ -468,7 +468,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
             return a.ById(item)
         if item is any_drone or item is None:
             return a.AnyDrone()
-        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.AnyDrone)):
+        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.AnyRelay, a.AnyDrone)):
             return item
         raise TypeError(f"assign: expected a drone id, any_drone, with_sensors(…), near(…) or of_kind(…), got {item!r}")
 
@@ -694,6 +694,7 @@ def common_names(guards: Guards) -> dict[str, Any]:
         "__name__": "mission",
         **guards.hooks(),
         "any_drone": any_drone,
+        "any_relay": a.AnyRelay(),
         "with_sensors": lambda *kinds: a.BySensors(frozenset(kinds)),
         "near": near_place,
         "of_kind": a.ByKind,

@@ -115,6 +115,7 @@ class IsolatedMission:
                 record=self.record, source=self.source, settings=self.settings,
                 plugins=self.plugins.sources() if self.plugins is not None else [],
                 enable=self.enable, snapshot=self._snapshot(),
+                relays=None if self.station.registry.relays is None else sorted(self.station.registry.relays),
             )
             # No await between the snapshot and listening: the worker misses no event.
             stop_listening = self.station.listen(self._forward)

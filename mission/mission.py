@@ -425,6 +425,7 @@ class Mission:
                 battery=t.battery.remaining_percent if t.battery else 0.0,
                 lat=t.position.lat if t.position else None,
                 lon=t.position.lon if t.position else None,
+                relay=registry.may_relay(drone_id),
             ))
         return out
 

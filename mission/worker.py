@@ -136,6 +136,7 @@ class Start(msgspec.Struct, frozen=True, kw_only=True):
     plugins: list[tuple[str, str]]  # (path, source) of every plugin the ground loaded
     enable: dict[str, dict[str, Any]] | None
     snapshot: list[Event]  # the registry as the ground knew it at the start
+    relays: list[str] | None  # the drones that may relay (Registry.relays)
 
 
 _encoder = msgspec.msgpack.Encoder()
@@ -191,7 +192,8 @@ _decode_info = msgspec.json.Decoder(DroneInfo).decode
 class Mirror:
     """The ground's registry as the events so far tell it (FleetView)."""
 
-    def __init__(self) -> None:
+    def __init__(self, relays: list[str] | None = None) -> None:
+        self.relays = None if relays is None else frozenset(relays)
         self._infos: dict[str, DroneInfo] = {}
         self._telemetry: dict[str, Telemetry] = {}
         self._readings: dict[str, dict[str, SensorReading]] = {}
@@ -229,6 +231,9 @@ class Mirror:
         readings = self._readings.get(drone_id, {})
         return [readings[t] for t in sorted(readings) if t in present]
 
+    def may_relay(self, drone_id: str) -> bool:
+        return self.relays is None or drone_id in self.relays
+
 
 class _Settings:
     def __init__(self, settings: MissionSettings) -> None:
@@ -238,9 +243,9 @@ class _Settings:
 class WorkerPort:
     """The FleetPort of a mission in its own process."""
 
-    def __init__(self, settings: MissionSettings, send: Callable[[Any], None]) -> None:
+    def __init__(self, settings: MissionSettings, send: Callable[[Any], None], relays: list[str] | None = None) -> None:
         self.config = _Settings(settings)
-        self.registry = Mirror()
+        self.registry = Mirror(relays)
         self._send = send
         self._listeners: list[Callable[[WatchEvent], None]] = []
         self._calls: dict[int, asyncio.Future[bytes]] = {}
@@ -356,7 +361,7 @@ def _out_of_memory(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> 
 async def _serve(sock: socket.socket, start: Start) -> None:
     asyncio.get_running_loop().set_exception_handler(_out_of_memory)
     reader, writer = await asyncio.open_unix_connection(sock=sock)
-    port = WorkerPort(start.settings, lambda message: writer.write(frame(message)))
+    port = WorkerPort(start.settings, lambda message: writer.write(frame(message)), start.relays)
     for event in start.snapshot:
         port.registry.apply(event.kind, event.data)
     mission_id = start.record.mission_id

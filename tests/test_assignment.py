@@ -6,6 +6,7 @@ import pytest
 
 from mission.assignment import (
     AnyDrone,
+    AnyRelay,
     ById,
     ByKind,
     BySensors,
@@ -75,3 +76,16 @@ def test_replacement_is_the_nearest_free_drone_and_id_or_sensor_assignments_are_
     assert replacement(40.6301, -8.6608, []) is None
     assert not replaceable(ById("x")) and not replaceable(BySensors(frozenset({"temperature"})))
     assert replaceable(AnyDrone()) and replaceable(Near(*FIELD)) and replaceable(ByKind("quad"))
+
+
+def test_only_drones_that_may_relay_serve_any_relay_and_any_drone_keeps_them_free() -> None:
+    """On a secured mesh only drones issued `--role relay` carry others' traffic (SPEC §9):
+    `any_relay` picks among them; `any_drone` takes one that may not relay first."""
+    free = [Candidate("plain", battery=0.5, relay=False), Candidate("relay_low", battery=0.4, relay=True),
+            Candidate("strong", battery=0.7, relay=False), Candidate("relay_high", battery=0.8, relay=True)]
+    assert choose(AnyRelay(), free).drone_id == "relay_high"
+    assert choose(AnyDrone(), free).drone_id == "strong"  # less battery than "relay_high", but may not relay
+    assert choose(AnyDrone(), [free[1], free[3]]).drone_id == "relay_high"  # when only relays are free, any of them
+    assert assign_many([AnyDrone(), AnyRelay()], free[:2]) == ["plain", "relay_low"]  # the relay request picks first
+    with pytest.raises(Unfulfilled, match="cannot assign a drone that may relay .*--role relay.*: no free drone fits"):
+        choose(AnyRelay(), [c for c in free if not c.relay])

@@ -274,6 +274,13 @@ asyncio.run(main(*sys.argv[1:]))
 """
 
 
+PICK_RELAY = """
+relay = assign(any_relay)
+other = assign(any_drone)
+print(f"relay {relay.id}; another: {other.id}")
+"""
+
+
 @pytest.mark.slow(40)
 async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
         tmp_path: Path, processes: list[ChildProcess]) -> None:
@@ -283,7 +290,8 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
     droneD (105 m south) only through droneC, a plain drone. The ground hears and
     commands droneB through droneA. droneC talks to droneD (its link reports say so) but
     does not carry it: droneD never reaches the ground. A command droneA's certificate
-    injects from droneA's namespace reaches droneB and is refused `unauthenticated`."""
+    injects from droneA's namespace reaches droneB and is refused `unauthenticated`.
+    A mission asking for `any_relay` gets droneA; `any_drone` another."""
     from bus.zenoh_bus import ZenohBus
     from fleet.cli import secured_client
     from tests.harness import make_pki
@@ -328,6 +336,20 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
             assert (await http.get("/drone/droneD")).status_code == 404
             assert 'iifname "d3" oifname "g" drop' in sim.rules()  # droneD has no link of its own to the ground
             assert not (await drone(http, "droneB"))["telem"]["armed"]  # type: ignore[index]
+
+            # Missions (the relay plugin) take as relays only drones the mesh lets relay.
+            r = await http.post("/mission", content=PICK_RELAY.encode(), params={"name": "pick"})
+            assert r.status_code == 201, r.text
+            mission_id = r.json()["mission_id"]
+
+            async def ended() -> dict[str, Any] | None:
+                record = (await http.get(f"/mission/{mission_id}")).json()
+                return record if record["end"] is not None else None
+
+            record = await until(ended, 30, "the picking mission to end")
+            log = "\n".join(line["message"] for line in record["log"])
+            assert record["status"] == "finished", (record, log)
+            assert "relay droneA; another: droneB" in log or "relay droneA; another: droneC" in log, log
     finally:
         await operator.close()
     assert "refused arm injected: unauthenticated: not signed by the ground" in sim.output()

@@ -67,7 +67,7 @@ def recall(relay):
 
 
 def dispatch(spot, alt):
-    relay = assign(any_drone)
+    relay = assign(any_relay)
     state["dispatching"] -= 1
     crew[relay.id] = relay
     duty[relay.id] = {"target": spot, "alt": alt, "serving": True, "ready": False}
@@ -151,7 +151,7 @@ def follow(other):
         alt = low if duty[other.id]["alt"] == high else high
     else:
         alt = high if len(duty) % 2 == 0 else low
-    me = assign(any_drone)
+    me = assign(any_relay)
     crew[me.id] = me
     duty[me.id] = {"target": None, "alt": alt, "serving": True, "ready": False}
     print(f"{me.id}: following {other.id} at {alt:g} m (distance mode, target {relays.metres(target_dist, 'target_dist'):g} m)")
