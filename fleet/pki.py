@@ -123,8 +123,9 @@ def pki_init(directory: Path) -> None:
     """Make the fleet CA and the ground's signing key pair in DIRECTORY."""
     for path in init(directory):
         click.echo(f"wrote {path}")
-    click.echo(f"next: `fleet pki issue {directory} ground --role ground`, one `--role drone` per drone; "
-               f"give each drone its NAME.pem/NAME.key, ca.pem and signing.pub (never ca.key or signing.key)")
+    click.echo(f"next: `fleet pki issue {directory} ground --role ground`, one `--role drone` per drone "
+               f"(`--role relay` for those that may carry their neighbours' traffic); give each drone every "
+               f"*.pem, its own NAME.key and signing.pub (never ca.key, signing.key or another's key)")
 
 
 @pki.command("issue")
