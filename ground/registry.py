@@ -89,9 +89,6 @@ class Registry:
         self._drones: dict[str, _Drone] = {}
         self.relays = relays  # on a secured mesh, the drones that may relay; None: every drone
 
-    def may_relay(self, drone_id: str) -> bool:
-        return self.relays is None or drone_id in self.relays
-
     # ---- queries -------------------------------------------------------------------
 
     def __contains__(self, drone_id: str) -> bool:

@@ -6,8 +6,8 @@ at once are served in the thesis's priority order — ids first, then sensor req
 constrained requests pick before the easy ones take their drones. Among fitting
 drones: the closest for a proximity request; otherwise the one with the fewest sensors
 (keep rare sensors free for whoever needs them), then one that may not relay; ties go
-to the most battery. If any request cannot be met,
-none is: the mission fails with cause `requirements`.
+to the most battery. If any request cannot be met, none is: the mission fails with
+cause `requirements`.
 """
 
 from __future__ import annotations

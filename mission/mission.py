@@ -413,6 +413,7 @@ class Mission:
 
     def free_candidates(self, exclude: str | None = None) -> list[a.Candidate]:
         registry = self.station.registry
+        relays = registry.relays
         out = []
         for drone_id in registry.ids():
             info = registry.info(drone_id)
@@ -425,7 +426,7 @@ class Mission:
                 battery=t.battery.remaining_percent if t.battery else 0.0,
                 lat=t.position.lat if t.position else None,
                 lon=t.position.lon if t.position else None,
-                relay=registry.may_relay(drone_id),
+                relay=relays is None or drone_id in relays,
             ))
         return out
 

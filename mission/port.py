@@ -32,8 +32,6 @@ class FleetView(Protocol):
         """On a secured mesh, the drones it lets carry others' traffic (SPEC §9); None: all."""
         ...
 
-    def may_relay(self, drone_id: str) -> bool: ...
-
 
 class MissionConfig(Protocol):
     @property

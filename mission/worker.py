@@ -231,9 +231,6 @@ class Mirror:
         readings = self._readings.get(drone_id, {})
         return [readings[t] for t in sorted(readings) if t in present]
 
-    def may_relay(self, drone_id: str) -> bool:
-        return self.relays is None or drone_id in self.relays
-
 
 class _Settings:
     def __init__(self, settings: MissionSettings) -> None:
