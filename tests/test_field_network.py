@@ -27,7 +27,7 @@ import yaml
 from fleet import relay_experiments as rx
 from schemas.geo import destination, distance_m
 from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
-from tests.harness import ChildProcess, GroundProcess, fleet_command
+from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, submit
 from tests.helpers import free_port, free_udp_base, until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
@@ -367,15 +367,7 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
             assert not (await drone(http, "droneB"))["telem"]["armed"]  # type: ignore[index]
 
             # Missions (the relay plugin) take as relays only drones the mesh lets relay.
-            r = await http.post("/mission", content=PICK_RELAY.encode(), params={"name": "pick"})
-            assert r.status_code == 201, r.text
-            mission_id = r.json()["mission_id"]
-
-            async def ended() -> dict[str, Any] | None:
-                record = (await http.get(f"/mission/{mission_id}")).json()
-                return record if record["end"] is not None else None
-
-            record = await until(ended, 30, "the picking mission to end")
+            record = await ended(http, await submit(http, PICK_RELAY, "pick"), 30)
             log = "\n".join(line["message"] for line in record["log"])
             assert record["status"] == "finished", (record, log)
             assert "relay droneA; another: droneB" in log or "relay droneA; another: droneC" in log, log
@@ -425,15 +417,8 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
         for d, (direction, back, policy, history) in cases.items():
             script = (SURVEY_ALONE.replace("DRONE", d).replace("DIRECTION", direction).replace("BACK", back)
                       .replace("POLICY", repr(policy)).replace("HISTORY", repr(history)))
-            r = await http.post("/mission", content=script.encode(), params={"name": f"survey {policy}"})
-            assert r.status_code == 201, r.text
-            missions[d] = r.json()["mission_id"]
-
-        async def ended(mission_id: str) -> dict[str, Any] | None:
-            record = (await http.get(f"/mission/{mission_id}")).json()
-            return record if record["end"] is not None else None
-
-        records = {d: await until(lambda m=m: ended(m), 240, f"mission {m} ({d}) to end") for d, m in missions.items()}
+            missions[d] = await submit(http, script, f"survey {policy}")
+        records = {d: await ended(http, m, 240) for d, m in missions.items()}
         log_one, log_two = ("\n".join(line["message"] for line in records[d]["log"]) for d in cases)
         for d in cases:
             assert records[d]["status"] == "finished", f"{d}: {records[d]}"
@@ -494,11 +479,9 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         for d in sim.drone_ids:
             await until(lambda d=d: state_is(http, d, "ready"), 60, f"{d} ready at the ground")
-        r = await http.post("/mission", content=script.encode(), params={"name": "relayed"})
-        assert r.status_code == 201, r.text
-        mission_id = r.json()["mission_id"]
+        mission_id = await submit(http, script, "relayed")
 
-        async def ended() -> dict[str, Any] | None:
+        async def watched_until_end() -> dict[str, Any] | None:
             for d in sim.drone_ids:  # every drone's track, for the separation
                 seen = await drone(http, d)
                 if seen is not None and seen["telem"].get("position"):
@@ -512,7 +495,7 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
             record = (await http.get(f"/mission/{mission_id}")).json()
             return record if record["end"] is not None else None
 
-        record = await until(ended, 240, "the relayed mission to end")
+        record = await until(watched_until_end, 240, "the relayed mission to end")
         lines = await log_lines(http, "drone01")
     log = "\n".join(line["message"] for line in record["log"])
     assert record["status"] == "finished", f"{record['status']} {record['cause']}: {record['message']}\n{log}"
