@@ -18,6 +18,7 @@ from typing import Any
 
 import click
 
+from bus.loop_watch import LoopWatch
 from schemas.endpoints import check_endpoint, split_host_port
 from schemas.errors import ConfigError, FleetError
 
@@ -53,16 +54,22 @@ def with_pki(f: Any) -> Any:
 
 
 def run_async(main: Coroutine[Any, Any, Any]) -> Any:
-    """Run `main` until done, Ctrl-C or SIGTERM; both cancel it so `finally` blocks run."""
+    """Run `main` until done, Ctrl-C or SIGTERM; both cancel it so `finally` blocks run.
+    A loop blocked for over a second is logged with where it is (bus/loop_watch.py)."""
+    context = click.get_current_context(silent=True)
+    name = context.command_path if context is not None else "fleet"
 
     async def wrapper() -> Any:
         task = asyncio.current_task()
         assert task is not None
         asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
+        watch = LoopWatch(name)
         try:
             return await main
         except asyncio.CancelledError:
             return None
+        finally:
+            watch.close()
 
     try:
         return asyncio.run(wrapper())

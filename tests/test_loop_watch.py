@@ -1,0 +1,33 @@
+"""A blocked event loop is reported with where it is stuck (bus/loop_watch.py)."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+
+import pytest
+
+from bus.loop_watch import LoopWatch
+
+
+def block_the_loop_for(seconds: float) -> None:
+    time.sleep(seconds)  # the stall under test: a blocking call on the loop's thread
+
+
+async def test_a_blocked_loop_is_reported_with_its_stack_and_how_long(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.WARNING, "bus.loop_watch")
+    watch = LoopWatch("test", threshold_s=0.5, period_s=0.1)
+    try:
+        await asyncio.sleep(0.3)  # turning normally: nothing to say
+        assert caplog.records == []
+        block_the_loop_for(1.2)
+        await asyncio.sleep(0.3)  # the next beat says how long it was
+    finally:
+        watch.close()
+    messages = [r.getMessage() for r in caplog.records]
+    stuck = [m for m in messages if "has not turned" in m]
+    assert len(stuck) == 1 and "block_the_loop_for" in stuck[0], messages
+    again = [m for m in messages if "turned again after" in m]
+    assert len(again) == 1, messages
+    assert 1.0 <= watch.longest_s <= 2.0, watch.longest_s
