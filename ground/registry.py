@@ -17,6 +17,7 @@ import msgspec
 from ground.config import GroundConfig
 from ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
 from schemas.bundles import BundleRecord, BundleStatus
+from schemas.errors import STATE_UNKNOWN
 from schemas.fleet import (
     CRITICAL_BATTERY,
     FC_DISCONNECTED,
@@ -51,6 +52,7 @@ Event = LogLine | InfoChanged
 class Refusal(msgspec.Struct, frozen=True, kw_only=True):
     status: int  # the HTTP status it maps to: 404 unknown drone, 409 cannot now
     reason: str
+    code: str | None = None  # CommandRejected.code
 
 
 STATUSES_REMEMBERED = 128  # per drone: command statuses heard (an agent repeats those the ground may have missed)
@@ -127,7 +129,7 @@ class Registry:
             return None
         info = self.info(drone_id)
         if info.state == "unknown":
-            return Refusal(status=409, reason="drone state is unknown: no recent telemetry")
+            return Refusal(status=409, reason="drone state is unknown: no recent telemetry", code=STATE_UNKNOWN)
         if info.state == "error":
             return Refusal(status=409, reason=f"drone is in error: {'; '.join(info.errors)}")
         if info.state == "manual":

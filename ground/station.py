@@ -238,7 +238,7 @@ class GroundStation:
         """The registry's refusal of `name` now (thesis §4.2.4)."""
         refusal = self.registry.check_command(drone_id, name, mission_id)
         if refusal is not None:
-            self._refuse(drone_id, label, CommandRejected(refusal.status, refusal.reason))
+            self._refuse(drone_id, label, CommandRejected(refusal.status, refusal.reason, refusal.code))
 
     def _refuse(self, drone_id: str, label: str, rejected: CommandRejected) -> NoReturn:
         """Log the refusal as "Refused <label>: …" and raise it."""

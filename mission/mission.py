@@ -31,7 +31,7 @@ from mission.port import FleetPort, MissionConfig
 from mission.runtime import Scheduler, Stopped, Subroutine
 from mission.sandbox import Guards, SecurityViolation
 from schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
-from schemas.errors import CommandRejected, FleetError, InvalidMessage
+from schemas.errors import STATE_UNKNOWN, CommandRejected, FleetError, InvalidMessage
 from schemas.fence import CONFLICT
 from schemas.fence import REASON as FENCE
 from schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
@@ -529,10 +529,8 @@ class Mission:
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
                             wait_clear: bool) -> CommandStatus | None:
         self.check_assigned(drone_id)
-        back = self._link_back_at.get(drone_id)
-        if back is not None and not back.done():  # out of reach: the ground would refuse it (unknown)
-            self.log("info", f"{drone_id}: {name} waits for the link to come back")
-            await asyncio.shield(back)
+        if self._out_of_reach(drone_id):  # the ground would refuse it (unknown)
+            await self._heard_again(drone_id, name)
         command_id = self.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
@@ -573,17 +571,38 @@ class Mission:
                     self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
                 return
             except Unreachable:
+                if self._out_of_reach(drone_id):  # the link dropped as it went: not the drone's fault
+                    await self._heard_again(drone_id, name)
+                    continue
                 if attempt == DELIVERY_TRIES:
                     raise
                 attempt += 1
                 self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt}/{DELIVERY_TRIES})")
             except CommandRejected as exc:
+                if exc.code == STATE_UNKNOWN:  # the ground stopped hearing it before the mission heard so
+                    await self._heard_again(drone_id, name)
+                    continue
                 if not (wait_clear and exc.code == CONFLICT and exc.other) or self.clock.monotonic() > give_up:
                     raise
                 if waited_for != exc.other:
                     waited_for = exc.other
                     self.log("info", f"{drone_id}: {name} waits for {exc.other} to clear the spot ({exc.reason})")
                 await self.next_telemetry(exc.other)
+
+    def _out_of_reach(self, drone_id: str) -> bool:
+        back = self._link_back_at.get(drone_id)
+        return back is not None and not back.done()
+
+    async def _heard_again(self, drone_id: str, name: str) -> None:
+        """Wait until the drone is back in reach: until the ground reports it back when
+        the mission knows it lost it, else until its next telemetry. Never longer than
+        mission.link_grace_s: the mission ends then (link_lost) and this is cancelled."""
+        self.log("info", f"{drone_id}: {name} waits for the link to come back")
+        back = self._link_back_at.get(drone_id)
+        if back is not None and not back.done():
+            await asyncio.shield(back)
+        else:
+            await self.next_telemetry(drone_id)
 
     async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
         """Send a task bundle as this mission and wait until it has ended (SPEC §6);

@@ -33,6 +33,9 @@ class ConfigError(FleetError):
     exit_code = 2
 
 
+STATE_UNKNOWN = "unknown"  # the code of the ground's 409 for a drone it has not heard lately
+
+
 class CommandRejected(FleetError):
     """The ground or the agent will not run a command now; `status` is the HTTP code."""
 
@@ -40,5 +43,5 @@ class CommandRejected(FleetError):
         super().__init__(reason)
         self.status = status
         self.reason = reason
-        self.code = code  # machine-readable kind of a 409: "geofence", "conflict"
+        self.code = code  # machine-readable kind of a 409: "geofence", "conflict", "unknown"
         self.other = other  # the other drone of a conflict

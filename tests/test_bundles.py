@@ -435,3 +435,28 @@ home(d)
     assert record.status == "finished", (record, log)
     assert "interrupted by the drone's lost-link failsafe" not in "\n".join(log), log
     assert any("hold not taken, the drone is already running return" in r.getMessage() for r in caplog.records)
+
+
+async def test_a_command_sent_into_a_radio_shadow_waits_for_the_link_instead_of_failing() -> None:
+    """CI caught this on the emulated radio: a goto sent just as the link dropped got no
+    answer; the resend met the ground's "drone state is unknown" (409) and the mission
+    failed, although it had just said it would wait 30 s for the link. Here a 10 s
+    shadow begins about a second after drone01 finishes its first hop, as the script
+    sends the second: the mission waits for the drone and the second hop flies."""
+    def after_the_first_hop(sim: SimField) -> None:
+        home = sim.world.drones[0]
+        radio_shadow(sim, lambda spot: distance_m(home.lat, home.lon, spot.lat, spot.lon) > 14.5, 10.0, after_s=1.0)
+
+    _, (record, log), _ = await fly("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=15*m, speed=5*m/s)
+sleep(1*s)
+move(d, forward=10*m, speed=5*m/s)
+print(f"out at {distance(d.position, d.home):.0f} m")
+""", fire_world(RadioModel()), max_s=200, prepare=after_the_first_hop,
+        lost_link=LostLinkPolicy(timeout_s=30, action="hold", return_after_s=60))
+    assert record.status == "finished", (record, log)
+    assert "drone01: goto waits for the link to come back" in log, log
+    assert "out at 25 m" in log, log
