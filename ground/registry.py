@@ -251,6 +251,18 @@ class Registry:
                                                    steps=record.steps), now_ms)
         return out
 
+    def bundle_gap(self, status: BundleStatus) -> bool:
+        """Whether an earlier event of this bundle never arrived (sent while the drone was
+        out of reach): a step before it, or its own step, was never heard to start."""
+        d = self._drones.get(status.drone_id)
+        if d is None:
+            return False
+        heard = d.bundle_heard.get(status.bundle_id, set())
+        if (status.step, status.state) in heard:
+            return False
+        started = status.step if status.state == "start" else status.step + 1
+        return any((step, "start") not in heard for step in range(started))
+
     def _on_bundle(self, d: _Drone, status: BundleStatus, now_ms: int) -> list[Event]:
         heard = d.bundle_heard.setdefault(status.bundle_id, set())
         if (status.step, status.state) in heard:

@@ -23,7 +23,7 @@ import msgspec
 
 from bus.clock import Clock, SystemClock
 from bus.mesh_security import relays_of
-from bus.port import Bus, Declaration, QueryRefused, Sample, echo
+from bus.port import Bus, Declaration, QueryRefused, Sample, Unreachable, echo
 from bus.recording import now_ns_of
 from ground.config import GroundConfig
 from ground.describe import describe_step
@@ -31,7 +31,7 @@ from ground.eventlog import EventLog
 from ground.recording import MissionRecordings
 from ground.registry import Event, InfoChanged, LogLine, Registry
 from schemas.auth import T, signer_of
-from schemas.bundles import BundleRecord, BundleReply, new_bundle_id, parse_bundle, sensor_guards
+from schemas.bundles import BundleRecord, BundleReply, BundleStatus, new_bundle_id, parse_bundle, sensor_guards
 from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
 from schemas.commands import Command, CommandReply, decode_command, new_command_id
 from schemas.errors import CommandRejected, InvalidMessage
@@ -85,6 +85,8 @@ class GroundStation:
         # simulation replays to the byte, its recording included).
         self.new_command_id: Callable[[], str] = new_command_id
         self.new_bundle_id: Callable[[], str] = new_bundle_id
+        self._held_bundle_statuses: dict[tuple[str, str], list[BundleStatus]] = {}
+        self._catching_up: set[asyncio.Task[None]] = set()
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -355,8 +357,35 @@ class GroundStation:
             del self._claims[status.drone_id]  # it hovers there now (or wherever it stopped)
         event = WatchEvent("status", status)
         self.broadcast(event)
-        self._emit(self.registry.on_status(status, self.clock.time_ms()))
+        if isinstance(status, BundleStatus) and self.registry.bundle_gap(status):
+            self._log_after_catch_up(status)
+        else:
+            self._emit(self.registry.on_status(status, self.clock.time_ms()))
         self._tell(event)  # after the registry: missions see the drone as it now is
+
+    def _log_after_catch_up(self, status: BundleStatus) -> None:
+        """Events of this bundle were lost on the way (the drone was out of reach, and
+        its bundle went on): read the bundle's record from the agent first, so the log
+        tells the bundle in order, then this status (already in the record unless the
+        read fails; the registry logs each event once)."""
+        key = (status.drone_id, status.bundle_id)
+        if key in self._held_bundle_statuses:  # a read is under way: after it
+            self._held_bundle_statuses[key].append(status)
+            return
+        self._held_bundle_statuses[key] = [status]
+
+        async def catch_up() -> None:
+            try:
+                await self.bundle_record(*key)
+            except (CommandRejected, Unreachable) as exc:
+                log.info("%s: could not read bundle %s to catch up: %s", status.drone_id, status.bundle_id, exc)
+            finally:
+                for held in self._held_bundle_statuses.pop(key, []):
+                    self._emit(self.registry.on_status(held, self.clock.time_ms()))
+
+        task = asyncio.get_running_loop().create_task(catch_up(), name=f"catch up {status.drone_id} {status.bundle_id}")
+        self._catching_up.add(task)
+        task.add_done_callback(self._catching_up.discard)
 
     def _on_sensor(self, sample: Sample) -> None:
         reading: SensorReading | None = self._from_drone(decode_sensor, sample)

@@ -20,6 +20,7 @@ import logging
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,9 @@ from sim.world import DroneSpec, World
 log = logging.getLogger(__name__)
 PX4_SITL_BASE = 14540
 PX4_SITL_LOCAL = 14580  # PX4 SITL sends from 14580+i
+# An agent on the radio may take seconds to close its Zenoh session (links to lossy
+# neighbours are flushed first); past this, together, they are killed.
+CHILDREN_STOP_S = 10.0
 
 
 @dataclass
@@ -156,11 +160,13 @@ async def run_sim(
     finally:
         for child in children:
             child.terminate()
+        deadline = time.monotonic() + CHILDREN_STOP_S  # one deadline for all: they stop together
         for child in children:
             try:
-                child.wait(timeout=10)
+                child.wait(timeout=max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 child.kill()
+                child.wait()
         for task in tasks:
             task.cancel()
         if tasks:

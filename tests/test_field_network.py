@@ -26,6 +26,7 @@ import yaml
 
 from fleet import relay_experiments as rx
 from schemas.geo import destination, distance_m
+from sim.fleet_sim import CHILDREN_STOP_S
 from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, submit
 from tests.helpers import free_port, free_udp_base, until
@@ -149,8 +150,13 @@ def processes(tmp_path: Path, radio_slot: None) -> Iterator[list[ChildProcess]]:
     started: list[ChildProcess] = []
     yield started
     sims = [p for p in started if isinstance(p, RadioSim)]
-    for proc in reversed(started):
-        proc.stop()
+    failures = []
+    for proc in reversed(started):  # all of them, even when one is slow to stop
+        try:
+            proc.stop(timeout_s=CHILDREN_STOP_S + 10 if isinstance(proc, RadioSim) else 10)
+        except AssertionError as exc:
+            failures.append(exc)
+    assert not failures, failures[0]
     for sim in sims:
         assert fleet_resources(sim.pid) == [], f"left behind: {fleet_resources(sim.pid)}"
 

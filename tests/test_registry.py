@@ -202,6 +202,30 @@ def test_a_bundle_record_catches_the_ground_up_once_and_clears_the_stale_step(re
     assert lines(reg.on_status(status(2, "done"), 300)) == []  # the late status itself
 
 
+def test_a_bundle_status_after_events_lost_out_of_reach_is_a_gap(reg: Registry) -> None:
+    """The ground reads the record first when a bundle's status shows earlier events
+    never arrived, so its log keeps the bundle's order (CI saw "done" logged before the
+    steps it caught up on); statuses in order, or heard before, are no gap."""
+    from schemas.bundles import BundleStatus
+
+    def status(step: int, state: str, drone: str = "drone01") -> BundleStatus:
+        return BundleStatus(drone_id=drone, timestamp=step, bundle_id="b3", step=step, state=state, steps=3)  # type: ignore[arg-type]
+
+    reg.on_telemetry(telem(), 0)
+    assert not reg.bundle_gap(status(0, "start"))
+    reg.on_status(status(0, "start"), 1)
+    assert not reg.bundle_gap(status(0, "finish"))
+    assert not reg.bundle_gap(status(1, "start"))
+    assert reg.bundle_gap(status(2, "start"))  # step 1 started out of reach
+    assert reg.bundle_gap(status(1, "finish"))  # so did the step it ends
+    assert reg.bundle_gap(status(2, "done"))
+    reg.on_status(status(0, "finish"), 2)
+    reg.on_status(status(1, "start"), 3)
+    assert not reg.bundle_gap(status(1, "finish"))
+    assert not reg.bundle_gap(status(1, "start"))  # a repeat
+    assert not reg.bundle_gap(status(5, "done", drone="ghost"))  # not registered: nothing to order
+
+
 def test_a_return_whose_end_was_never_heard_is_over_once_the_drone_is_landed_and_disarmed(reg: Registry) -> None:
     """Its `finish` was sent out of radio range: the drone would stay `active` for ever."""
     reg.on_telemetry(telem(armed=True, landed_state="in_air"), 0)
