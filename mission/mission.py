@@ -598,9 +598,8 @@ class Mission:
         the mission knows it lost it, else until its next telemetry. Never longer than
         mission.link_grace_s: the mission ends then (link_lost) and this is cancelled."""
         self.log("info", f"{drone_id}: {name} waits for the link to come back")
-        back = self._link_back_at.get(drone_id)
-        if back is not None and not back.done():
-            await asyncio.shield(back)
+        if self._out_of_reach(drone_id):
+            await asyncio.shield(self._link_back_at[drone_id])
         else:
             await self.next_telemetry(drone_id)
 

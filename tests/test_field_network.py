@@ -88,6 +88,10 @@ class RadioSim(ChildProcess):
         assert self.proc is not None
         return self.proc.pid
 
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = CHILDREN_STOP_S + 10) -> int | None:
+        """The sim gives its agents CHILDREN_STOP_S to stop before it kills them."""
+        return super().stop(sig, timeout_s)
+
     def netns(self, drone_id: str) -> str:
         return f"fleet-{self.pid}-{drone_id}"
 
@@ -153,7 +157,7 @@ def processes(tmp_path: Path, radio_slot: None) -> Iterator[list[ChildProcess]]:
     failures = []
     for proc in reversed(started):  # all of them, even when one is slow to stop
         try:
-            proc.stop(timeout_s=CHILDREN_STOP_S + 10 if isinstance(proc, RadioSim) else 10)
+            proc.stop()
         except AssertionError as exc:
             failures.append(exc)
     assert not failures, failures[0]
