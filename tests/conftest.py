@@ -4,6 +4,7 @@ and agent subprocesses that are always stopped."""
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -13,6 +14,15 @@ import pytest
 from bus.zenoh_bus import ZenohBus
 from tests.harness import AgentProcess, Operator, open_ground_router
 from tests.helpers import free_port
+
+
+def pytest_configure() -> None:
+    """Tests stop `fleet` processes with SIGINT, as an operator's Ctrl-C does. A run
+    started in the background by a non-interactive shell (`make test &` in a script)
+    inherits SIGINT ignored (POSIX), Python keeps an inherited ignore, and so would every
+    process a test starts: none would stop. Take Ctrl-C back, for us and our children."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

@@ -23,7 +23,7 @@ from schemas.commands import CommandReply
 from schemas.keys import Keys
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import Telemetry
-from tests.helpers import Collector, free_port, free_udp_base, until
+from tests.helpers import Collector, free_port, free_udp_base, signal_and_wait, until
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -77,13 +77,10 @@ class ChildProcess:
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10) -> int | None:
         if self.proc is None or self.proc.poll() is not None:
             return self.proc.returncode if self.proc else None
-        self.proc.send_signal(sig)
         try:
-            return self.proc.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-            raise AssertionError(f"{self.name} did not stop within {timeout_s} s on signal {sig}:\n{self.output()[-3000:]}") from None
+            return signal_and_wait(self.proc, sig, timeout_s, self.name)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}:\n{self.output()[-3000:]}") from None
 
     def output(self) -> str:
         return self.log.read_text(errors="replace") if self.log.exists() else ""

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import signal
 import socket
+import subprocess
 import time
 from collections.abc import Callable
 from typing import Any
@@ -14,6 +16,18 @@ def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def signal_and_wait(proc: subprocess.Popen[Any], sig: int, timeout_s: float, name: str = "process") -> int:
+    """Send `sig` and wait for the exit; past `timeout_s` kill it (a test never leaves
+    one behind) and fail."""
+    proc.send_signal(sig)
+    try:
+        return proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f"{name} did not stop within {timeout_s:g} s on {signal.Signals(sig).name}") from None
 
 
 async def until(predicate: Callable[[], Any], timeout_s: float, what: str = "condition") -> Any:

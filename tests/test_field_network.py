@@ -29,7 +29,7 @@ from schemas.geo import destination, distance_m
 from sim.fleet_sim import CHILDREN_STOP_S
 from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, submit
-from tests.helpers import free_port, free_udp_base, until
+from tests.helpers import free_port, free_udp_base, signal_and_wait, until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 GROUND = (40.633490, -8.660815)
@@ -568,8 +568,7 @@ def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -
         _wait_sync(lambda: f"fleet-{second.pid}-air" in list_netns(), 30, "the second run's namespaces")
         assert fleet_resources(killed.pid) == []
     finally:
-        second.send_signal(signal.SIGINT)
-        second.wait(timeout=20)
+        signal_and_wait(second, signal.SIGINT, CHILDREN_STOP_S + 10, "the second fleet sim --radio")
     assert fleet_resources(second.pid) == []
 
 

@@ -20,7 +20,7 @@ from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.telemetry import SensorReading
 from tests.harness import GroundFleet, fleet_command, wait_state
-from tests.helpers import Collector, free_udp_base, until
+from tests.helpers import Collector, free_udp_base, signal_and_wait, until
 
 pytestmark = pytest.mark.integration
 
@@ -259,8 +259,7 @@ async def test_cli_lists_shows_commands_and_reads_logs(fleet: Fleet, http: httpx
             seen.append(await asyncio.to_thread(follow.stdout.readline))
         assert sum("Success on arm" in s for s in seen) == 2, seen  # the old one, then the new
     finally:
-        follow.send_signal(signal.SIGINT)
-        follow.wait(timeout=10)
+        signal_and_wait(follow, signal.SIGINT, 10, "fleet logs --follow")
     assert (await post(http, "drone02", {"cmd": "disarm"})).status_code == 200
 
     unreachable = subprocess.run(fleet_command("drone", "list", "--url", "http://127.0.0.1:9"), capture_output=True, text=True, timeout=30)
