@@ -205,8 +205,10 @@ class GroundProcess(ChildProcess):
             tmp / f"ground-{self.http_port}.log",
         )
 
-    async def ready(self, timeout_s: float = 15) -> None:
-        """Wait until the HTTP API answers (the router is up before it)."""
+    async def ready(self, timeout_s: float = 45) -> None:
+        """Wait until the HTTP API answers (the router is up before it). About 1 s on an
+        idle machine; over 15 s was seen at the start of `make test`, when the longest
+        tests and the lint all start at once on two cores."""
         async with httpx.AsyncClient(base_url=self.url) as http:
             async def answers() -> bool:
                 assert self.proc is not None and self.proc.poll() is None, f"ground exited:\n{self.output()}"
