@@ -16,9 +16,10 @@ most the last second, and what it wrote is a run of whole chunks that `read()` (
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -26,6 +27,7 @@ from typing import IO, Any
 import msgspec
 
 from bus.clock import Clock, SystemClock
+from bus.keyexpr import intersects
 from bus.port import Bus, Declaration, Sample
 from schemas.bundles import BundleStatus, TaskBundle
 from schemas.commands import Command
@@ -168,15 +170,20 @@ class BusRecording:
     recordings, added and removed while it runs (one that joins late is told the
     tokens alive at that moment)."""
 
-    def __init__(self, bus: Bus, recorders: list[Recorder], keyexpr: str = "**",
+    def __init__(self, bus: Bus, recorders: list[Recorder], keyexprs: str | Sequence[str] = "**",
                  now_ns: Callable[[], int] = time.time_ns) -> None:
         self.recorders = list(recorders)
         self.now_ns = now_ns
         self._alive: set[str] = set()
-        self._declarations: list[Declaration] = [
-            bus.subscribe(keyexpr, self._on_sample, maxsize=1_000_000),
-            bus.watch_liveliness(keyexpr, self._on_liveliness),
-        ]
+        self._declarations: list[Declaration] = []
+        keyexprs = [keyexprs] if isinstance(keyexprs, str) else list(keyexprs)
+        for i, keyexpr in enumerate(keyexprs):
+            # A key under several of them is recorded by the first one only, once.
+            earlier = tuple(keyexprs[:i])
+            self._declarations += [
+                bus.subscribe(keyexpr, functools.partial(self._on_sample, earlier), maxsize=1_000_000),
+                bus.watch_liveliness(keyexpr, functools.partial(self._on_liveliness, earlier)),
+            ]
 
     def add(self, recorder: Recorder) -> None:
         now = self.now_ns()
@@ -187,13 +194,15 @@ class BusRecording:
     def remove(self, recorder: Recorder) -> None:
         self.recorders.remove(recorder)
 
-    def _on_sample(self, sample: Sample) -> None:
-        if sample.kind == "put":
+    def _on_sample(self, earlier: tuple[str, ...], sample: Sample) -> None:
+        if sample.kind == "put" and not any(intersects(k, sample.key) for k in earlier):
             now = self.now_ns()
             for recorder in self.recorders:
                 recorder.write(sample.key, sample.payload, now)
 
-    def _on_liveliness(self, key: str, alive: bool) -> None:
+    def _on_liveliness(self, earlier: tuple[str, ...], key: str, alive: bool) -> None:
+        if any(intersects(k, key) for k in earlier):
+            return
         (self._alive.add if alive else self._alive.discard)(key)
         payload, now = msgspec.json.encode(Liveliness(alive)), self.now_ns()
         for recorder in self.recorders:
@@ -340,10 +349,10 @@ class Replay:
         self.tokens.clear()
 
 
-async def record_until_stopped(bus: Bus, recorder: Recorder, keyexpr: str, stop: asyncio.Event,
+async def record_until_stopped(bus: Bus, recorder: Recorder, keyexprs: Sequence[str], stop: asyncio.Event,
                                now_ns: Callable[[], int] = time.time_ns) -> BusRecording:
     """`fleet record`'s loop: record until `stop`, closing a chunk every FLUSH_S."""
-    recording = BusRecording(bus, [recorder], keyexpr, now_ns)
+    recording = BusRecording(bus, [recorder], keyexprs, now_ns)
     try:
         while not stop.is_set():
             try:

@@ -57,8 +57,7 @@ def record(keyexprs: tuple[str, ...], out: Path | None, connect: tuple[str, ...]
         if duration is not None:
             asyncio.get_running_loop().call_later(duration, stop.set)
         try:
-            recordings = [asyncio.ensure_future(record_until_stopped(bus, recorder, k, stop)) for k in keyexprs or ("**",)]
-            await asyncio.gather(*recordings)
+            await record_until_stopped(bus, recorder, keyexprs or ("**",), stop)
         finally:
             stop.set()
             await bus.close()

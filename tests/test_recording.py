@@ -289,3 +289,26 @@ async def test_a_recorder_that_joins_a_running_recording_is_told_which_tokens_ar
             ("drone/drone01/alive", "Liveliness"), ("drone/drone01/telem", "Telemetry")]
     await drone.close()
     await bus.close()
+
+
+async def test_overlapping_key_expressions_record_each_message_once(tmp_path: Path) -> None:
+    """`fleet record 'drone/**' 'drone/drone01/**'`: a message under both is one message."""
+    from bus.recording import BusRecording
+
+    network = MemoryNetwork()
+    bus, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")
+    recorder = Recorder(tmp_path / "overlap.mcap")
+    recording = BusRecording(bus, [recorder], ["drone/**", "drone/drone01/**", "drone/*/telem", "ground/**"],
+                             now_ns=lambda: 1_700_000_000_000_000_000)
+    drone.announce("drone/drone01/alive")
+    drone.publish("drone/drone01/telem", telemetry("drone01", 40.0, 0))
+    drone.publish("ground/status", b"{}")
+    drone.publish("other/key", b"{}")  # under none of them
+    await until(lambda: recorder.messages >= 3, 5, "three messages recorded")
+    drone.publish("drone/drone02/telem", telemetry("drone02", 40.0, 0))
+    await until(lambda: recorder.messages >= 4, 5, "the fourth")
+    recording.close()
+    assert Counter(m.topic for m in read(recorder.path).messages) == Counter(  # type: ignore[arg-type]
+        {"drone/drone01/alive": 1, "drone/drone01/telem": 1, "ground/status": 1, "drone/drone02/telem": 1})
+    await drone.close()
+    await bus.close()
