@@ -260,8 +260,12 @@ class IsolatedMission:
             cause, message = self._reported, self.record.message or CAUSES[self._reported][1]
         elif self._killed is not None:
             cause, message = self._killed
-        elif exitcode in (-signal.SIGXCPU, -signal.SIGKILL):
+        elif exitcode == -signal.SIGXCPU:  # RLIMIT_CPU's soft limit: its default action ends it there
             cause, message = "security", f"the script used more than mission.max_cpu_s ({self.settings.max_cpu_s:g} s of CPU)"
+        elif exitcode == -signal.SIGKILL:  # not the ground's (that is _killed), not its limits
+            cause, message = "unexpected", ("the mission's process was killed (SIGKILL) from outside: the kernel's "
+                                            "out-of-memory killer when the machine runs short of memory (see dmesg; "
+                                            "lower mission.max_memory_mb), or an operator")
         elif exitcode == worker.MEMORY_EXIT:
             cause, message = "security", f"the script used more than mission.max_memory_mb ({self.settings.max_memory_mb} MB)"
         else:

@@ -12,8 +12,12 @@ mission are released.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 import time
 from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
 
 import httpx
 import pytest
@@ -116,3 +120,31 @@ async def test_a_mission_stuck_in_c_code_is_cancelled_and_its_drone_released(htt
     lander = await submit(http, 'd = assign("drone02")\nland(d)\n', "lander")
     assert (await ended(http, lander, 40))["status"] == "finished"
     assert (await record(http, lander))["used_drones"] == ["drone02"]
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            with contextlib.suppress(OSError):
+                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                    found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.slow(15)
+async def test_a_worker_killed_from_outside_is_not_called_over_its_limits(fleet: GroundFleet, http: httpx.AsyncClient) -> None:
+    """The kernel's OOM killer (or an operator) sends SIGKILL; RLIMIT_CPU ends a worker
+    with SIGXCPU. The mission's end says which it was."""
+    assert fleet.ground.proc is not None
+    ground_pid = fleet.ground.proc.pid
+    mission_id = await submit(http, "sleep(600*s)\n", "waits")
+
+    def worker() -> int | None:  # the ground's fork server's child: this mission's process
+        workers = [w for server in _children(ground_pid) for w in _children(server)]
+        return workers[0] if len(workers) == 1 else None
+
+    os.kill(await until(worker, 20, "the mission's worker process"), signal.SIGKILL)
+    final = await ended(http, mission_id, 20)
+    assert (final["status"], final["cause"]) == ("failed", "unexpected"), final
+    assert "killed (SIGKILL) from outside" in final["message"] and "max_cpu_s" not in final["message"], final["message"]
