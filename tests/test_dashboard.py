@@ -25,7 +25,7 @@ from typing import Any
 
 import httpx
 import pytest
-from playwright.async_api import Browser, Page, ViewportSize, expect
+from playwright.async_api import Browser, Page, Route, ViewportSize, expect
 
 from bench.dashboard_frames import (
     DESKTOP,
@@ -36,7 +36,8 @@ from bench.dashboard_frames import (
     wait_for_drones,
 )
 from schemas.geo import destination, distance_m
-from tests.harness import AgentProcess, GroundFleet, GroundProcess, wait_state
+from tests.harness import AgentProcess, GroundFleet, GroundProcess, submit, wait_state
+from tests.helpers import until
 
 # One Chromium at a time (`--dist loadgroup`): with 200 drones a page takes a core, and
 # beside it the real-packet radio tests missed their deadlines.
@@ -461,6 +462,94 @@ async def test_a_restarted_ground_is_announced_and_the_page_recovers_without_rel
     finally:
         agent.stop()
         ground.stop()
+    assert dashboard.errors == []
+
+
+@pytest.mark.slow(20)
+async def test_an_older_log_fetch_that_answers_last_does_not_wipe_newer_lines(dashboard: Dashboard, tmp_path: Path) -> None:
+    """The selected drone's log is fetched again on each reconnection and whenever the
+    drone comes back, so two fetches can cross. The older answer, arriving last, must
+    not replace what the newer one (and the stream) brought: across a ground restart
+    the page once lost the drone's new "Registered" line that way."""
+    lat, lon = SPAWNS["drone01"]
+    fleet = GroundFleet(tmp_path, {"drone01": f"sim://?lat={lat}&lon={lon}&alt=8.2"})
+    page = dashboard.page
+    try:
+        await fleet.ground.ready()
+        await dashboard.open(fleet.ground.url)
+        await page.locator("#drone-list li[data-drone=drone01]").click()
+        await expect(page.locator("#drone-log li", has_text="drone01 - Registered")).to_have_count(1, timeout=UI_S * 1000)
+
+        fetched_old, release = asyncio.Event(), asyncio.Event()
+        routes: list[Route] = []
+
+        async def hold_the_first(route: Route) -> None:
+            routes.append(route)
+            if len(routes) > 1:
+                await route.continue_()
+                return
+            response = await route.fetch()  # the log as the ground has it now, before the arm
+            fetched_old.set()
+            await release.wait()
+            await route.fulfill(response=response)
+
+        await page.route(re.compile(r"/drone/logs\?"), hold_the_first)
+        older = asyncio.ensure_future(page.evaluate("() => window.fleetDashboard.drones.loadLog()"))
+        await asyncio.wait_for(fetched_old.wait(), UI_S)
+        async with httpx.AsyncClient(base_url=fleet.ground.url, timeout=10) as http:
+            assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+        armed = page.locator("#drone-log li", has_text="drone01 - Success on arm")
+        await expect(armed).to_have_count(1, timeout=UI_S * 1000)  # from the stream
+        await page.evaluate("() => window.fleetDashboard.drones.loadLog()")  # the newer fetch: it has the line
+        release.set()
+        await asyncio.wait_for(older, UI_S)  # the older answer has been handled
+        shown = "() => window.fleetDashboard.fleet.drones.get('drone01').log.map(l => l.text)"
+        assert any("Success on arm" in line for line in await page.evaluate(shown)), await page.evaluate(shown)
+        await page.evaluate("() => new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+        await expect(armed).to_have_count(1)
+        assert dashboard.errors == []
+    finally:
+        fleet.stop()
+
+
+@pytest.mark.slow(20)
+async def test_an_older_mission_fetch_that_answers_last_does_not_wipe_newer_lines(
+        mission_fleet: GroundFleet, dashboard: Dashboard) -> None:
+    """The same for an open mission's log: opening it and a reconnection both fetch it."""
+    fleet, page = mission_fleet, dashboard.page
+    async with fleet.client() as http:
+        await dashboard.open(fleet.ground.url)
+        mission_id = await submit(http, "for i in range(600):\n    print(f'tick {i}')\n    sleep(0.2*s)\n", "ticks")
+        await page.evaluate("id => window.fleetDashboard.missions.select(id)", mission_id)
+        messages = "id => (window.fleetDashboard.fleet.missionLogs.get(id) || []).map(l => l.message)"
+
+        fetched_old, release = asyncio.Event(), asyncio.Event()
+        routes: list[Route] = []
+
+        async def hold_the_first(route: Route) -> None:
+            routes.append(route)
+            if len(routes) > 1:
+                await route.continue_()
+                return
+            response = await route.fetch()
+            fetched_old.set()
+            await release.wait()
+            await route.fulfill(response=response)
+
+        await page.route(re.compile(rf"/mission/{mission_id}$"), hold_the_first)
+        older = asyncio.ensure_future(page.evaluate("id => window.fleetDashboard.missions.load(id)", mission_id))
+        await asyncio.wait_for(fetched_old.wait(), UI_S)
+        before = len((await http.get(f"/mission/{mission_id}")).json()["log"])
+
+        async def ticked_on() -> bool:  # lines the held answer does not have
+            return len((await http.get(f"/mission/{mission_id}")).json()["log"]) >= before + 3
+        await until(ticked_on, UI_S, "three more ticks")
+        await page.evaluate("id => window.fleetDashboard.missions.load(id)", mission_id)  # the newer fetch
+        newest = (await page.evaluate(messages, mission_id))[-1]
+        release.set()
+        await asyncio.wait_for(older, UI_S)
+        assert newest in await page.evaluate(messages, mission_id), newest
+        assert (await http.delete(f"/mission/{mission_id}")).status_code == 200
     assert dashboard.errors == []
 
 

@@ -20,6 +20,7 @@ export class DronePanel {
     this.list = $("drone-list");
     this.detailShown = null;
     this.logShown = { id: null, first: null, count: 0 };
+    this.logFetches = 0; // the latest fetch of the selected drone's log is the one that counts
     this.sensorText = "—";
     this.list.addEventListener("click", (e) => {
       const li = e.target.closest("li[data-drone]");
@@ -52,9 +53,12 @@ export class DronePanel {
   async loadLog() {
     const id = this.selected;
     if (!id) return;
+    const fetch = ++this.logFetches;
     const sentAt = performance.now();
     const r = await call("GET", `/drone/logs?drone_id=${encodeURIComponent(id)}`);
-    if (r.ok && this.selected === id) {
+    // Fetches cross (a reconnection and a drone coming back both ask): an older answer
+    // arriving last would replace the newer one's lines, so only the latest is used.
+    if (r.ok && this.selected === id && fetch === this.logFetches) {
       this.fleet.setDroneLog(id, r.data, sentAt);
       this.hooks.redraw();
     }

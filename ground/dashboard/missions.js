@@ -14,6 +14,8 @@ export class MissionPanel {
     this.selected = null;
     this.rows = new Map();
     this.logShown = { id: null, count: 0 };
+    this.loads = 0;
+    this.latestLoad = new Map(); // mission id -> the number of its latest fetch
     $("mission-form").addEventListener("submit", (e) => {
       e.preventDefault();
       this.submit();
@@ -53,9 +55,12 @@ export class MissionPanel {
 
   async load(id) {
     this.fleet.watchMission(id);
+    const fetch = ++this.loads;
+    this.latestLoad.set(id, fetch);
     const sentAt = performance.now();
     const r = await call("GET", `/mission/${encodeURIComponent(id)}`);
-    if (!r.ok) return;
+    // As for a drone's log (drones.js loadLog): an older answer arriving last is stale.
+    if (!r.ok || this.latestLoad.get(id) !== fetch) return;
     const { log, ...record } = r.data;
     this.fleet.setMissionLog(id, log, sentAt);
     this.fleet.onMission(record);
