@@ -465,6 +465,32 @@ async def test_a_restarted_ground_is_announced_and_the_page_recovers_without_rel
     assert dashboard.errors == []
 
 
+class HeldAnswer:
+    """The first request matching a pattern is answered with what the ground said when
+    it came, but only once `release` is set; later ones go through: an older fetch
+    whose answer arrives last."""
+
+    def __init__(self) -> None:
+        self.fetched, self.release = asyncio.Event(), asyncio.Event()
+        self.requests = 0
+
+    @classmethod
+    async def on(cls, page: Page, pattern: re.Pattern[str]) -> HeldAnswer:
+        held = cls()
+        await page.route(pattern, held._handle)
+        return held
+
+    async def _handle(self, route: Route) -> None:
+        self.requests += 1
+        if self.requests > 1:
+            await route.continue_()
+            return
+        response = await route.fetch()
+        self.fetched.set()
+        await self.release.wait()
+        await route.fulfill(response=response)
+
+
 @pytest.mark.slow(20)
 async def test_an_older_log_fetch_that_answers_last_does_not_wipe_newer_lines(dashboard: Dashboard, tmp_path: Path) -> None:
     """The selected drone's log is fetched again on each reconnection and whenever the
@@ -480,28 +506,15 @@ async def test_an_older_log_fetch_that_answers_last_does_not_wipe_newer_lines(da
         await page.locator("#drone-list li[data-drone=drone01]").click()
         await expect(page.locator("#drone-log li", has_text="drone01 - Registered")).to_have_count(1, timeout=UI_S * 1000)
 
-        fetched_old, release = asyncio.Event(), asyncio.Event()
-        routes: list[Route] = []
-
-        async def hold_the_first(route: Route) -> None:
-            routes.append(route)
-            if len(routes) > 1:
-                await route.continue_()
-                return
-            response = await route.fetch()  # the log as the ground has it now, before the arm
-            fetched_old.set()
-            await release.wait()
-            await route.fulfill(response=response)
-
-        await page.route(re.compile(r"/drone/logs\?"), hold_the_first)
+        held = await HeldAnswer.on(page, re.compile(r"/drone/logs\?"))
         older = asyncio.ensure_future(page.evaluate("() => window.fleetDashboard.drones.loadLog()"))
-        await asyncio.wait_for(fetched_old.wait(), UI_S)
+        await asyncio.wait_for(held.fetched.wait(), UI_S)  # the log as the ground has it now, before the arm
         async with httpx.AsyncClient(base_url=fleet.ground.url, timeout=10) as http:
             assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
         armed = page.locator("#drone-log li", has_text="drone01 - Success on arm")
         await expect(armed).to_have_count(1, timeout=UI_S * 1000)  # from the stream
         await page.evaluate("() => window.fleetDashboard.drones.loadLog()")  # the newer fetch: it has the line
-        release.set()
+        held.release.set()
         await asyncio.wait_for(older, UI_S)  # the older answer has been handled
         shown = "() => window.fleetDashboard.fleet.drones.get('drone01').log.map(l => l.text)"
         assert any("Success on arm" in line for line in await page.evaluate(shown)), await page.evaluate(shown)
@@ -523,22 +536,9 @@ async def test_an_older_mission_fetch_that_answers_last_does_not_wipe_newer_line
         await page.evaluate("id => window.fleetDashboard.missions.select(id)", mission_id)
         messages = "id => (window.fleetDashboard.fleet.missionLogs.get(id) || []).map(l => l.message)"
 
-        fetched_old, release = asyncio.Event(), asyncio.Event()
-        routes: list[Route] = []
-
-        async def hold_the_first(route: Route) -> None:
-            routes.append(route)
-            if len(routes) > 1:
-                await route.continue_()
-                return
-            response = await route.fetch()
-            fetched_old.set()
-            await release.wait()
-            await route.fulfill(response=response)
-
-        await page.route(re.compile(rf"/mission/{mission_id}$"), hold_the_first)
+        held = await HeldAnswer.on(page, re.compile(rf"/mission/{mission_id}$"))
         older = asyncio.ensure_future(page.evaluate("id => window.fleetDashboard.missions.load(id)", mission_id))
-        await asyncio.wait_for(fetched_old.wait(), UI_S)
+        await asyncio.wait_for(held.fetched.wait(), UI_S)
         before = len((await http.get(f"/mission/{mission_id}")).json()["log"])
 
         async def ticked_on() -> bool:  # lines the held answer does not have
@@ -546,7 +546,7 @@ async def test_an_older_mission_fetch_that_answers_last_does_not_wipe_newer_line
         await until(ticked_on, UI_S, "three more ticks")
         await page.evaluate("id => window.fleetDashboard.missions.load(id)", mission_id)  # the newer fetch
         newest = (await page.evaluate(messages, mission_id))[-1]
-        release.set()
+        held.release.set()
         await asyncio.wait_for(older, UI_S)
         assert newest in await page.evaluate(messages, mission_id), newest
         assert (await http.delete(f"/mission/{mission_id}")).status_code == 200
