@@ -26,22 +26,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx  # noqa: E402
 
-from bench.procstat import cpu_seconds, rss_mib  # noqa: E402
+from bench.procstat import children, cpu_seconds, rss_mib  # noqa: E402
 from tests.harness import GroundFleet, ended, record, submit  # noqa: E402
 from tests.helpers import until  # noqa: E402
-
-
-def children(pid: int) -> list[int]:
-    out = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid:
-                out.append(int(entry.name))
-    return out
 
 
 async def running(http: httpx.AsyncClient, mission_id: str) -> bool:

@@ -39,6 +39,7 @@ FIELD_ALT = 8.2
 # lost the ground together for ~10 s, twice, and a command to a drone 55 m out went
 # unanswered for 3 s (full-suite runs of 2026-11-23); each passes alone.
 RADIO_SLOTS = 2
+SIM_STOP_S = CHILDREN_STOP_S + 10  # `fleet sim --radio` gives its agents CHILDREN_STOP_S, then takes the radio down
 SLOT_WAIT_S = 240
 
 
@@ -88,8 +89,7 @@ class RadioSim(ChildProcess):
         assert self.proc is not None
         return self.proc.pid
 
-    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = CHILDREN_STOP_S + 10) -> int | None:
-        """The sim gives its agents CHILDREN_STOP_S to stop before it kills them."""
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = SIM_STOP_S) -> int | None:
         return super().stop(sig, timeout_s)
 
     def netns(self, drone_id: str) -> str:
@@ -568,7 +568,7 @@ def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -
         _wait_sync(lambda: f"fleet-{second.pid}-air" in list_netns(), 30, "the second run's namespaces")
         assert fleet_resources(killed.pid) == []
     finally:
-        signal_and_wait(second, signal.SIGINT, CHILDREN_STOP_S + 10, "the second fleet sim --radio")
+        signal_and_wait(second, signal.SIGINT, SIM_STOP_S, "the second fleet sim --radio")
     assert fleet_resources(second.pid) == []
 
 

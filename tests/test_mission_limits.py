@@ -12,17 +12,15 @@ mission are released.
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 import time
 from collections.abc import AsyncIterator, Iterator
-from pathlib import Path
 
 import httpx
 import pytest
 
-from bench.procstat import rss_mib
+from bench.procstat import children, rss_mib
 from tests.harness import GroundFleet, ended, record, seq_above, submit, telemetry_seq
 from tests.helpers import until
 
@@ -122,16 +120,6 @@ async def test_a_mission_stuck_in_c_code_is_cancelled_and_its_drone_released(htt
     assert (await record(http, lander))["used_drones"] == ["drone02"]
 
 
-def _children(pid: int) -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            with contextlib.suppress(OSError):
-                if int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    found.append(int(entry.name))
-    return found
-
-
 @pytest.mark.slow(15)
 async def test_a_worker_killed_from_outside_is_not_called_over_its_limits(fleet: GroundFleet, http: httpx.AsyncClient) -> None:
     """The kernel's OOM killer (or an operator) sends SIGKILL; RLIMIT_CPU ends a worker
@@ -141,7 +129,7 @@ async def test_a_worker_killed_from_outside_is_not_called_over_its_limits(fleet:
     mission_id = await submit(http, "sleep(600*s)\n", "waits")
 
     def worker() -> int | None:  # the ground's fork server's child: this mission's process
-        workers = [w for server in _children(ground_pid) for w in _children(server)]
+        workers = [w for server in children(ground_pid) for w in children(server)]
         return workers[0] if len(workers) == 1 else None
 
     os.kill(await until(worker, 20, "the mission's worker process"), signal.SIGKILL)
