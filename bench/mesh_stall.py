@@ -1,0 +1,280 @@
+"""A healthy drone beside a failing neighbour (issue 30): does the mesh keep it heard?
+
+    .venv/bin/python bench/mesh_stall.py [--runs 20] [--scenario lossy|frozen|both]
+
+Needs CAP_NET_ADMIN (root), like `fleet sim --radio`. Topology on the emulated radio
+(default model, good to 60 m, lost at 100 m), all on one line north of the laptop:
+H (healthy) 20 m out, R (relay) 55 m out, F (far) 105 m out, reached only through R.
+Each is a real `fleet agent --fc sim` (5 Hz telemetry) in its own namespace; the
+ground is a router in this process, configured as `fleet ground`'s.
+
+- `lossy`: R flies out to 92 m and back at 5 m/s (its hop to the laptop turns lossy,
+  up to 80 %; its hops to H and F change with it), the loss rules following at 5 Hz.
+- `frozen`: R's agent is stopped (SIGSTOP, a neighbour that stops reading) for 20 s.
+
+For H, measured at the ground over each run: the longest gap between telemetry
+samples, whether its liveliness token was lost (the ground would mark it `unknown`
+and log `Link lost`), and whether its link to the ground closed. Prints one line per
+run and the rates; exits 1 if any run fails the issue's bar (gap ≥ 1.5 s, a token
+loss or a link closed), so the bench fails loudly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bus.port import Sample, echo  # noqa: E402
+from bus.zenoh_bus import ZenohBus  # noqa: E402
+from schemas.keys import Keys  # noqa: E402
+from sim.radio import GROUND, RadioModel  # noqa: E402
+from sim.radio_net import RadioNet, RadioUnavailable, die_with_parent  # noqa: E402
+
+GROUND_PORT = 7447
+DEADLINE_S = 40.0  # for the mesh to be whole again between runs
+GAP_BAR_S = 1.5  # the issue's bar at 5 Hz
+UPDATE_S = 0.2  # loss rules follow the positions at 5 Hz, as `fleet sim --radio`
+HOME = {"H": 20.0, "R": 55.0, "F": 105.0}  # metres north of the laptop
+OUT_M, SPEED = 92.0, 5.0
+FROZEN_S = 20.0
+
+
+@dataclass
+class Run:
+    scenario: str
+    gap_s: float = 0.0
+    token_lost: int = 0
+    link_closed: int = 0
+    far_gap_s: float = 0.0  # F, through R: context, not judged
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.gap_s < GAP_BAR_S and not self.token_lost and not self.link_closed
+
+
+class Field:
+    """The ground's view of H, R and F on one radio."""
+
+    def __init__(self, net: RadioNet, ground: ZenohBus, workdir: Path, model: RadioModel) -> None:
+        self.net, self.ground, self.workdir, self.model = net, ground, workdir, model
+        self.agents: dict[str, subprocess.Popen[bytes]] = {}
+        self.last_telem: dict[str, float] = {}
+        self.gaps: dict[str, float] = {}
+        self.token_losses: dict[str, int] = {}
+        self.alive: set[str] = set()
+        self.h_zid = ""
+        ground.subscribe("drone/*/telem", self._on_telem)
+        ground.watch_liveliness("drone/*/alive", self._on_alive)
+
+    def _on_telem(self, sample: Sample) -> None:
+        drone = sample.key.split("/")[1]
+        now = time.monotonic()
+        last = self.last_telem.get(drone)
+        if last is not None:
+            self.gaps[drone] = max(self.gaps.get(drone, 0.0), now - last)
+        self.last_telem[drone] = now
+        json.loads(sample.payload)  # decoded as the ground does
+
+    def _on_alive(self, key: str, alive: bool) -> None:
+        drone = key.split("/")[1]
+        if alive:
+            self.alive.add(drone)
+        else:
+            self.alive.discard(drone)
+            self.token_losses[drone] = self.token_losses.get(drone, 0) + 1
+
+    def start_agent(self, drone: str) -> None:
+        cfg = self.workdir / f"{drone}.yml"
+        cfg.write_text("telemetry_rate_ms: 200\nprobe_period_ms: 500\nprobe_window: 6\n")
+        fleet = str(Path(sys.executable).with_name("fleet"))
+        env = dict(os.environ)
+        self.agents[drone] = subprocess.Popen(
+            [*self.net.exec_args(drone), fleet, "agent", "--id", drone, "--fc", "sim", "--config", str(cfg),
+             "--connect", f"tcp/{self.net.ground_address}:{GROUND_PORT}", "--listen", "tcp/0.0.0.0:7448",
+             "--mesh-interface", "radio0"],
+            stdout=open(self.workdir / f"{drone}.out", "ab"), stderr=open(self.workdir / f"{drone}.log", "ab"),
+            preexec_fn=die_with_parent, env=env,
+        )
+
+    def stop_all(self) -> None:
+        for proc in self.agents.values():
+            proc.send_signal(signal.SIGCONT)
+            proc.terminate()
+        for proc in self.agents.values():
+            try:
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    def place(self, north: dict[str, float]) -> None:
+        """Loss of every pair from the nodes' distances along the line (the laptop at 0)."""
+        where = {GROUND: 0.0, **north}
+        names = sorted(where)
+        self.net.apply({
+            (a, b): self.model.loss_steps(abs(where[a] - where[b]))
+            for i, a in enumerate(names) for b in names[i + 1:]
+        })
+
+    def ground_links(self) -> int:
+        return len(list(self.ground._session.info.routers_zid()))
+
+    async def wait(self, predicate: Callable[[], bool], what: str, deadline_s: float = DEADLINE_S) -> None:
+        deadline = time.monotonic() + deadline_s
+        while not predicate():
+            if time.monotonic() > deadline:
+                raise SystemExit(f"bench: {what} not within {deadline_s:g} s")
+            await asyncio.sleep(0.02)
+
+    def fresh(self, drone: str, within_s: float = 0.5) -> bool:
+        return time.monotonic() - self.last_telem.get(drone, 0.0) < within_s
+
+    async def whole(self) -> None:
+        """Every node heard, H and R linked directly, F's telemetry through R."""
+        self.place(HOME)
+        await self.wait(lambda: {"H", "R", "F"} <= self.alive and all(self.fresh(d) for d in "HRF")
+                        and self.ground_links() == 2, "the mesh whole (H, R direct; F through R)")
+        # H's link steady for 2 s before a run: the measurement starts from a healthy mesh.
+        t0 = time.monotonic()
+        await self.wait(lambda: time.monotonic() - t0 > 2.0 and self.fresh("H"), "H steady")
+
+    def reset_counters(self) -> None:
+        self.gaps.clear()
+        self.token_losses.clear()
+
+
+async def lossy_run(fld: Field, run: Run) -> None:
+    """R out to 92 m and back; H's link may never close (R's may)."""
+    h_links = HLink(fld)
+    r = HOME["R"]
+    t_out = (OUT_M - r) / SPEED
+    t0 = time.monotonic()
+    while True:
+        t = time.monotonic() - t0
+        if t > 2 * t_out + 3.0:
+            break
+        if t < t_out:
+            pos = r + SPEED * t
+        elif t < t_out + 3.0:
+            pos = OUT_M
+        else:
+            pos = max(r, OUT_M - SPEED * (t - t_out - 3.0))
+        fld.place({**HOME, "R": pos})
+        h_links.poll()
+        await asyncio.sleep(UPDATE_S)
+    fld.place(HOME)
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
+        h_links.poll()
+        await asyncio.sleep(UPDATE_S)
+    run.link_closed = h_links.closed
+
+
+async def frozen_run(fld: Field, run: Run) -> None:
+    h_links = HLink(fld)
+    proc = fld.agents["R"]
+    proc.send_signal(signal.SIGSTOP)
+    try:
+        end = time.monotonic() + FROZEN_S
+        while time.monotonic() < end:
+            h_links.poll()
+            await asyncio.sleep(UPDATE_S)
+    finally:
+        proc.send_signal(signal.SIGCONT)
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
+        h_links.poll()
+        await asyncio.sleep(UPDATE_S)
+    run.link_closed = h_links.closed
+
+
+class HLink:
+    """Whether the ground's transport to H closed during a run: H's ZID leaves the
+    ground's routers (polled at 5 Hz; a closed link reopens in no less than ~0.5 s,
+    its redial period, so a close is seen)."""
+
+    def __init__(self, fld: Field) -> None:
+        self.fld = fld
+        self.zid = fld.h_zid
+        self.closed = 0
+        self._present = True
+
+    def poll(self) -> None:
+        present = self.zid in {str(z) for z in self.fld.ground._session.info.routers_zid()}
+        if self._present and not present:
+            self.closed += 1
+        self._present = present
+
+
+async def main(runs: int, scenarios: list[str], keep: Path | None) -> int:
+    model = RadioModel()
+    with RadioNet(["H", "R", "F"], model) as net, tempfile.TemporaryDirectory(prefix="fleet-stall-") as tmp:
+        workdir = keep or Path(tmp)
+        workdir.mkdir(parents=True, exist_ok=True)
+        ground = await ZenohBus.open("router", listen=[f"tcp/{net.ground_address}:{GROUND_PORT}"])
+        ground.serve(Keys().ground_ping(), echo)
+        ground.announce(Keys().ground_alive())
+        fld = Field(net, ground, workdir, model)
+        results: list[Run] = []
+        try:
+            fld.place(HOME)
+            fld.start_agent("H")
+            await fld.wait(lambda: fld.ground_links() == 1, "H linked to the ground")
+            fld.h_zid = str(next(iter(ground._session.info.routers_zid())))
+            fld.start_agent("R")
+            fld.start_agent("F")
+            print(f"radio {net.subnet}, model good {model.good_m:g} m / lost {model.lost_m:g} m; "
+                  f"{runs} run(s) of {', '.join(scenarios)}", flush=True)
+            for scenario in scenarios:
+                for i in range(1, runs + 1):
+                    await fld.whole()
+                    fld.reset_counters()
+                    run = Run(scenario)
+                    await (lossy_run if scenario == "lossy" else frozen_run)(fld, run)
+                    run.gap_s = max(fld.gaps.get("H", 0.0), time.monotonic() - fld.last_telem.get("H", 0.0))
+                    run.token_lost = fld.token_losses.get("H", 0)
+                    run.far_gap_s = fld.gaps.get("F", 0.0)
+                    results.append(run)
+                    print(f"  {scenario:6s} run {i:2d}: H's longest gap {run.gap_s:5.2f} s, token lost {run.token_lost}, "
+                          f"link closed {run.link_closed}  (F through R: longest gap {run.far_gap_s:5.2f} s)"
+                          f"{'' if run.ok else '  FAIL'}", flush=True)
+        finally:
+            fld.stop_all()
+            await ground.close()
+    failed = 0
+    for scenario in scenarios:
+        mine = [r for r in results if r.scenario == scenario]
+        ok = sum(r.ok for r in mine)
+        failed += len(mine) - ok
+        gaps = [r.gap_s for r in mine]
+        print(f"{scenario}: {ok}/{len(mine)} runs kept H heard (gap < {GAP_BAR_S:g} s, no token lost, no link closed); "
+              f"H's gap p50 {statistics.median(gaps):.2f} s, max {max(gaps):.2f} s; "
+              f"token lost in {sum(bool(r.token_lost) for r in mine)}, link closed in {sum(bool(r.link_closed) for r in mine)}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--runs", type=int, default=20, help="runs per scenario")
+    parser.add_argument("--scenario", choices=["lossy", "frozen", "both"], default="both")
+    parser.add_argument("--keep", type=Path, help="keep the agents' logs here (RUST_LOG=... adds Zenoh's)")
+    args = parser.parse_args()
+    chosen = ["lossy", "frozen"] if args.scenario == "both" else [args.scenario]
+    try:
+        sys.exit(asyncio.run(main(args.runs, chosen, args.keep)))
+    except RadioUnavailable as exc:
+        raise SystemExit(f"bench/mesh_stall.py: {exc}") from None
