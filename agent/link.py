@@ -79,27 +79,36 @@ Decision = tuple[Literal["link_lost", "failsafe", "link_restored"], str | None]
 class LostLink:
     """When the ground has been silent for `timeout_s`: lost, act; hold → return later.
 
-    `contact(now)` is any sign of the ground (an answered probe); `tick(now, flying)`
-    runs often. Decisions: ("link_lost", None), ("failsafe", action),
-    ("link_restored", summary). Acting only happens in the air; a drone on the ground
-    reports the loss and stays put. What was said while the ground was gone never
-    reached it, so the restore's summary repeats it: how long, and what the drone did.
+    `contact(now)` is any sign of the ground (an answered probe, a command signed by
+    the ground); `tick(now, flying)` runs often. Decisions: ("link_lost", None),
+    ("failsafe", action), ("link_restored", summary). What was said while the ground
+    was gone never reached it, so the restore's summary repeats it: how long, and
+    what the drone did.
+
+    As autopilots do it (PX4's data-link check, ArduPilot's GCS failsafe; SPEC §8):
+    - armed only once the ground has been heard since the start: an agent on a mesh
+      with no ground, commanded directly by a Zenoh client, flies on;
+    - acting only in the air: a drone on the ground (or disarmed) reports the loss
+      and stays put; if it is flown while the loss lasts, the failsafe acts then;
+    - the hold → return time counts from when the hold was taken in the air.
 
     At the edge of range a link flaps. An outage therefore ends only after contact
     has held steadily for `timeout_s` - no silence longer than `steady_gap_s` (two
     probe periods: one lost probe is tolerated) since the restore. Until then a new
-    loss continues the same outage, the hold → return timer keeps counting from its
-    first loss, and no failsafe repeats.
+    loss continues the same outage, the hold → return timer keeps counting from the
+    hold, and no failsafe repeats.
     """
 
     def __init__(self, policy: LostLinkPolicy, now: float, steady_gap_s: float = 2.0) -> None:
         self.policy = policy
         self.steady_gap_s = steady_gap_s
         self.last_contact = now
+        self.heard = False  # the ground answered once since the start: the failsafe is armed
         self.lost = False
         self.acted: LostLinkAction | None = None
         self.actions: list[LostLinkAction] = []  # taken during this outage
         self._outage_at: float | None = None  # first loss of the open outage
+        self._acted_at: float | None = None  # when this outage's first action was taken in the air
         self._restored_at = 0.0
         self._steady = True  # no silence over steady_gap_s since the restore
 
@@ -110,6 +119,7 @@ class LostLink:
     def contact(self, now: float) -> list[Decision]:
         silent_s = now - self.last_contact
         self.last_contact = now
+        self.heard = True
         if not self.lost:
             self._steady = self._steady and silent_s <= self.steady_gap_s
             return []
@@ -119,20 +129,24 @@ class LostLink:
         summary = f"after {silent_s:.1f} s without the ground; failsafe: {', '.join(self.actions) or 'none'}"
         return [("link_restored", summary)]
 
-    def acted_alone(self, action: LostLinkAction) -> None:
+    def acted_alone(self, action: LostLinkAction, now: float) -> None:
         """The drone already did `action` for this outage (a bundle's own link-loss
         policy): no failsafe repeats it, and a hold still turns into a return later."""
         self.acted = action
+        self._acted_at = now
         self.actions.append(action)
 
     def tick(self, now: float, flying: bool) -> list[Decision]:
         p = self.policy
         decisions: list[Decision] = []
+        if not self.heard:  # no ground on this mesh yet: nothing to lose
+            return decisions
         if not self.lost:
             if now - self.last_contact < p.timeout_s:
                 self._steady = self._steady and now - self.last_contact <= self.steady_gap_s
                 if self._outage_at is not None and self._steady and now - self._restored_at >= p.timeout_s:
-                    self._outage_at, self.acted, self.actions = None, None, []  # steady again
+                    # steady again: the outage is over
+                    self._outage_at, self._acted_at, self.acted, self.actions = None, None, None, []
                 return decisions
             self.lost = True
             if self._outage_at is None:
@@ -140,10 +154,9 @@ class LostLink:
             decisions.append(("link_lost", None))
         if not flying:
             return decisions
-        assert self._outage_at is not None
         if self.acted is None and p.action != "continue":
-            self.acted = p.action
-        elif self.acted == "hold" and now - self._outage_at >= p.return_after_s:
+            self.acted, self._acted_at = p.action, now
+        elif self.acted == "hold" and self._acted_at is not None and now - self._acted_at >= p.return_after_s:
             self.acted = "return"
         else:
             return decisions

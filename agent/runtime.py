@@ -113,6 +113,12 @@ class Agent:
             # meanwhile is gone (ADR 0003). Statuses from then on are sent again.
             self._tell_what_happened_unheard(gap_began_ms - period_ms)
 
+    def _signed_by_the_ground(self) -> None:
+        """A command or bundle that passed the ground's signature is contact (SPEC §8),
+        as an answered probe is. Unsigned ones could come from any client of the mesh."""
+        if self.verifier is not None:
+            self._on_ground_contact(self.clock.monotonic())
+
     def _tell_what_happened_unheard(self, since_ms: int) -> None:
         """Command statuses published while the ground may not have heard them, again: a
         mission waiting for a command's end learns it (the ground ignores repeats)."""
@@ -137,7 +143,7 @@ class Agent:
                     self._system(decision, f"no answer from the ground for {self.config.lost_link.timeout_s:g} s")
                     policy = self.bundles.end_for_link_loss()
                     if policy is not None:  # the bundle's own policy, instead of the agent's
-                        self.lost_link.acted_alone(policy)  # type: ignore[arg-type]
+                        self.lost_link.acted_alone(policy, self.clock.monotonic())  # type: ignore[arg-type]
                         self._system("failsafe", policy)
             await self.clock.sleep(LOST_LINK_TICK_S)
 
@@ -228,6 +234,7 @@ class Agent:
         wrong = self._not_mine(bundle.wire.drone_id) or self._unauthenticated(bundle.wire, bundle.bundle_id)
         if wrong is not None:
             return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong))
+        self._signed_by_the_ground()
         return encode(self.bundles.submit(bundle))
 
     async def _on_command(self, key: str, payload: bytes) -> bytes:
@@ -239,6 +246,7 @@ class Agent:
         wrong = self._not_mine(cmd.drone_id) or self._unauthenticated(cmd, cmd.command_id)
         if wrong is not None:
             return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong))
+        self._signed_by_the_ground()
         if not cmd.command_id:
             cmd = msgspec.structs.replace(cmd, command_id=str(uuid.uuid4()))
         reply = self.handler.submit(cmd)

@@ -1,14 +1,17 @@
 """The Bus on a real Eclipse Zenoh session (eclipse-zenoh 1.10).
 
 Configuration follows what was measured on these machines (SPEC §2, ADR 0003): every
-node announces a 2 s lease so a silent drone's liveliness vanishes in ≈ 2 s;
+node announces a 4 s lease so a silent drone's liveliness vanishes in ≈ 4 s (a
+killed one's at once) while a read loop held for a moment does not close a healthy link;
 multicast scouting is off unless a mesh interface is named; peers do not gossip (so
 traffic goes through the routers and their access rules); a router opens with no
 scouting delay. A router that also connects out (a drone's agent, a mesh node) never
 waits for the ground at open, retries it every second, and connects to the routers
 it learns of by gossip (and by multicast scouting on `mesh_interface`), so the
 routers form a link-state mesh that carries a drone's traffic through a neighbour. Telemetry goes out
-with congestion control DROP, everything else with BLOCK. Callbacks run on Zenoh
+with congestion control DROP, everything else with BLOCK from the publisher; every router
+then forwards data and queries with DROP and gives up a blocked push in 0.5 s (ADR 0003:
+nothing that crosses the radio may hold a router). Callbacks run on Zenoh
 threads: they only hand off into bounded inboxes or the loop and return.
 """
 
@@ -17,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import os
 import re
 from collections.abc import Sequence
 from typing import Any, Literal
@@ -37,7 +41,15 @@ from bus.port import (
 
 log = logging.getLogger(__name__)
 Mode = Literal["client", "peer", "router"]
-DEFAULT_LEASE_MS = 2000
+DEFAULT_LEASE_MS = 4000  # measured: 2 s expired healthy links beside a lossy hop (ADR 0003)
+BLOCK_WAIT_US = 500_000  # a blocked push gives up after 0.5 s (Zenoh's default: 5 s)
+QUEUE_BATCHES = 16  # per priority, Zenoh's maximum (default 2)
+_PRIORITIES = ("control", "real_time", "interactive_high", "interactive_low", "data_high", "data", "data_low", "background")
+# Zenoh forwards a message on the receiving link's thread; by default 2 such threads
+# serve every link, so two pushes waiting on one bad neighbour starve every other link.
+# Read once when Zenoh starts its runtimes: set before it does; an operator's wins.
+RX_THREADS = 4
+os.environ.setdefault("ZENOH_RUNTIME", f"(rx: (worker_threads: {RX_THREADS}))")
 
 # Zenoh's own log (links opening and closing, why a connect failed) goes to stdout when
 # RUST_LOG asks for it, e.g. RUST_LOG=zenoh=debug; errors only otherwise.
@@ -86,6 +98,19 @@ def zenoh_config(
             put("scouting/multicast/autoconnect", {"router": ["router"], "peer": ["router", "peer"]})
     if mode == "peer":
         put("scouting/gossip/enabled", False)
+    if mode == "router":
+        # Nothing a router forwards may hold it for long (ADR 0003, bench/mesh_stall.py):
+        # a push that finds no room towards a neighbour that stopped reading gives up
+        # (and closes that link) in 0.5 s, well inside the lease, instead of 5 s;
+        # deeper queues absorb a burst before anything waits; and data and queries
+        # are dropped rather than waited for when a link is congested (what must not
+        # be lost is caught up end to end: statuses repeated, bundle records read).
+        put("transport/link/tx/queue/congestion_control/block/wait_before_close", BLOCK_WAIT_US)
+        put("transport/link/tx/queue/size", dict.fromkeys(_PRIORITIES, QUEUE_BATCHES))
+        put("qos/network", [{
+            "id": "radio-never-blocks", "messages": ["put", "delete", "query"], "flows": ["egress"],
+            "overwrite": {"congestion_control": "drop"},
+        }])
     for path, value in (extra or {}).items():
         put(path, value)
     return conf
@@ -126,6 +151,7 @@ class ZenohBus:
         self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
         self._decls: list[_Declared] = []
         self._query_tasks: set[asyncio.Task[None]] = set()
+        self._closed = False
 
     @classmethod
     async def open(
@@ -269,6 +295,10 @@ class ZenohBus:
         return decl
 
     async def close(self) -> None:
+        """Undeclare everything and close the session; a second call does nothing."""
+        if self._closed:
+            return
+        self._closed = True
         for task in list(self._query_tasks):
             task.cancel()
         for decl in reversed(self._decls):

@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from bus.zenoh_bus import ZenohBus
-from tests.harness import AgentProcess, Operator, open_ground_router
+from tests.harness import AgentProcess, Operator, SimProcess, open_ground_router
 from tests.helpers import free_port
 
 
@@ -90,3 +90,17 @@ def agents(endpoint: str, tmp_path: Path) -> Iterator[Callable[..., AgentProcess
 @pytest.fixture
 def operator(client: ZenohBus) -> Callable[[str], Operator]:
     return lambda drone_id: Operator(client, drone_id)
+
+
+@pytest.fixture(params=["sim", "mavsdk"])
+def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """The `--fc` URL of each adapter under test: the built-in simulated vehicle, and
+    real libmavsdk talking UDP to `fleet sim` (a PX4-like MAVLink vehicle)."""
+    if request.param == "sim":
+        yield "sim"
+        return
+    sim = SimProcess(tmp_path)
+    try:
+        yield sim.fc_url()
+    finally:
+        sim.stop()

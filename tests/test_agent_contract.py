@@ -1,21 +1,21 @@
 """The agent contract (SPEC §2–§3) over real Zenoh: a router in this process,
 `fleet agent` as a subprocess, commands as real queries.
 
-`flight_controller` is parametrized per adapter; every test here runs unchanged
-against each of them.
+`flight_controller` (tests/conftest.py) is parametrized per adapter; every test here
+runs unchanged against each of them.
 """
 
 from __future__ import annotations
 
 import json
 import statistics
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
-from tests.harness import AgentProcess, Operator, SimProcess
+from tests.harness import AgentProcess, Operator
 from tests.helpers import until
 
 pytestmark = pytest.mark.integration
@@ -31,20 +31,6 @@ NESTED = {
     "position": {"lat", "lon", "alt", "rel_alt"},
     "velocity": {"north", "east", "down"},
 }
-
-
-@pytest.fixture(params=["sim", "mavsdk"])
-def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
-    """The `--fc` URL of each adapter under test: the built-in simulated vehicle, and
-    real libmavsdk talking UDP to `fleet sim` (a PX4-like MAVLink vehicle)."""
-    if request.param == "sim":
-        yield "sim"
-        return
-    sim = SimProcess(tmp_path)
-    try:
-        yield sim.fc_url()
-    finally:
-        sim.stop()
 
 
 @pytest.mark.slow(50)

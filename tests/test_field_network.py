@@ -446,10 +446,10 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
     assert any("Bundle b-" in line and "done (4 steps)" in line for line in one[caught:]), "\n".join(one[lost:])
     assert "link lost while it runs bundle" in log_one and "link restored, the mission goes on" in log_one, log_one
     assert "bundle done at step 4" in log_one, log_one
-    # drone02 turned home when its link dropped (the ground lost it too, for a while),
-    # and the mission still got its record.
+    # drone02 turned home when its probes to the ground went unanswered, and the mission
+    # still got its record. Whether the ground also dropped its (lossy, still open) link
+    # for a while depends on the 4 s lease against the radio: not asserted (ADR 0003).
     assert "bundle ended at step 2: link_lost" in log_two, log_two
-    index_of(two, "Link lost")
     index_of(two, "ended by link lost (on_link_loss=return) at step 2")
     assert distance_m(*north(-4), home_two["lat"], home_two["lon"]) < 5, home_two
 

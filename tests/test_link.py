@@ -31,6 +31,7 @@ def test_quality_falls_with_rtt_and_is_zero_without_answers() -> None:
 
 def test_lost_link_holds_then_returns_and_reports_on_restore() -> None:
     ll = LostLink(LostLinkPolicy(timeout_s=5, action="hold", return_after_s=30), now=0.0)
+    ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(4.9, flying=True) == []
     assert ll.tick(5.0, flying=True) == [("link_lost", None), ("failsafe", "hold")]
     assert ll.tick(20.0, flying=True) == []
@@ -43,6 +44,7 @@ def test_lost_link_holds_then_returns_and_reports_on_restore() -> None:
 
 def test_a_flapping_link_continues_one_outage() -> None:
     ll = LostLink(LostLinkPolicy(timeout_s=3, action="hold", return_after_s=10), now=0.0)
+    ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(3.0, flying=True) == [("link_lost", None), ("failsafe", "hold")]
     assert ll.contact(4.0)[0][0] == "link_restored"  # one probe got through
     assert ll.tick(7.0, flying=True) == [("link_lost", None)]  # lost again: no second hold
@@ -51,6 +53,7 @@ def test_a_flapping_link_continues_one_outage() -> None:
 
 def test_steady_contact_closes_the_outage() -> None:
     ll = LostLink(LostLinkPolicy(timeout_s=3, action="land"), now=0.0)
+    ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(3.0, flying=True) == [("link_lost", None), ("failsafe", "land")]
     ll.contact(4.0)
     for t in (5.0, 6.0, 7.0):
@@ -65,6 +68,7 @@ def test_sparse_contact_at_the_edge_of_range_does_not_close_the_outage() -> None
     next loss continues the outage, so the hold does not repeat and the return is due
     from the first loss."""
     ll = LostLink(LostLinkPolicy(timeout_s=3, action="hold", return_after_s=6), now=0.0, steady_gap_s=2.0)
+    ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(3.0, flying=True) == [("link_lost", None), ("failsafe", "hold")]
     assert ll.contact(3.2)[0][0] == "link_restored"
     ll.contact(5.5)  # 2.3 s of silence in between
@@ -75,13 +79,34 @@ def test_sparse_contact_at_the_edge_of_range_does_not_close_the_outage() -> None
 
 def test_on_the_ground_the_loss_is_reported_but_nothing_is_done() -> None:
     ll = LostLink(LostLinkPolicy(timeout_s=2, action="return"), now=0.0)
+    ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(2.0, flying=False) == [("link_lost", None)]
     assert ll.tick(9.0, flying=False) == []
 
 
 def test_continue_never_acts() -> None:
     ll = LostLink(LostLinkPolicy(timeout_s=1, action="continue", return_after_s=0), now=0.0)
+    ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(100.0, flying=True) == [("link_lost", None)]
+
+
+def test_without_a_ground_ever_heard_the_failsafe_never_arms() -> None:
+    """An agent on a mesh with no ground, commanded directly over Zenoh (SPEC §8)."""
+    ll = LostLink(LostLinkPolicy(timeout_s=5, action="hold", return_after_s=30), now=0.0)
+    for t in (5.0, 6.0, 40.0, 200.0):
+        assert ll.tick(t, flying=t > 5.5) == []
+    ll.contact(201.0)  # a ground appears: from now on a loss counts
+    assert ll.tick(206.0, flying=True) == [("link_lost", None), ("failsafe", "hold")]
+
+
+def test_a_loss_on_the_ground_acts_only_once_in_the_air_and_returns_counting_from_then() -> None:
+    ll = LostLink(LostLinkPolicy(timeout_s=2, action="hold", return_after_s=30), now=0.0)
+    ll.contact(0.0)
+    assert ll.tick(2.0, flying=False) == [("link_lost", None)]
+    assert ll.tick(50.0, flying=False) == []  # disarmed on the ground: nothing done
+    assert ll.tick(60.0, flying=True) == [("failsafe", "hold")]  # flown while lost
+    assert ll.tick(89.9, flying=True) == []  # 30 s from the hold, not from the loss
+    assert ll.tick(90.0, flying=True) == [("failsafe", "return")]
 
 
 def test_radio_model_thesis_defaults() -> None:
