@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
 import signal
 import statistics
 import subprocess
@@ -32,7 +31,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -50,6 +49,7 @@ UPDATE_S = 0.2  # loss rules follow the positions at 5 Hz, as `fleet sim --radio
 HOME = {"H": 20.0, "R": 55.0, "F": 105.0}  # metres north of the laptop
 OUT_M, SPEED = 92.0, 5.0
 FROZEN_S = 20.0
+AFTER_S = 3.0  # watched after R is home or running again
 
 
 class NotWhole(RuntimeError):
@@ -63,7 +63,6 @@ class Run:
     token_lost: int = 0
     link_closed: int = 0
     far_gap_s: float = 0.0  # F, through R: context, not judged
-    notes: list[str] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -105,13 +104,12 @@ class Field:
         cfg = self.workdir / f"{drone}.yml"
         cfg.write_text("telemetry_rate_ms: 200\nprobe_period_ms: 500\nprobe_window: 6\n")
         fleet = str(Path(sys.executable).with_name("fleet"))
-        env = dict(os.environ)
         self.agents[drone] = subprocess.Popen(
             [*self.net.exec_args(drone), fleet, "agent", "--id", drone, "--fc", "sim", "--config", str(cfg),
              "--connect", f"tcp/{self.net.ground_address}:{GROUND_PORT}", "--listen", "tcp/0.0.0.0:7448",
              "--mesh-interface", "radio0"],
             stdout=open(self.workdir / f"{drone}.out", "ab"), stderr=open(self.workdir / f"{drone}.log", "ab"),
-            preexec_fn=die_with_parent, env=env,
+            preexec_fn=die_with_parent,
         )
 
     def stop_all(self) -> None:
@@ -166,29 +164,18 @@ class Field:
 
 
 async def lossy_run(fld: Field, run: Run) -> None:
-    """R out to 92 m and back; H's link may never close (R's may)."""
+    """R out to 92 m, 3 s there, and back; H's link may never close (R's may)."""
     h_links = HLink(fld)
     r = HOME["R"]
     t_out = (OUT_M - r) / SPEED
-    t0 = time.monotonic()
-    while True:
-        t = time.monotonic() - t0
-        if t > 2 * t_out + 3.0:
-            break
-        if t < t_out:
-            pos = r + SPEED * t
-        elif t < t_out + 3.0:
-            pos = OUT_M
-        else:
-            pos = max(r, OUT_M - SPEED * (t - t_out - 3.0))
+
+    def fly(t: float) -> None:
+        pos = r + SPEED * t if t < t_out else OUT_M if t < t_out + 3.0 else max(r, OUT_M - SPEED * (t - t_out - 3.0))
         fld.place({**HOME, "R": pos})
-        h_links.poll()
-        await asyncio.sleep(UPDATE_S)
+
+    await h_links.watch(2 * t_out + 3.0, fly)
     fld.place(HOME)
-    end = time.monotonic() + 3.0
-    while time.monotonic() < end:
-        h_links.poll()
-        await asyncio.sleep(UPDATE_S)
+    await h_links.watch(AFTER_S)
     run.link_closed = h_links.closed
 
 
@@ -197,16 +184,10 @@ async def frozen_run(fld: Field, run: Run) -> None:
     proc = fld.agents["R"]
     proc.send_signal(signal.SIGSTOP)
     try:
-        end = time.monotonic() + FROZEN_S
-        while time.monotonic() < end:
-            h_links.poll()
-            await asyncio.sleep(UPDATE_S)
+        await h_links.watch(FROZEN_S)
     finally:
         proc.send_signal(signal.SIGCONT)
-    end = time.monotonic() + 3.0
-    while time.monotonic() < end:
-        h_links.poll()
-        await asyncio.sleep(UPDATE_S)
+    await h_links.watch(AFTER_S)
     run.link_closed = h_links.closed
 
 
@@ -226,6 +207,14 @@ class HLink:
         if self._present and not present:
             self.closed += 1
         self._present = present
+
+    async def watch(self, seconds: float, step: Callable[[float], None] = lambda t: None) -> None:
+        """Poll every UPDATE_S for `seconds`, calling `step(t)` first (t: seconds since the start)."""
+        t0 = time.monotonic()
+        while (t := time.monotonic() - t0) < seconds:
+            step(t)
+            self.poll()
+            await asyncio.sleep(UPDATE_S)
 
 
 async def measure(runs: int, scenarios: list[str], keep: Path | None = None, *, quiet: bool = False) -> list[Run]:

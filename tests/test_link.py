@@ -48,7 +48,7 @@ def test_a_flapping_link_continues_one_outage() -> None:
     assert ll.tick(3.0, flying=True) == [("link_lost", None), ("failsafe", "hold")]
     assert ll.contact(4.0)[0][0] == "link_restored"  # one probe got through
     assert ll.tick(7.0, flying=True) == [("link_lost", None)]  # lost again: no second hold
-    assert ll.tick(13.0, flying=True) == [("failsafe", "return")]  # 10 s after the first loss
+    assert ll.tick(13.0, flying=True) == [("failsafe", "return")]  # 10 s after the hold (at the first loss)
 
 
 def test_steady_contact_closes_the_outage() -> None:
@@ -66,7 +66,7 @@ def test_steady_contact_closes_the_outage() -> None:
 def test_sparse_contact_at_the_edge_of_range_does_not_close_the_outage() -> None:
     """Probes getting through now and then (as at 85 m) are not a steady link: the
     next loss continues the outage, so the hold does not repeat and the return is due
-    from the first loss."""
+    from the hold (here also the first loss)."""
     ll = LostLink(LostLinkPolicy(timeout_s=3, action="hold", return_after_s=6), now=0.0, steady_gap_s=2.0)
     ll.contact(0.0)  # the ground heard at the start: the failsafe is armed
     assert ll.tick(3.0, flying=True) == [("link_lost", None), ("failsafe", "hold")]
@@ -74,7 +74,7 @@ def test_sparse_contact_at_the_edge_of_range_does_not_close_the_outage() -> None
     ll.contact(5.5)  # 2.3 s of silence in between
     assert ll.tick(6.2, flying=True) == []  # restored 3 s ago, but not steadily
     assert ll.tick(8.5, flying=True) == [("link_lost", None)]  # lost again: no second hold
-    assert ll.tick(9.0, flying=True) == [("failsafe", "return")]  # 6 s after the first loss
+    assert ll.tick(9.0, flying=True) == [("failsafe", "return")]  # 6 s after the hold
 
 
 def test_on_the_ground_the_loss_is_reported_but_nothing_is_done() -> None:
