@@ -44,6 +44,12 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
 
     def __post_init__(self) -> None:
         check_endpoints(connect=self.connect, listen=self.listen)
+        if self.mesh_interface is not None and not any(
+            e.split("/")[0] in ("tcp", "tls") and not e.split("?")[0].split("#")[0].endswith(":0") for e in self.listen
+        ):
+            # Links through a neighbour reach this agent's router on its own port (agent/neighbours.py).
+            raise ValueError("mesh_interface needs a `listen` TCP or TLS endpoint with a fixed port "
+                             f"(e.g. tcp/0.0.0.0:{AGENT_PORT}), got {self.listen}")
 
 
 def default_state_dir(drone_id: str) -> str:

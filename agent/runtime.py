@@ -26,6 +26,7 @@ from agent.fc_port import FcError, FcState, FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
 from agent.link import LostLink, LostLinkAction
+from agent.neighbours import Neighbours
 from agent.prober import LinkProber
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
@@ -43,7 +44,6 @@ log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
 RECENT_STATUSES = 64  # command statuses kept to repeat to a ground that was out of reach
-NEIGHBOUR_SCOUT_PERIOD_S = 1.0
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 GEOFENCE_ID_PREFIX = "geofence-"
@@ -356,31 +356,21 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
             else:
                 async with asyncio.TaskGroup() as tg:
                     tg.create_task(agent.run(), name=f"{drone_id} agent")
-                    tg.create_task(_find_neighbours(agent, config.mesh_interface), name=f"{drone_id} neighbours")
+                    neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
+                                            own_endpoint(config.listen) or "", agent.ground_silent, extra=secured)
+                    tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
         finally:
             await bus.close()
     finally:
         await fc.close()
 
 
-async def _find_neighbours(agent: Agent, interface: str) -> None:
-    """While the ground is silent, scout for neighbours every second (bus/scout_assist.py:
-    Zenoh's own scouting slows to every 8 s, too slow to relink through a drone
-    coming back into range)."""
-    from bus.scout_assist import NeighbourScout
-
-    scout = await NeighbourScout.open(interface)
-    try:
-        silent = False
-        while True:
-            if agent.ground_silent():
-                if not silent:
-                    log.info("%s: the ground is silent; scouting %s for neighbours every %g s",
-                             agent.drone_id, interface, NEIGHBOUR_SCOUT_PERIOD_S)
-                silent = True
-                scout.round()
-            else:
-                silent = False
-            await agent.clock.sleep(NEIGHBOUR_SCOUT_PERIOD_S)
-    finally:
-        scout.close()
+def own_endpoint(listen: list[str]) -> str | None:
+    """Where a bridge in this process reaches the agent's own router: its first TCP or
+    TLS listener, on loopback when it listens on every address."""
+    for endpoint in listen:
+        proto, _, rest = endpoint.split("?")[0].split("#")[0].partition("/")
+        host, _, port = rest.rpartition(":")
+        if proto in ("tcp", "tls") and port not in ("", "0"):
+            return f"{proto}/{'127.0.0.1' if host in ('0.0.0.0', '[::]') else host}:{port}"
+    return None

@@ -84,7 +84,10 @@ def zenoh_config(
         # there is one link per drone. Seen in bench/mesh.py (Zenoh debug log): when
         # the ground also dialled back, a pair held two links, and after the radio was
         # cut the ground kept the second one 7 s past its 2 s lease (ADR 0003).
-        put("scouting/gossip/autoconnect", {"router": ["router"] if connect else [], "peer": ["router", "peer"]})
+        # On a radio (`mesh_interface`) a drone dials no neighbour by itself either: its
+        # agent links through neighbours only while it needs them (agent/neighbours.py).
+        dials = ["router"] if connect and not mesh_interface else []
+        put("scouting/gossip/autoconnect", {"router": dials, "peer": ["router", "peer"]})
         if connect:
             # Measured (zenoh 1.10.2): 0 never retries an endpoint that was down at
             # open; 1 ms returns at once and retries every period, for ever.
@@ -95,7 +98,8 @@ def zenoh_config(
             put("scouting/multicast/enabled", True)
             put("scouting/multicast/interface", mesh_interface)
             put("scouting/multicast/listen", True)
-            put("scouting/multicast/autoconnect", {"router": ["router"], "peer": ["router", "peer"]})
+            # Listen: answer the neighbours' agents' scouts; never autoconnect (above).
+            put("scouting/multicast/autoconnect", {"router": [], "peer": ["router", "peer"]})
     if mode == "peer":
         put("scouting/gossip/enabled", False)
     if mode == "router":
@@ -183,6 +187,11 @@ class ZenohBus:
                 if attempt == 1 or attempt % 10 == 0:
                     log.warning("waiting for a Zenoh router at %s: %s", ", ".join(connect), exc)
                 await asyncio.sleep(retry_s)
+
+    @property
+    def session(self) -> zenoh.Session:
+        """The Zenoh session itself, for what the Bus port does not carry (its links)."""
+        return self._session
 
     def publish(self, key: str, payload: bytes, *, reliable: bool = True) -> None:
         pub = self._publishers.get((key, reliable))

@@ -131,7 +131,7 @@ def test_radio_config_is_strict() -> None:
 
 
 def test_the_ground_is_silent_after_two_probe_periods_without_contact() -> None:
-    """What starts the agent's neighbour scouting (bus/scout_assist.py)."""
+    """One of the signs that a drone needs links through neighbours (agent/neighbours.py)."""
     ll = LostLink(LostLinkPolicy(timeout_s=3), now=0.0, steady_gap_s=2.0)
     assert not ll.silent(2.0)
     assert ll.silent(2.1)

@@ -1,0 +1,229 @@
+"""Links to neighbouring drones only while this drone needs them (ADR 0003).
+
+A router forwards what it receives to every neighbour it is linked to, and a push
+towards a lossy or stalled neighbour holds the router (Zenoh 1.10, #1876): a drone
+20 m from the laptop went deaf for seconds because its router was linked to drones
+85 m away. So an agent's router never dials a neighbour by itself (no gossip or
+multicast autoconnect on the radio), and this task decides:
+
+- every round (1 s) it multicasts one Zenoh Scout on the mesh interface and counts
+  which neighbours' routers answer: the answer rate over the last rounds measures
+  the hop (a Scout and its Hello both had to cross) without holding a link;
+- while the drone has no working direct link to the ground (its own router has no
+  link to a `connect` endpoint, or the ground's probes go unanswered), it holds a
+  *bridge* to the best neighbours: a small router session in this process linked to
+  its own router (loopback) and to the neighbour's, so link-state routing carries the
+  drone's traffic through that neighbour. Neighbours answering well are preferred;
+  with none, the best one heard;
+- once the direct link has worked for `DIRECT_STEADY_S`, the bridges close.
+
+A bridge is closed by closing its session, which the Zenoh API allows (a transport of
+the main session cannot be closed, nor an endpoint added to it after open).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import fcntl
+import ipaddress
+import logging
+import socket
+import struct
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from bus.zenoh_bus import ZenohBus, zenoh_config
+
+log = logging.getLogger(__name__)
+
+ROUND_S = 1.0  # one Scout per round
+ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
+GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
+KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers this often
+MAX_BRIDGES = 2
+DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
+START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
+SIOCGIFADDR, SIOCGIFNETMASK = 0x8915, 0x891B
+
+
+def interface_network(interface: str) -> ipaddress.IPv4Interface:
+    """The IPv4 address and network of an interface (OSError if it has none)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        name = struct.pack("256s", interface.encode()[:15])
+        address = socket.inet_ntoa(fcntl.ioctl(s.fileno(), SIOCGIFADDR, name)[20:24])
+        mask = socket.inet_ntoa(fcntl.ioctl(s.fileno(), SIOCGIFNETMASK, name)[20:24])
+    return ipaddress.IPv4Interface(f"{address}/{mask}")
+
+
+def radio_locator(locators: Sequence[str], network: ipaddress.IPv4Network) -> str | None:
+    """The neighbour's locator on the radio's network (a Hello lists every address
+    its router listens on: loopback, the radio, other interfaces)."""
+    for locator in locators:
+        proto, _, rest = locator.partition("/")
+        host = rest.split("?")[0].split("#")[0].rsplit(":", 1)[0]
+        try:
+            if ipaddress.IPv4Address(host) in network:
+                return f"{proto}/{rest.split('?')[0].split('#')[0]}"
+        except ValueError:
+            continue
+    return None
+
+
+@dataclass
+class Heard:
+    """One neighbour's router as the scouting rounds heard it."""
+
+    locator: str
+    answers: collections.deque[bool] = field(default_factory=lambda: collections.deque(maxlen=ANSWER_WINDOW))
+
+    @property
+    def rate(self) -> float:
+        return sum(self.answers) / len(self.answers) if self.answers else 0.0
+
+
+def choose(rates: dict[str, float], bridged: set[str]) -> set[str]:
+    """Which neighbours to hold a bridge to, when the drone needs one (pure).
+
+    Open bridges are kept while their neighbour answers at least `KEEP_RATE`; new ones
+    go to neighbours answering `GOOD_RATE`, best first, up to `MAX_BRIDGES`; when no
+    neighbour is good and none is kept, the best one heard at all."""
+    keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: -rates[z])
+    good = sorted((z for z, r in rates.items() if r >= GOOD_RATE and z not in keep), key=lambda z: (-rates[z], z))
+    chosen = (keep + good)[:MAX_BRIDGES]
+    if not chosen:
+        heard = sorted((z for z, r in rates.items() if r > 0.0), key=lambda z: (-rates[z], z))
+        chosen = heard[:1]
+    return set(chosen)
+
+
+class NeedWatch:
+    """Whether the drone needs bridges: while its direct link to the ground does not
+    work, and until it has worked for `steady_s`; never in the first `grace_s` after
+    start, while the direct link is being made (pure; times are monotonic)."""
+
+    def __init__(self, start: float, steady_s: float = DIRECT_STEADY_S, grace_s: float = START_GRACE_S) -> None:
+        self.steady_s = steady_s
+        self.grace_until = start + grace_s
+        self._working_since: float | None = None
+
+    def update(self, direct_works: bool, now: float) -> bool:
+        if now < self.grace_until and not direct_works:
+            return False
+        if not direct_works:
+            self._working_since = None
+            return True
+        if self._working_since is None:
+            self._working_since = now
+        return now - self._working_since < self.steady_s
+
+
+class Neighbours:
+    """The scouting rounds and the bridges of one agent; `run()` until cancelled."""
+
+    def __init__(
+        self, drone_id: str, bus: ZenohBus, interface: str, ground_endpoints: Sequence[str],
+        own_endpoint: str, ground_silent: Callable[[], bool], *, extra: dict[str, Any] | None = None,
+    ) -> None:
+        self.drone_id = drone_id
+        self.bus = bus
+        self.interface = interface
+        self.ground_endpoints = {_plain(e) for e in ground_endpoints}
+        self.own_endpoint = own_endpoint
+        self.ground_silent = ground_silent
+        self.extra = extra or {}
+        self.heard: dict[str, Heard] = {}
+        self.bridges: dict[str, zenoh.Session] = {}
+        self.need: NeedWatch | None = None
+        self._needed = False
+
+    def direct_link(self) -> bool:
+        """The agent's router holds a link it dialled to one of the ground's endpoints."""
+        return any(_plain(str(link.dst)) in self.ground_endpoints for link in self.bus.session.info.links())
+
+    async def run(self) -> None:
+        network = interface_network(self.interface).network
+        own = {str(self.bus.session.info.zid())}
+        loop = asyncio.get_running_loop()
+        need = self.need = NeedWatch(loop.time())
+        try:
+            while True:
+                hellos = await self._scout_round()
+                answered: dict[str, str] = {}
+                for zid, locators in hellos:
+                    if zid in own or zid in answered:
+                        continue
+                    locator = radio_locator(locators, network)
+                    if locator is not None:
+                        answered[zid] = locator
+                for zid, locator in answered.items():
+                    self.heard.setdefault(zid, Heard(locator)).locator = locator
+                for zid, heard in self.heard.items():
+                    heard.answers.append(zid in answered)
+                needed = need.update(self.direct_link() and not self.ground_silent(), loop.time())
+                if needed != self._needed:
+                    log.info("%s: %s", self.drone_id, "no working direct link to the ground; relaying through neighbours"
+                             if needed else f"the direct link to the ground has worked {DIRECT_STEADY_S:g} s; "
+                             "closing the links through neighbours")
+                    self._needed = needed
+                wanted = choose({z: h.rate for z, h in self.heard.items()}, set(self.bridges)) if needed else set()
+                for zid in set(self.bridges) - wanted:
+                    await self._close(zid)
+                for zid in wanted - set(self.bridges):
+                    await self._open(zid)
+        finally:
+            for zid in list(self.bridges):
+                await self._close(zid)
+
+    async def _scout_round(self) -> list[tuple[str, list[str]]]:
+        """One Scout for routers on the radio; the Hellos heard within the round."""
+        hellos: list[tuple[str, list[str]]] = []
+        lock = threading.Lock()
+
+        def on_hello(hello: zenoh.Hello) -> None:  # a Zenoh thread
+            with lock:
+                hellos.append((str(hello.zid), [str(loc) for loc in hello.locators]))
+
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "true")
+        conf.insert_json5("scouting/multicast/interface", f'"{self.interface}"')
+        scout = await asyncio.to_thread(lambda: zenoh.scout(on_hello, "router", conf))
+        try:
+            await asyncio.sleep(ROUND_S * 0.8)
+        finally:
+            scout.stop()
+        await asyncio.sleep(ROUND_S * 0.2)
+        with lock:
+            return list(hellos)
+
+    async def _open(self, zid: str) -> None:
+        heard = self.heard[zid]
+        extra = {
+            **self.extra, "listen/endpoints": [],
+            "scouting/gossip/autoconnect": {"router": [], "peer": []},
+        }
+        conf = zenoh_config("router", [heard.locator, self.own_endpoint], extra=extra)
+        try:
+            self.bridges[zid] = await asyncio.to_thread(zenoh.open, conf)
+        except zenoh.ZError as exc:
+            log.warning("%s: no link through neighbour %s (%s): %s", self.drone_id, zid, heard.locator, exc)
+            return
+        log.info("%s: linking through neighbour %s at %s (answers %.0f %% of scouts)",
+                 self.drone_id, zid, heard.locator, 100 * heard.rate)
+
+    async def _close(self, zid: str) -> None:
+        session = self.bridges.pop(zid)
+        log.info("%s: link through neighbour %s closed", self.drone_id, zid)
+        try:
+            await asyncio.to_thread(session.close)
+        except zenoh.ZError:
+            pass
+
+
+def _plain(endpoint: str) -> str:
+    """An endpoint without its `?config` or `#metadata` parts."""
+    return endpoint.split("?")[0].split("#")[0]

@@ -1,0 +1,72 @@
+"""Which neighbours a drone links through, and when (agent/neighbours.py), as pure
+decisions. The whole path on real packets (a drone cut off from the ground carried by
+a neighbour, a healthy drone holding no link to a lossy one) is
+tests/test_field_network.py and bench/mesh_stall.py."""
+
+from __future__ import annotations
+
+import ipaddress
+
+import msgspec
+import pytest
+
+from agent.config import AgentConfig
+from agent.neighbours import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose, radio_locator
+from agent.runtime import own_endpoint
+
+RADIO = ipaddress.IPv4Network("10.231.0.0/24")
+
+
+def test_good_neighbours_are_chosen_best_first_up_to_the_limit() -> None:
+    rates = {"a": 1.0, "b": GOOD_RATE, "c": 1.0, "d": 0.6}
+    assert choose(rates, set()) == {"a", "c"}
+    assert MAX_BRIDGES == 2
+
+
+def test_an_open_bridge_stays_while_its_neighbour_answers_often_enough() -> None:
+    rates = {"a": 1.0, "b": 1.0, "kept": KEEP_RATE}
+    assert choose(rates, {"kept"}) == {"kept", "a"}
+    rates["kept"] = KEEP_RATE - 0.2
+    assert choose(rates, {"kept"}) == {"a", "b"}
+
+
+def test_with_no_good_neighbour_the_best_heard_is_tried_and_with_none_heard_nothing() -> None:
+    assert choose({"far": 0.2, "farther": 0.4}, set()) == {"farther"}
+    assert choose({"gone": 0.0}, set()) == set()
+    assert choose({}, set()) == set()
+
+
+def test_bridges_are_needed_while_the_direct_link_fails_and_until_it_has_worked_a_while() -> None:
+    need = NeedWatch(start=0.0, steady_s=5.0, grace_s=3.0)
+    assert not need.update(False, 1.0)  # start: the direct link is still being made
+    assert need.update(True, 2.0)  # up, but not yet steady
+    assert not need.update(True, 7.0)
+    assert need.update(False, 8.0)  # cut: at once
+    assert need.update(True, 9.0)
+    assert need.update(True, 13.9)
+    assert not need.update(True, 14.0)
+
+
+def test_an_agent_that_never_reaches_the_ground_links_through_neighbours_after_the_grace() -> None:
+    need = NeedWatch(start=10.0, steady_s=5.0, grace_s=3.0)
+    assert not need.update(False, 12.9)
+    assert need.update(False, 13.0)
+
+
+def test_the_neighbours_radio_locator_is_picked_from_its_hello() -> None:
+    hello = ["tcp/127.0.0.1:7448", "tcp/192.168.5.2:7448", "tcp/10.231.0.3:7448?prio=1", "udp/10.231.0.3:7449"]
+    assert radio_locator(hello, RADIO) == "tcp/10.231.0.3:7448"
+    assert radio_locator(["tls/10.231.0.9:7448#iface=radio0"], RADIO) == "tls/10.231.0.9:7448"
+    assert radio_locator(["tcp/[fe80::1]:7448", "tcp/127.0.0.1:7448"], RADIO) is None
+
+
+def test_a_bridge_reaches_the_agents_own_router_on_loopback() -> None:
+    assert own_endpoint(["tcp/0.0.0.0:7448"]) == "tcp/127.0.0.1:7448"
+    assert own_endpoint(["udp/0.0.0.0:7000", "tls/10.0.0.5:7448"]) == "tls/10.0.0.5:7448"
+    assert own_endpoint(["tcp/127.0.0.1:0"]) is None
+
+
+def test_a_mesh_interface_needs_a_listener_on_a_fixed_port() -> None:
+    with pytest.raises(msgspec.ValidationError, match="mesh_interface needs a `listen` TCP or TLS endpoint"):
+        msgspec.convert({"mesh_interface": "radio0", "listen": ["tcp/0.0.0.0:0"]}, AgentConfig)
+    assert msgspec.convert({"mesh_interface": "radio0"}, AgentConfig).listen == ["tcp/0.0.0.0:7448"]
