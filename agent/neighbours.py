@@ -30,7 +30,6 @@ import ipaddress
 import logging
 import socket
 import struct
-import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -42,6 +41,7 @@ from bus.zenoh_bus import ZenohBus, zenoh_config
 log = logging.getLogger(__name__)
 
 ROUND_S = 1.0  # one Scout per round
+HELLOS_PER_ROUND = 256  # answers kept from one round (one per router in range)
 ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
 GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
 KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers this often
@@ -181,24 +181,20 @@ class Neighbours:
 
     async def _scout_round(self) -> list[tuple[str, list[str]]]:
         """One Scout for routers on the radio; the Hellos heard within the round."""
-        hellos: list[tuple[str, list[str]]] = []
-        lock = threading.Lock()
-
-        def on_hello(hello: zenoh.Hello) -> None:  # a Zenoh thread
-            with lock:
-                hellos.append((str(hello.zid), [str(loc) for loc in hello.locators]))
-
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "true")
         conf.insert_json5("scouting/multicast/interface", f'"{self.interface}"')
-        scout = await asyncio.to_thread(lambda: zenoh.scout(on_hello, "router", conf))
+        scout = await asyncio.to_thread(
+            lambda: zenoh.scout(zenoh.handlers.FifoChannel(HELLOS_PER_ROUND), what="router", config=conf))
+        hellos = []
         try:
             await asyncio.sleep(ROUND_S * 0.8)
+            while (hello := scout.try_recv()) is not None:
+                hellos.append((str(hello.zid), [str(loc) for loc in hello.locators]))
         finally:
             scout.stop()
         await asyncio.sleep(ROUND_S * 0.2)
-        with lock:
-            return list(hellos)
+        return hellos
 
     async def _open(self, zid: str) -> None:
         heard = self.heard[zid]
