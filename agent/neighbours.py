@@ -36,18 +36,13 @@ from typing import Any
 
 import zenoh
 
+from bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, NeedWatch, choose
 from bus.zenoh_bus import ZenohBus, zenoh_config
 
 log = logging.getLogger(__name__)
 
 ROUND_S = 1.0  # one Scout per round
 HELLOS_PER_ROUND = 256  # answers kept from one round (one per router in range)
-ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
-GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
-KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers this often
-MAX_BRIDGES = 2
-DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
-START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
 SIOCGIFADDR, SIOCGIFNETMASK = 0x8915, 0x891B
 
 
@@ -84,42 +79,6 @@ class Heard:
     @property
     def rate(self) -> float:
         return sum(self.answers) / len(self.answers) if self.answers else 0.0
-
-
-def choose(rates: dict[str, float], bridged: set[str]) -> set[str]:
-    """Which neighbours to hold a bridge to, when the drone needs one (pure).
-
-    Open bridges are kept while their neighbour answers at least `KEEP_RATE`; new ones
-    go to neighbours answering `GOOD_RATE`, best first, up to `MAX_BRIDGES`; when no
-    neighbour is good and none is kept, the best one heard at all."""
-    keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: -rates[z])
-    good = sorted((z for z, r in rates.items() if r >= GOOD_RATE and z not in keep), key=lambda z: (-rates[z], z))
-    chosen = (keep + good)[:MAX_BRIDGES]
-    if not chosen:
-        heard = sorted((z for z, r in rates.items() if r > 0.0), key=lambda z: (-rates[z], z))
-        chosen = heard[:1]
-    return set(chosen)
-
-
-class NeedWatch:
-    """Whether the drone needs bridges: while its direct link to the ground does not
-    work, and until it has worked for `steady_s`; never in the first `grace_s` after
-    start, while the direct link is being made (pure; times are monotonic)."""
-
-    def __init__(self, start: float, steady_s: float = DIRECT_STEADY_S, grace_s: float = START_GRACE_S) -> None:
-        self.steady_s = steady_s
-        self.grace_until = start + grace_s
-        self._working_since: float | None = None
-
-    def update(self, direct_works: bool, now: float) -> bool:
-        if now < self.grace_until and not direct_works:
-            return False
-        if not direct_works:
-            self._working_since = None
-            return True
-        if self._working_since is None:
-            self._working_since = now
-        return now - self._working_since < self.steady_s
 
 
 class Neighbours:

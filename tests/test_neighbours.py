@@ -11,8 +11,9 @@ import msgspec
 import pytest
 
 from agent.config import AgentConfig
-from agent.neighbours import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose, radio_locator
+from agent.neighbours import radio_locator
 from agent.runtime import own_endpoint
+from bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
 
@@ -30,21 +31,22 @@ def test_an_open_bridge_stays_while_its_neighbour_answers_often_enough() -> None
     assert choose(rates, {"kept"}) == {"a", "b"}
 
 
-def test_with_no_good_neighbour_the_best_heard_is_tried_and_with_none_heard_nothing() -> None:
-    assert choose({"far": 0.2, "farther": 0.4}, set()) == {"farther"}
+def test_with_no_good_neighbour_the_best_heard_are_tried_and_with_none_heard_nothing() -> None:
+    assert choose({"far": 0.2, "farther": 0.4, "farthest": 0.1}, set()) == {"far", "farther"}
     assert choose({"gone": 0.0}, set()) == set()
     assert choose({}, set()) == set()
 
 
-def test_bridges_are_needed_while_the_direct_link_fails_and_until_it_has_worked_a_while() -> None:
+def test_bridges_are_needed_from_a_failure_until_the_direct_link_has_worked_a_while() -> None:
     need = NeedWatch(start=0.0, steady_s=5.0, grace_s=3.0)
     assert not need.update(False, 1.0)  # start: the direct link is still being made
-    assert need.update(True, 2.0)  # up, but not yet steady
-    assert not need.update(True, 7.0)
+    assert not need.update(True, 2.0)  # up: never needed, so nothing to wait for
     assert need.update(False, 8.0)  # cut: at once
-    assert need.update(True, 9.0)
-    assert need.update(True, 13.9)
-    assert not need.update(True, 14.0)
+    assert need.update(True, 9.0)  # back, not yet steady
+    assert need.update(False, 10.0)  # and gone again: the wait starts over
+    assert need.update(True, 11.0)
+    assert need.update(True, 15.9)
+    assert not need.update(True, 16.0)
 
 
 def test_an_agent_that_never_reaches_the_ground_links_through_neighbours_after_the_grace() -> None:
