@@ -17,14 +17,16 @@ def choose(rates: dict[str, float], bridged: set[str]) -> set[str]:
 
     Open bridges are kept while their neighbour answers at least `KEEP_RATE`; new ones
     go to neighbours answering `GOOD_RATE`, best first, up to `MAX_BRIDGES`; when no
-    neighbour is good and none is kept, the best ones heard at all (a drone in a chain
-    of relays hears the next one up and the one it carries about equally badly, and
-    cannot tell which leads to the ground)."""
+    neighbour is good and none is kept, the best ones answering at least `KEEP_RATE`
+    (a drone in a chain of relays hears the next one up and the one it carries about
+    equally, and cannot tell which leads to the ground). Never one answering less: a
+    bridge over a hop that bad carried nothing through, and stalled the neighbour's
+    router for seconds (bench/mesh_stall.py, frozen: 9.4 s)."""
     keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: -rates[z])
     good = sorted((z for z, r in rates.items() if r >= GOOD_RATE and z not in keep), key=lambda z: (-rates[z], z))
     chosen = (keep + good)[:MAX_BRIDGES]
     if not chosen:
-        heard = sorted((z for z, r in rates.items() if r > 0.0), key=lambda z: (-rates[z], z))
+        heard = sorted((z for z, r in rates.items() if r >= KEEP_RATE), key=lambda z: (-rates[z], z))
         chosen = heard[:MAX_BRIDGES]
     return set(chosen)
 

@@ -320,6 +320,20 @@ print(f"relay {relay.id}; another: {other.id}")
 """
 
 
+@pytest.mark.slow(60)
+async def test_a_healthy_drone_stays_heard_beside_a_lossy_or_frozen_neighbour(tmp_path: Path, radio_slot: None) -> None:
+    """Issue 30's reproduction (bench/mesh_stall.py, one run of each scenario): H 20 m
+    from the laptop, R 55 m out carrying F (105 m). While R flies out to 92 m and back,
+    and while R's agent is frozen for 20 s, the ground hears H at 5 Hz with no gap of
+    1.5 s, never loses its token and never sees its link close."""
+    from bench.mesh_stall import measure
+
+    runs = await measure(1, ["lossy", "frozen"], tmp_path, quiet=True)
+    assert [r.scenario for r in runs] == ["lossy", "frozen"]
+    for run in runs:
+        assert run.ok, run
+
+
 @pytest.mark.slow(40)
 async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
         tmp_path: Path, processes: list[ChildProcess]) -> None:

@@ -31,8 +31,10 @@ def test_an_open_bridge_stays_while_its_neighbour_answers_often_enough() -> None
     assert choose(rates, {"kept"}) == {"a", "b"}
 
 
-def test_with_no_good_neighbour_the_best_heard_are_tried_and_with_none_heard_nothing() -> None:
-    assert choose({"far": 0.2, "farther": 0.4, "farthest": 0.1}, set()) == {"far", "farther"}
+def test_with_no_good_neighbour_the_best_fair_ones_are_tried_and_never_a_bad_one() -> None:
+    assert choose({"near": 0.6, "farther": KEEP_RATE, "far": 0.7}, set()) == {"far", "near"}
+    assert choose({"farther": KEEP_RATE, "farthest": KEEP_RATE - 0.2}, set()) == {"farther"}
+    assert choose({"too far": KEEP_RATE - 0.01}, set()) == set()  # a bridge over it would stall the neighbour
     assert choose({"gone": 0.0}, set()) == set()
     assert choose({}, set()) == set()
 
