@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import stat
 from pathlib import Path
+from typing import Any
 
 import msgspec
 import pytest
@@ -133,15 +134,27 @@ async def test_missions_fly_signed_and_commands_from_anyone_else_are_refused(pki
             "re-signed": (encode(rogue.sign(fresh, sim.clock.time_ms())), "does not verify"),
             "replayed late": (captured.data, "outside the 30 s window"),
         }
+        statuses: list[dict[str, Any]] = []
+        watch = attacker.subscribe("drone/drone01/status", lambda sample: statuses.append(json.loads(sample.payload)))
+        vehicle = sim.vehicles["drone01"]
+        at_rest = (vehicle.armed, round(vehicle.north, 2), round(vehicle.east, 2), round(vehicle.alt, 2))
+        assert not at_rest[0]
         for case, (payload, reason) in attempts.items():
             reply = msgspec.json.decode(await attacker.query("drone/drone01/cmd", payload), type=CommandReply)
             assert not reply.accepted and reply.reason is not None and reply.reason.startswith("unauthenticated")
             assert reason in reply.reason, (case, reply.reason)
-        assert not sim.vehicles["drone01"].in_air or sim.vehicles["drone01"].mode != "mission"
 
         # Within the window, a captured command is refused as a replay; the ground's own still go.
         reply = await sim.station.command("drone01", b'{"cmd": "arm"}')
         assert reply.accepted
+        # One publisher's statuses arrive in order: once the ground's arm is reported, any
+        # status of the refused commands would have come before it. None did, and the
+        # vehicle never moved.
+        await sim.until(lambda: any(st.get("command_id") == reply.command_id for st in statuses), 30)
+        watch.close()
+        refused = {"attack-1", json.loads(captured.data)["command_id"]}
+        assert not [st for st in statuses if st.get("command_id") in refused], statuses
+        assert (round(vehicle.north, 2), round(vehicle.east, 2), round(vehicle.alt, 2)) == at_rest[1:]
         key = "drone/drone01/cmd"
         signed_now = sim.station._signed(decode_command(json.dumps(
             {"cmd": "disarm", "drone_id": "drone01", "command_id": "once"})))
