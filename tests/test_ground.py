@@ -98,6 +98,9 @@ class EventStream:
                     self.events((kind, json.loads(line.split(":", 1)[1])))
 
     async def close(self) -> None:
+        """Stop reading; a reader that failed (a wrong content type, a bad event) fails the test."""
+        if self._task.done() and not self._task.cancelled() and (exc := self._task.exception()) is not None:
+            raise AssertionError("the /events reader failed") from exc
         self._task.cancel()
         await asyncio.gather(self._task, return_exceptions=True)
 

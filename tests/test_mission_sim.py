@@ -21,6 +21,7 @@ import pytest
 from fleet.compose import SimField
 from mission.mission import MissionRecord
 from schemas.errors import CommandRejected
+from schemas.geo import distance_m
 from sim.projection import LocalFrame
 from sim.world import Fault, World
 
@@ -168,10 +169,23 @@ async def test_drone_events_end_the_mission(fault: Fault, expected: tuple[str, s
 
 
 async def test_critical_battery_fails_and_sends_the_drone_home() -> None:
+    """The autopilot's critical-battery return ends the mission as the drone's own
+    decision, and the drone lands at home (this world is seeded: one outcome)."""
     world = world_with([Fault(at_s=15, fault="low_battery", value=0.03)])
-    record, field, lines = await fly(FLY + "sleep(100)\n", world)
-    assert cause(record) in (("failed", "drone_error"), ("cancelled", "return"))
-    assert field.vehicles["drone01"].mode in ("return_to_launch", "land") or field.vehicles["drone01"].rel_alt < 0.5
+    field = SimField(world)
+    await field.start()
+    try:
+        record = await field.run_mission(FLY + "sleep(100)\n", max_s=600)
+        assert cause(record) == ("cancelled", "return"), record.message
+        vehicle = field.vehicles["drone01"]
+        for _ in range(600):  # 300 simulated seconds at most
+            if vehicle.landed_state == "on_ground" and not vehicle.armed:
+                break
+            await field.clock.advance(0.5)
+        assert (vehicle.landed_state, vehicle.armed) == ("on_ground", False), vehicle.mode
+        assert distance_m(vehicle.lat, vehicle.lon, vehicle.home.lat, vehicle.home.lon) < 1.0
+    finally:
+        await field.close()
 
 
 async def test_link_lost_after_the_grace_when_the_agent_dies() -> None:
