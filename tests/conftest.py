@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from bus.zenoh_bus import ZenohBus
-from tests.harness import AgentProcess, Operator, SimProcess, open_ground_router
+from tests.harness import AgentProcess, Operator, SimProcess, open_ground_router, stop_all
 from tests.helpers import free_port
 
 
@@ -83,8 +83,7 @@ def agents(endpoint: str, tmp_path: Path) -> Iterator[Callable[..., AgentProcess
         return started[-1]
 
     yield start
-    for agent in started:
-        agent.stop()
+    stop_all(started)
 
 
 @pytest.fixture

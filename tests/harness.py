@@ -8,7 +8,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import AsyncIterator, Sequence
+from collections.abc import AsyncIterator, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +66,8 @@ class ChildProcess:
         self.start()
 
     def start(self) -> None:
-        self.proc = subprocess.Popen(self.args, stdout=open(self.log, "ab"), stderr=subprocess.STDOUT, cwd=REPO)
+        with open(self.log, "ab") as out:  # the child holds its own copy of the descriptor
+            self.proc = subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
 
     def kill(self) -> None:
         """SIGKILL: no cleanup of any kind, as in a crash."""
@@ -84,6 +85,19 @@ class ChildProcess:
 
     def output(self) -> str:
         return self.log.read_text(errors="replace") if self.log.exists() else ""
+
+
+def stop_all(children: Iterable[ChildProcess]) -> None:
+    """Stop every child in order, also when one fails to stop (it is killed); then fail
+    with the first failure, so no process is left to load the tests that follow."""
+    failures: list[AssertionError] = []
+    for child in children:
+        try:
+            child.stop()
+        except AssertionError as exc:
+            failures.append(exc)
+    if failures:
+        raise failures[0]
 
 
 class AgentProcess(ChildProcess):
@@ -231,9 +245,7 @@ class GroundFleet:
         }
 
     def stop(self) -> None:
-        for agent in self.agents.values():
-            agent.stop()
-        self.ground.stop()
+        stop_all([*self.agents.values(), self.ground])
 
     @contextlib.asynccontextmanager
     async def client(self, drones_ready: bool = True) -> AsyncIterator[httpx.AsyncClient]:

@@ -28,7 +28,7 @@ from fleet import relay_experiments as rx
 from schemas.geo import destination, distance_m
 from sim.fleet_sim import CHILDREN_STOP_S
 from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
-from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, submit
+from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, stop_all, submit
 from tests.helpers import free_port, free_udp_base, signal_and_wait, until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
@@ -156,13 +156,7 @@ def processes(tmp_path: Path, radio_slot: None) -> Iterator[list[ChildProcess]]:
     started: list[ChildProcess] = []
     yield started
     sims = [p for p in started if isinstance(p, RadioSim)]
-    failures = []
-    for proc in reversed(started):  # all of them, even when one is slow to stop
-        try:
-            proc.stop()
-        except AssertionError as exc:
-            failures.append(exc)
-    assert not failures, failures[0]
+    stop_all(reversed(started))  # all of them, even when one is slow to stop
     for sim in sims:
         assert fleet_resources(sim.pid) == [], f"left behind: {fleet_resources(sim.pid)}"
 

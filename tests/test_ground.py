@@ -4,6 +4,7 @@ subprocesses over real Zenoh through the ground's router, driven over real HTTP.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import signal
 import subprocess
@@ -253,16 +254,27 @@ async def test_cli_lists_shows_commands_and_reads_logs(fleet: Fleet, http: httpx
     assert all((" WARN " in line or " ERROR " in line) for line in warns.stdout.splitlines())
 
     follow = subprocess.Popen(fleet_command("logs", "--follow", "--drone", "drone02", *url), stdout=subprocess.PIPE, text=True)
+    reader: asyncio.Future[None] | None = None
     try:
         assert (await post(http, "drone02", {"cmd": "arm"})).status_code == 200
         assert follow.stdout is not None
         seen: list[str] = []
-        deadline = time.monotonic() + 15
-        while time.monotonic() < deadline and sum("Success on arm" in s for s in seen) < 2:
-            seen.append(await asyncio.to_thread(follow.stdout.readline))
+
+        async def two_arms() -> None:
+            while sum("Success on arm" in s for s in seen) < 2:
+                line = await asyncio.to_thread(follow.stdout.readline)  # type: ignore[union-attr]
+                assert line, f"`fleet logs --follow` ended: {seen}"
+                seen.append(line)
+
+        # A silent follower must not hold the test until pytest's timeout: after the
+        # deadline the finally below stops it, which ends the pending readline.
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(reader := asyncio.ensure_future(two_arms())), 15)
         assert sum("Success on arm" in s for s in seen) == 2, seen  # the old one, then the new
     finally:
         signal_and_wait(follow, signal.SIGINT, 10, "fleet logs --follow")
+        if reader is not None:
+            await asyncio.gather(reader, return_exceptions=True)  # its readline sees EOF now
     assert (await post(http, "drone02", {"cmd": "disarm"})).status_code == 200
 
     unreachable = subprocess.run(fleet_command("drone", "list", "--url", "http://127.0.0.1:9"), capture_output=True, text=True, timeout=30)
