@@ -28,6 +28,7 @@ import collections
 import fcntl
 import ipaddress
 import logging
+import secrets
 import socket
 import struct
 from collections.abc import Callable, Sequence
@@ -36,7 +37,7 @@ from typing import Any
 
 import zenoh
 
-from bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, NeedWatch, choose
+from bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, MAX_BRIDGES, NeedWatch, choose
 from bus.zenoh_bus import ZenohBus, zenoh_config
 
 log = logging.getLogger(__name__)
@@ -87,6 +88,7 @@ class Neighbours:
     def __init__(
         self, drone_id: str, bus: ZenohBus, interface: str, ground_endpoints: Sequence[str],
         own_endpoint: str, ground_silent: Callable[[], bool], *, extra: dict[str, Any] | None = None,
+        zids: frozenset[str] = frozenset(),
     ) -> None:
         self.drone_id = drone_id
         self.bus = bus
@@ -95,6 +97,8 @@ class Neighbours:
         self.own_endpoint = own_endpoint
         self.ground_silent = ground_silent
         self.extra = extra or {}
+        self.free_zids = sorted(zids)  # the bridges' own ZIDs, which this drone's router trusts (secured mesh)
+        self._zid_of: dict[str, str] = {}
         self.heard: dict[str, Heard] = {}
         self.bridges: dict[str, zenoh.Session] = {}
         self.need: NeedWatch | None = None
@@ -161,22 +165,43 @@ class Neighbours:
             **self.extra, "listen/endpoints": [],
             "scouting/gossip/autoconnect": {"router": [], "peer": []},
         }
+        own_zid = self.free_zids.pop() if self.free_zids else None
+        if own_zid is not None:
+            extra["id"] = own_zid
         conf = zenoh_config("router", [heard.locator, self.own_endpoint], extra=extra)
         try:
             self.bridges[zid] = await asyncio.to_thread(zenoh.open, conf)
         except zenoh.ZError as exc:
+            if own_zid is not None:
+                self.free_zids.append(own_zid)
             log.warning("%s: no link through neighbour %s (%s): %s", self.drone_id, zid, heard.locator, exc)
             return
+        if own_zid is not None:
+            self._zid_of[zid] = own_zid
         log.info("%s: linking through neighbour %s at %s (answers %.0f %% of scouts)",
                  self.drone_id, zid, heard.locator, 100 * heard.rate)
 
     async def _close(self, zid: str) -> None:
         session = self.bridges.pop(zid)
+        if zid in self._zid_of:
+            self.free_zids.append(self._zid_of.pop(zid))
         log.info("%s: link through neighbour %s closed", self.drone_id, zid)
         try:
             await asyncio.to_thread(session.close)
         except zenoh.ZError:
             pass
+
+
+def new_bridge_zids() -> frozenset[str]:
+    """ZIDs for this agent's bridges, chosen at start so its router's access rules can
+    name them (bus/mesh_security.py): 32 hex digits, the first not 0 (Zenoh drops
+    leading zeros when it prints one)."""
+    zids: set[str] = set()
+    while len(zids) < MAX_BRIDGES:
+        zid = secrets.token_hex(16)
+        if zid[0] != "0":
+            zids.add(zid)
+    return frozenset(zids)
 
 
 def _plain(endpoint: str) -> str:

@@ -26,7 +26,7 @@ from agent.fc_port import FcError, FcState, FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
 from agent.link import LostLink, LostLinkAction
-from agent.neighbours import Neighbours
+from agent.neighbours import Neighbours, new_bridge_zids
 from agent.prober import LinkProber
 from agent.telemetry import to_telemetry
 from bus.clock import Clock, SystemClock
@@ -334,8 +334,9 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
     # serialise a burst of commands (mavsdk-facts.md §2.1).
     asyncio.get_running_loop().set_default_executor(ThreadPoolExecutor(32, thread_name_prefix="fc"))
     # Checked before anything starts: a missing certificate is a configuration error.
+    bridge_zids = new_bridge_zids() if config.mesh_interface else frozenset()
     secured = mesh_security(config.security, drone_id, [*config.connect, *config.listen], router=True,
-                            namespace=config.namespace)
+                            namespace=config.namespace, bridge_zids=bridge_zids)
     fc = make_flight_controller(config.fc, clock)
     try:
         async with asyncio.timeout(FC_CONNECT_TIMEOUT_S + 2):
@@ -357,7 +358,8 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
                 async with asyncio.TaskGroup() as tg:
                     tg.create_task(agent.run(), name=f"{drone_id} agent")
                     neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
-                                            own_endpoint(config.listen) or "", agent.ground_silent, extra=secured)
+                                            own_endpoint(config.listen) or "", agent.ground_silent, extra=secured,
+                                            zids=bridge_zids)
                     tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
         finally:
             await bus.close()

@@ -67,8 +67,10 @@ def relays_of(security: Security) -> frozenset[str] | None:
     return frozenset(cn for cn, role in _identities(Path(security.pki_dir).expanduser()).items() if role == "relay")
 
 
-def access_control(pki_dir: Path, namespace: str = "") -> dict[str, Any]:
-    """Zenoh `access_control` for a router, default deny."""
+def access_control(pki_dir: Path, namespace: str = "", bridges: tuple[str, frozenset[str]] | None = None) -> dict[str, Any]:
+    """Zenoh `access_control` for a router, default deny. `bridges` (this drone's name
+    and its bridge sessions' ZIDs, agent/neighbours.py): links from those sessions,
+    which show this drone's own certificate, carry everything, as a relay's would."""
     prefix = f"{namespace}/" if namespace else ""
     rules: list[dict[str, Any]] = [
         {"id": "all", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES, "key_exprs": ["**"]},
@@ -107,11 +109,15 @@ def access_control(pki_dir: Path, namespace: str = "") -> dict[str, Any]:
             rules.append({"id": f"own-{cn}", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES,
                           "key_exprs": [f"{prefix}drone/{cn}/**", f"{prefix}drone/{cn}"]})
             policies.append({"rules": [f"own-{cn}", "probes", "learn", "ground-state", "no-commands"], "subjects": [cn]})
+    if bridges is not None and bridges[1]:
+        own, zids = bridges
+        subjects.append({"id": f"bridges-of-{own}", "cert_common_names": [own], "zids": sorted(zids)})
+        policies.append({"rules": ["all"], "subjects": [f"bridges-of-{own}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def mesh_security(security: Security, name: str, endpoints: list[str], *, router: bool,
-                  namespace: str = "") -> dict[str, Any]:
+                  namespace: str = "", bridge_zids: frozenset[str] = frozenset()) -> dict[str, Any]:
     """The Zenoh settings (for `ZenohBus.open(extra=…)`) of a node called `name`."""
     if not security.tls:
         return {}
@@ -134,6 +140,6 @@ def mesh_security(security: Security, name: str, endpoints: list[str], *, router
         "transport/link/tls/enable_mtls": True,
     }
     if router:
-        extra["access_control"] = access_control(pki, namespace)
+        extra["access_control"] = access_control(pki, namespace, (name, bridge_zids))
         extra["transport/link/tls/verify_name_on_connect"] = security.verify_names
     return extra
