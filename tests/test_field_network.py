@@ -557,7 +557,7 @@ async def _reachable(http: httpx.AsyncClient, drone_id: str) -> bool:
     return d is not None and d["info"]["state"] != "unknown"
 
 
-def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -> None:
+def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path, radio_slot: None) -> None:
     """SIGKILL `fleet sim --radio`: its namespaces stay (and its agents die with it);
     the next radio run removes them before it builds its own."""
     world = tmp_path / "world.yml"
@@ -582,7 +582,7 @@ def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path) -
     assert fleet_resources(second.pid) == []
 
 
-def test_radio_runs_started_together_get_their_own_subnets() -> None:
+def test_radio_runs_started_together_get_their_own_subnets(radio_slot: None) -> None:
     """Parallel radio runs (these tests under xdist, two operators on one laptop) must
     not pick the same /24: the pick holds a lock until the address is taken."""
     from concurrent.futures import ThreadPoolExecutor
