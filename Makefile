@@ -52,14 +52,15 @@ demo: $(STAMP)
 	$(BIN)/fleet demo $(ARGS)
 
 # Five workers on the 2 cores: most tests wait on real time (drones flying), not CPU.
-# The longest start first (the `slow` marker, tests/conftest.py), handed out one at a
-# time; each run prints its 25 slowest tests.
+# The longest start first (the `slow` marker, tests/conftest.py): `--dist loadgroup` hands
+# out work units (a test; all Chromium tests are one) in collection order, two per worker
+# at first, then one each time a worker finishes one; each run prints its 25 slowest tests.
 # The lint runs beside the tests (13 s of mypy and friends); either failing fails it.
 test: $(STAMP) sysdeps
 	@$(MAKE) --no-print-directory -j2 lint pytest
 
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q -n 5 --maxschedchunk 1 --dist loadgroup
+	$(BIN)/python -m pytest -q -n 5 --dist loadgroup
 
 # ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)

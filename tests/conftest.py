@@ -28,10 +28,11 @@ def pytest_configure() -> None:
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """Longest first (the `slow` marker's estimate), each followed by a short test.
 
-    `make test` runs xdist with `--maxschedchunk 1`: a worker holds the test it runs and
-    one more, and takes the next in this order when it finishes one. So the long
-    real-time tests start at once, one per worker, and never wait queued behind
-    another long one. The order is the same on every worker (a stable sort)."""
+    `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test;
+    the Chromium group is one unit) in collection order: two per worker at first, then
+    one each time a worker finishes one. So the long real-time tests start early, and
+    a short one sits between two long ones. The order is the same on every worker (a
+    stable sort), as xdist requires."""
     def seconds(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return float(marker.args[0]) if marker is not None else 0.0
