@@ -30,6 +30,23 @@ EXTRA_OF = {"zenoh": "agent", "mavsdk": "agent", "litestar": "ground", "uvicorn"
 LIBRARIES = ("zenoh", "httpx", "httpcore", "matplotlib", "asyncio", "mavsdk", "grpc", "uvicorn")
 
 
+PKI_DIR_HELP = ("PKI directory (`fleet pki init/issue`): sets security.pki_dir and, unless the config sets "
+                "security.tls, turns mutual TLS on (SPEC §9).")
+
+
+def security_with_pki(config_path: Path | None, pki_dir: str | None) -> dict[str, Any] | None:
+    """The config's `security` with `--pki-dir` applied (None: no flag, the config's own
+    stands). The flag implies `tls: true` unless the config says otherwise."""
+    if pki_dir is None:
+        return None
+    from schemas.config import read_yaml
+
+    security = dict((read_yaml(config_path) if config_path is not None else {}).get("security") or {})
+    security["pki_dir"] = pki_dir
+    security.setdefault("tls", True)
+    return security
+
+
 def secured_client(pki_dir: Path | None, name: str, connect: list[str]) -> dict[str, Any]:
     """Zenoh settings of a client (`fleet sub`, `record`, `replay`) on a secured mesh."""
     from bus.mesh_security import mesh_security
@@ -178,8 +195,9 @@ def main(ctx: click.Context, verbose: int) -> None:
 @click.option("--mesh-interface", help="Radio interface on which to find neighbouring drones (multicast scouting), e.g. wlan0.")
 @click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
 @click.option("--state-dir", help="Where task bundle records outlive the agent; default ~/.local/state/fleet/<id>.")
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True), help=PKI_DIR_HELP)
 def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
-          mesh_interface: str | None, telemetry_rate_ms: int | None, state_dir: str | None) -> None:
+          mesh_interface: str | None, telemetry_rate_ms: int | None, state_dir: str | None, pki_dir: str | None) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
     from agent.config import AgentConfig, default_state_dir
     from agent.runtime import run_agent
@@ -187,7 +205,8 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
     config = load_config(
         AgentConfig, config_path,
         {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
-         "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms, "state_dir": state_dir},
+         "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms, "state_dir": state_dir,
+         "security": security_with_pki(config_path, pki_dir)},
     )
     if config.state_dir is None:
         import msgspec
@@ -201,14 +220,17 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
 @click.option("--listen", multiple=True, type=ENDPOINT, help="Zenoh endpoint the router listens on (repeatable); default tcp/0.0.0.0:7447.")
 @click.option("--http-port", type=click.IntRange(0, 65535), help="HTTP API port; default 8001.")
 @click.option("--data-dir", help="Where the event log and mission records live; default ~/.local/share/fleet.")
-def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None) -> None:
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True), help=PKI_DIR_HELP)
+def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None,
+           pki_dir: str | None) -> None:
     """Run the ground station: Zenoh router, fleet registry, event log, HTTP API."""
     from fleet.compose import run_ground
     from ground.config import GroundConfig
     from schemas.config import load_config
 
     config = load_config(
-        GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir}
+        GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir,
+                                    "security": security_with_pki(config_path, pki_dir)}
     )
     run_async(run_ground(config, lambda line: click.echo(line)))
 

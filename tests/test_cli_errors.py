@@ -26,6 +26,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "not_yaml.yml").write_text("drones: [unclosed\n")
     (d / "syntax.py").write_text("takeoff(\n")
     (d / "a_file").write_text("")
+    (d / "empty_pki").mkdir()
     return d
 
 
@@ -45,6 +46,10 @@ CASES = [
     ("agent: unknown config key", ["agent", "--id", "d1", "--config", "{d}/bad_agent.yml"], {2}, "wings"),
     ("agent: missing config", ["agent", "--id", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
     ("agent: bad fc url", ["agent", "--id", "d1", "--fc", "carrier-pigeon://x"], {1, 2}, "carrier-pigeon"),
+    ("agent: --pki-dir without certificates (TLS on)", ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", "{d}/empty_pki",
+                                                      "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "ca.pem"),
+    ("ground: --pki-dir without certificates", ["ground", "--pki-dir", "{d}/empty_pki", "--listen", "tls/127.0.0.1:0",
+                                                "--http-port", "0"], {2}, "ca.pem"),
     ("ground: bad config value", ["ground", "--config", "{d}/bad_ground.yml"], {2}, "http_port"),
     ("ground: bad listen", ["ground", "--listen", "tcp/127.0.0.1:99999"], {2}, "99999"),
     ("ground: address not here", ["ground", "--listen", "tcp/192.0.2.1:7447", "--http-port", "0"], {1}, "192.0.2.1"),
@@ -92,3 +97,13 @@ def test_verbosity_levels_differ() -> None:
         ("WARNING", "WARNING"), ("INFO", "WARNING"), ("DEBUG", "DEBUG")]
     assert [log_levels("ground", v) for v in (0, 1, 2)] == [
         ("INFO", "WARNING"), ("DEBUG", "WARNING"), ("DEBUG", "DEBUG")]
+
+
+def test_pki_dir_implies_tls_unless_the_config_says_otherwise(tmp_path: Path) -> None:
+    from fleet.cli import security_with_pki
+
+    assert security_with_pki(None, None) is None
+    assert security_with_pki(None, "/pki") == {"pki_dir": "/pki", "tls": True}
+    config = tmp_path / "agent.yml"
+    config.write_text("security: {tls: false, window_s: 10, pki_dir: /elsewhere}\n")
+    assert security_with_pki(config, "/pki") == {"pki_dir": "/pki", "tls": False, "window_s": 10}
