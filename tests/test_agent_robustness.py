@@ -12,6 +12,7 @@ import msgspec
 import pytest
 
 from bus.zenoh_bus import ZenohBus
+from schemas.bundles import BundleReply
 from schemas.commands import CommandReply
 from schemas.keys import Keys
 from tests.harness import AgentProcess, Operator, fleet_command, open_ground_router
@@ -70,6 +71,11 @@ async def test_agent_refuses_bad_commands_and_keeps_running(
             assert reply.command_id == payload.split(b'"')[3].decode()
         else:
             assert "malformed" in reply.reason
+    # The bundle queryable too: raw bytes, JSON that is not a bundle.
+    for payload, words in ((b"\x00\xff not json", "malformed"), (b'{"steps": "all of them"}', "steps")):
+        raw = await client.query(Keys().bundle("drone02"), payload, timeout_s=3)
+        bundle_reply = msgspec.json.decode(raw, type=BundleReply)
+        assert not bundle_reply.accepted and words in (bundle_reply.reason or ""), (payload, bundle_reply)
     # Still alive and commandable.
     assert agent.proc.poll() is None
     await op.expect(await op.accepted("arm"), "success", 10)

@@ -46,6 +46,8 @@ CASES = [
     ("agent: unknown config key", ["agent", "--id", "d1", "--config", "{d}/bad_agent.yml"], {2}, "wings"),
     ("agent: missing config", ["agent", "--id", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
     ("agent: bad fc url", ["agent", "--id", "d1", "--fc", "carrier-pigeon://x"], {1, 2}, "carrier-pigeon"),
+    ("agent: unknown sim:// parameter", ["agent", "--id", "d1", "--fc", "sim://?lat=40.6&speed=3"], {2}, "speed"),
+    ("agent: sim:// value not a number", ["agent", "--id", "d1", "--fc", "sim://?alt=high"], {2}, "high"),
     ("agent: --pki-dir without certificates (TLS on)", ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", "{d}/empty_pki",
                                                       "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "ca.pem"),
     ("ground: --pki-dir without certificates", ["ground", "--pki-dir", "{d}/empty_pki", "--listen", "tls/127.0.0.1:0",
