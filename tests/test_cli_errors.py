@@ -27,12 +27,17 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "syntax.py").write_text("takeoff(\n")
     (d / "a_file").write_text("")
     (d / "empty_pki").mkdir()
+    (d / "world_lat.yml").write_text("drones: [{id: d1, lat: 95}]\n")
+    (d / "world_fault.yml").write_text("drones: [{id: d1, faults: [{at_s: 5, fault: meteor}]}]\n")
     return d
 
 
 # (name, argv with {d} for the temporary folder, allowed exit codes, a word the message must name)
 CASES = [
     ("simulate: bad world", ["mission", "simulate", EXAMPLE, "--world", "{d}/bad_world.yml"], {2}, "bogus"),
+    ("simulate: world latitude out of range", ["mission", "simulate", EXAMPLE, "--world", "{d}/world_lat.yml"], {2},
+     "drones[0].lat"),
+    ("simulate: unknown fault name", ["mission", "simulate", EXAMPLE, "--world", "{d}/world_fault.yml"], {2}, "meteor"),
     ("simulate: world not YAML", ["mission", "simulate", EXAMPLE, "--world", "{d}/not_yaml.yml"], {2}, "not_yaml.yml"),
     ("simulate: --out not writable", ["mission", "simulate", EXAMPLE, "--out", "{d}/a_file/out"], {1, 2}, "a_file"),
     ("simulate: unknown plugin", ["mission", "simulate", EXAMPLE, "--enable", "nothing"], {2}, "nothing"),
