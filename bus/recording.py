@@ -31,6 +31,7 @@ from bus.keyexpr import intersects
 from bus.port import Bus, Declaration, Sample
 from schemas.bundles import BundleStatus, TaskBundle
 from schemas.commands import Command
+from schemas.errors import FleetError
 from schemas.status import CommandStatus, SystemStatus
 from schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
@@ -277,8 +278,10 @@ def read(path: Path) -> Contents:
     return Contents(messages, {name: data for name, data in schemas.values()}, metadata, complete)
 
 
-class RecordingError(Exception):
-    """A file that is not a recording Fleet can read."""
+class RecordingError(FleetError):
+    """A file that is not a recording Fleet can read (the CLI: one line, exit 2)."""
+
+    exit_code = 2
 
 
 def recover(src: Path, dst: Path) -> Contents:

@@ -27,6 +27,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "syntax.py").write_text("takeoff(\n")
     (d / "a_file").write_text("")
     (d / "empty_pki").mkdir()
+    (d / "junk.mcap").write_bytes(b"junk junk junk")
     (d / "world_lat.yml").write_text("drones: [{id: d1, lat: 95}]\n")
     (d / "world_fault.yml").write_text("drones: [{id: d1, faults: [{at_s: 5, fault: meteor}]}]\n")
     return d
@@ -71,6 +72,10 @@ CASES = [
     ("mission list: no ground", ["mission", "list", "--url", DEAD_URL], {1}, "127.0.0.1:9"),
     ("mission submit: no ground", ["mission", "submit", "--url", DEAD_URL, EXAMPLE], {1}, "127.0.0.1:9"),
     ("logs: no ground", ["logs", "--url", DEAD_URL], {1}, "127.0.0.1:9"),
+    ("replay: not a recording", ["replay", "{d}/junk.mcap"], {2}, "not an MCAP recording"),
+    ("replay: no such file", ["replay", "{d}/missing.mcap"], {2}, "missing.mcap"),
+    ("record --recover: not a recording", ["record", "--recover", "{d}/junk.mcap"], {2}, "not an MCAP recording"),
+    ("plot: not a recording", ["plot", "{d}/junk.mcap"], {2}, "not an MCAP recording"),
     ("unknown command", ["fly"], {2}, "fly"),
 ]
 
