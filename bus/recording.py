@@ -96,7 +96,7 @@ class Recorder:
     rather than lost."""
 
     def __init__(self, out: Path | IO[bytes], *, kinds: dict[str, Any] | None = None,
-                 metadata: dict[str, str] | None = None) -> None:
+                 metadata: dict[str, str] | None = None, schemas: dict[str, bytes] | None = None) -> None:
         from mcap.writer import CompressionType, Writer  # the `record` extra
 
         self.path = out if isinstance(out, Path) else None
@@ -106,6 +106,7 @@ class Recorder:
         if metadata:
             self._writer.add_metadata("fleet", metadata)
         self.kinds = {**MESH_KINDS, **(kinds or {})}
+        self._given_schemas = schemas or {}  # kind → JSON schema, kept as another recording had it
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str | None], int] = {}
         self._flushed_ns: int | None = None
@@ -118,7 +119,7 @@ class Recorder:
             schema = 0
             if kind is not None:
                 schema = self._schemas.get(kind) or self._writer.register_schema(
-                    SCHEMA_PREFIX + kind, "jsonschema", json_schema(kind, self.kinds))
+                    SCHEMA_PREFIX + kind, "jsonschema", self._given_schemas.get(kind) or json_schema(kind, self.kinds))
                 self._schemas[kind] = schema
             channel = self._writer.register_channel(topic, "json", schema)
             self._channels[(topic, kind)] = channel
@@ -287,7 +288,8 @@ class RecordingError(FleetError):
 def recover(src: Path, dst: Path) -> Contents:
     """Write what a cut recording holds as a complete MCAP file."""
     contents = read(src)
-    recorder = Recorder(dst, metadata=contents.metadata or None)
+    # Kinds beyond the mesh's (a ground's mission records) keep the schema the cut file had.
+    recorder = Recorder(dst, metadata=contents.metadata or None, schemas=contents.schemas)
     for message in contents.messages:
         recorder.write(message.topic, message.data, message.log_ns, message.kind)
     recorder.close()

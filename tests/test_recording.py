@@ -14,13 +14,14 @@ from typing import Any
 
 import httpx
 import jsonschema_rs
+import msgspec
 import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
 from bus.clock import VirtualClock
 from bus.memory import MemoryBus, MemoryNetwork
-from bus.recording import FLUSH_S, Liveliness, Recorder, Replay, read
+from bus.recording import FLUSH_S, Liveliness, Recorder, Replay, read, recover
 from fleet.cli import main
 from fleet.compose import simulate
 from schemas.codec import encode
@@ -312,3 +313,20 @@ async def test_overlapping_key_expressions_record_each_message_once(tmp_path: Pa
         {"drone/drone01/alive": 1, "drone/drone01/telem": 1, "ground/status": 1, "drone/drone02/telem": 1})
     await drone.close()
     await bus.close()
+
+
+def test_recover_keeps_kinds_beyond_the_mesh(tmp_path: Path) -> None:
+    """A ground's recording holds mission records, which the mesh's kinds do not name:
+    `fleet record --recover` used to fail on them with a KeyError (issue 31)."""
+
+    class Note(msgspec.Struct):
+        text: str
+
+    src, dst = tmp_path / "ground.mcap", tmp_path / "recovered.mcap"
+    recorder = Recorder(src, kinds={"Note": Note})
+    recorder.write("ground/note", b'{"text": "kept"}', 1_000, "Note")
+    recorder.close()
+    recover(src, dst)
+    again = read(dst)
+    assert [(m.topic, m.kind, m.data) for m in again.messages] == [("ground/note", "Note", b'{"text": "kept"}')]
+    assert again.schemas["Note"] == read(src).schemas["Note"]
