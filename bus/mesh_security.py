@@ -50,7 +50,11 @@ def _identities(pki_dir: Path) -> dict[str, str]:
     for pem in sorted(pki_dir.glob("*.pem")):
         if pem.name == "ca.pem":
             continue
-        cert = x509.load_pem_x509_certificate(pem.read_bytes())
+        try:
+            cert = x509.load_pem_x509_certificate(pem.read_bytes())
+        except ValueError as exc:  # corrupt, or not a certificate
+            raise ConfigError(f"security.pki_dir: {pem} is not a PEM certificate ({exc}); "
+                              f"issue it again with `fleet pki issue {pki_dir} {pem.stem} --role …`") from None
         cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
         ou = cert.subject.get_attributes_for_oid(NameOID.ORGANIZATIONAL_UNIT_NAME)
         if cn and ou:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.harness import fleet_command
+from tests.harness import fleet_command, make_pki
 
 pytestmark = pytest.mark.integration
 
@@ -28,6 +28,13 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "a_file").write_text("")
     (d / "empty_pki").mkdir()
     (d / "junk.mcap").write_bytes(b"junk junk junk")
+    for broken, damage in (("pki_no_signing_key", "signing.key"), ("pki_no_signing_pub", "signing.pub"),
+                           ("pki_corrupt_pem", "ground.pem")):
+        pki = make_pki(d / broken, {"ground": "ground", "d1": "drone"})
+        if damage.endswith(".pem"):
+            (pki / damage).write_text("-----BEGIN CERTIFICATE-----\ngarbage\n-----END CERTIFICATE-----\n")
+        else:
+            (pki / damage).unlink()
     (d / "world_lat.yml").write_text("drones: [{id: d1, lat: 95}]\n")
     (d / "world_fault.yml").write_text("drones: [{id: d1, faults: [{at_s: 5, fault: meteor}]}]\n")
     return d
@@ -58,6 +65,12 @@ CASES = [
                                                       "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "ca.pem"),
     ("ground: --pki-dir without certificates", ["ground", "--pki-dir", "{d}/empty_pki", "--listen", "tls/127.0.0.1:0",
                                                 "--http-port", "0"], {2}, "ca.pem"),
+    ("ground: PKI without signing.key", ["ground", "--pki-dir", "{d}/pki_no_signing_key", "--listen", "tls/127.0.0.1:0",
+                                         "--http-port", "0"], {2}, "signing.key"),
+    ("ground: corrupt certificate", ["ground", "--pki-dir", "{d}/pki_corrupt_pem", "--listen", "tls/127.0.0.1:0",
+                                     "--http-port", "0"], {2}, "ground.pem is not a PEM certificate"),
+    ("agent: PKI without signing.pub", ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", "{d}/pki_no_signing_pub",
+                                        "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "signing.pub"),
     ("ground: bad config value", ["ground", "--config", "{d}/bad_ground.yml"], {2}, "http_port"),
     ("ground: bad listen", ["ground", "--listen", "tcp/127.0.0.1:99999"], {2}, "99999"),
     ("ground: address not here", ["ground", "--listen", "tcp/192.0.2.1:7447", "--http-port", "0"], {1}, "192.0.2.1"),
