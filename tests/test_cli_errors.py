@@ -8,6 +8,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+import yaml
 
 from tests.harness import fleet_command, make_pki
 
@@ -28,6 +29,9 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "a_file").write_text("")
     (d / "empty_pki").mkdir()
     (d / "junk.mcap").write_bytes(b"junk junk junk")
+    twice = {"name": "a", "role": "admin", "token": "x" * 20}
+    (d / "dup_tokens.yml").write_text(yaml.safe_dump({"http_port": 0, "api": {"tokens": [twice, {**twice, "name": "b"}]}}))
+    make_pki(d / "pki_ok", {"ground": "ground", "d1": "drone"})
     for broken, damage in (("pki_no_signing_key", "signing.key"), ("pki_no_signing_pub", "signing.pub"),
                            ("pki_corrupt_pem", "ground.pem")):
         pki = make_pki(d / broken, {"ground": "ground", "d1": "drone"})
@@ -71,6 +75,10 @@ CASES = [
                                      "--http-port", "0"], {2}, "ground.pem is not a PEM certificate"),
     ("agent: PKI without signing.pub", ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", "{d}/pki_no_signing_pub",
                                         "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "signing.pub"),
+    ("ground: the same API token twice", ["ground", "--config", "{d}/dup_tokens.yml", "--listen", "tcp/127.0.0.1:0",
+                                          "--data-dir", "{d}/ground_data"], {2}, "the same token is given twice"),
+    ("ground: TLS on with a tcp/ endpoint", ["ground", "--pki-dir", "{d}/pki_ok", "--listen", "tcp/127.0.0.1:0",
+                                             "--http-port", "0"], {2}, "every endpoint must be tls/"),
     ("ground: bad config value", ["ground", "--config", "{d}/bad_ground.yml"], {2}, "http_port"),
     ("ground: bad listen", ["ground", "--listen", "tcp/127.0.0.1:99999"], {2}, "99999"),
     ("ground: address not here", ["ground", "--listen", "tcp/192.0.2.1:7447", "--http-port", "0"], {1}, "192.0.2.1"),
