@@ -350,7 +350,15 @@ class GroundStation:
 
     def _on_status(self, sample: Sample) -> None:
         status = self._decode(decode_status, sample)
-        if status is None or not self.registry.first_heard(status):
+        if status is None:
+            return
+        parsed = self.keys.parse(sample.key)
+        if parsed is None or status.drone_id != parsed.drone_id:
+            # A status speaks for the drone whose key it came on, and only for it: one
+            # naming another drone would move that drone's commands and bundles.
+            log.warning("ignored a status on %s that names drone %r", sample.key, status.drone_id)
+            return
+        if not self.registry.first_heard(status):
             return
         if isinstance(status, CommandStatus) and status.state in TERMINAL_STATES and status.drone_id in self._claims \
                 and self._claims[status.drone_id][0] == status.command_id:
