@@ -1,8 +1,9 @@
 """The Bus on a real Eclipse Zenoh session (eclipse-zenoh 1.10).
 
 Configuration follows what was measured on these machines (SPEC §2, ADR 0003): every
-node announces a 4 s lease so a silent drone's liveliness vanishes in ≈ 4 s (a
-killed one's at once) while a read loop held for a moment does not close a healthy link;
+node announces a 2 s lease so a silent drone's liveliness vanishes in ≈ 2 s (a
+killed one's at once; 4 s for a while in issue 30, back to 2 s once drones stopped
+holding links to lossy neighbours);
 multicast scouting is off unless a mesh interface is named; peers do not gossip (so
 traffic goes through the routers and their access rules); a router opens with no
 scouting delay. A router that also connects out (a drone's agent, a mesh node) never
@@ -41,7 +42,7 @@ from bus.port import (
 
 log = logging.getLogger(__name__)
 Mode = Literal["client", "peer", "router"]
-DEFAULT_LEASE_MS = 4000  # measured: 2 s expired healthy links beside a lossy hop (ADR 0003)
+DEFAULT_LEASE_MS = 2000  # with links through neighbours only when needed, 2 s holds (ADR 0003)
 BLOCK_WAIT_US = 500_000  # a blocked push gives up after 0.5 s (Zenoh's default: 5 s)
 QUEUE_BATCHES = 16  # per priority, Zenoh's maximum (default 2)
 _PRIORITIES = ("control", "real_time", "interactive_high", "interactive_low", "data_high", "data", "data_low", "background")
