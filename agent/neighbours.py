@@ -125,8 +125,10 @@ class Neighbours:
                         answered[zid] = locator
                 for zid, locator in answered.items():
                     self.heard.setdefault(zid, Heard(locator)).locator = locator
-                for zid, heard in self.heard.items():
+                for zid, heard in list(self.heard.items()):
                     heard.answers.append(zid in answered)
+                    if len(heard.answers) == ANSWER_WINDOW and not any(heard.answers) and zid not in self.bridges:
+                        del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
                 needed = need.update(self.direct_link() and not self.ground_silent(), loop.time())
                 if needed != self._needed:
                     log.info("%s: %s", self.drone_id, "no working direct link to the ground; relaying through neighbours"
