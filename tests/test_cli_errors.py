@@ -44,6 +44,17 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return d
 
 
+def tls_ground(pki: str) -> list[str]:
+    """`fleet ground` with --pki-dir {d}/<pki> on a TLS endpoint."""
+    return ["ground", "--pki-dir", f"{{d}}/{pki}", "--listen", "tls/127.0.0.1:0", "--http-port", "0"]
+
+
+def tls_agent(pki: str) -> list[str]:
+    """`fleet agent` with --pki-dir {d}/<pki> and TLS endpoints."""
+    return ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", f"{{d}}/{pki}",
+            "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"]
+
+
 # (name, argv with {d} for the temporary folder, allowed exit codes, a word the message must name)
 CASES = [
     ("simulate: bad world", ["mission", "simulate", EXAMPLE, "--world", "{d}/bad_world.yml"], {2}, "bogus"),
@@ -65,16 +76,11 @@ CASES = [
     ("agent: bad fc url", ["agent", "--id", "d1", "--fc", "carrier-pigeon://x"], {1, 2}, "carrier-pigeon"),
     ("agent: unknown sim:// parameter", ["agent", "--id", "d1", "--fc", "sim://?lat=40.6&speed=3"], {2}, "speed"),
     ("agent: sim:// value not a number", ["agent", "--id", "d1", "--fc", "sim://?alt=high"], {2}, "high"),
-    ("agent: --pki-dir without certificates (TLS on)", ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", "{d}/empty_pki",
-                                                      "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "ca.pem"),
-    ("ground: --pki-dir without certificates", ["ground", "--pki-dir", "{d}/empty_pki", "--listen", "tls/127.0.0.1:0",
-                                                "--http-port", "0"], {2}, "ca.pem"),
-    ("ground: PKI without signing.key", ["ground", "--pki-dir", "{d}/pki_no_signing_key", "--listen", "tls/127.0.0.1:0",
-                                         "--http-port", "0"], {2}, "signing.key"),
-    ("ground: corrupt certificate", ["ground", "--pki-dir", "{d}/pki_corrupt_pem", "--listen", "tls/127.0.0.1:0",
-                                     "--http-port", "0"], {2}, "ground.pem is not a PEM certificate"),
-    ("agent: PKI without signing.pub", ["agent", "--id", "d1", "--fc", "sim", "--pki-dir", "{d}/pki_no_signing_pub",
-                                        "--connect", "tls/127.0.0.1:1", "--listen", "tls/127.0.0.1:0"], {2}, "signing.pub"),
+    ("agent: --pki-dir without certificates (TLS on)", tls_agent("empty_pki"), {2}, "ca.pem"),
+    ("ground: --pki-dir without certificates", tls_ground("empty_pki"), {2}, "ca.pem"),
+    ("ground: PKI without signing.key", tls_ground("pki_no_signing_key"), {2}, "signing.key"),
+    ("ground: corrupt certificate", tls_ground("pki_corrupt_pem"), {2}, "ground.pem is not a PEM certificate"),
+    ("agent: PKI without signing.pub", tls_agent("pki_no_signing_pub"), {2}, "signing.pub"),
     ("ground: the same API token twice", ["ground", "--config", "{d}/dup_tokens.yml", "--listen", "tcp/127.0.0.1:0",
                                           "--data-dir", "{d}/ground_data"], {2}, "the same token is given twice"),
     ("ground: TLS on with a tcp/ endpoint", ["ground", "--pki-dir", "{d}/pki_ok", "--listen", "tcp/127.0.0.1:0",
