@@ -16,7 +16,7 @@ from msgspec import Meta
 
 from agent.link import LostLinkPolicy
 from schemas.config import Security
-from schemas.endpoints import AGENT_PORT, check_endpoints
+from schemas.endpoints import AGENT_PORT, check_endpoints, ip_endpoint, plain_endpoint
 from schemas.fence import Geofence
 
 
@@ -44,12 +44,22 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
 
     def __post_init__(self) -> None:
         check_endpoints(connect=self.connect, listen=self.listen)
-        if self.mesh_interface is not None and not any(
-            e.split("/")[0] in ("tcp", "tls") and not e.split("?")[0].split("#")[0].endswith(":0") for e in self.listen
-        ):
+        if self.mesh_interface is not None and own_endpoint(self.listen) is None:
             # Links through a neighbour reach this agent's router on its own port (agent/neighbours.py).
             raise ValueError("mesh_interface needs a `listen` TCP or TLS endpoint with a fixed port "
                              f"(e.g. tcp/0.0.0.0:{AGENT_PORT}), got {self.listen}")
+
+
+def own_endpoint(listen: list[str]) -> str | None:
+    """Where a bridge in the agent's process reaches its own router (agent/neighbours.py):
+    its first TCP or TLS listener on a fixed port, on loopback when it listens on every
+    address."""
+    for endpoint in listen:
+        parsed = ip_endpoint(endpoint)
+        if parsed is not None and parsed[0] in ("tcp", "tls") and parsed[2] != 0:
+            proto, host, port = parsed
+            return f"{proto}/127.0.0.1:{port}" if host in ("0.0.0.0", "::") else plain_endpoint(endpoint)
+    return None
 
 
 def default_state_dir(drone_id: str) -> str:

@@ -13,8 +13,8 @@ multicast autoconnect on the radio), and this task decides:
   link to a `connect` endpoint, or the ground's probes go unanswered), it holds a
   *bridge* to the best neighbours: a small router session in this process linked to
   its own router (loopback) and to the neighbour's, so link-state routing carries the
-  drone's traffic through that neighbour. Neighbours answering well are preferred;
-  with none, the best one heard;
+  drone's traffic through that neighbour. Neighbours answering well are preferred,
+  and none answering under `bus.mesh_policy.KEEP_RATE` is ever used;
 - once the direct link has worked for `DIRECT_STEADY_S`, the bridges close.
 
 A bridge is closed by closing its session, which the Zenoh API allows (a transport of
@@ -39,6 +39,7 @@ import zenoh
 
 from bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, MAX_BRIDGES, NeedWatch, choose
 from bus.zenoh_bus import ZenohBus, zenoh_config
+from schemas.endpoints import ip_endpoint, plain_endpoint
 
 log = logging.getLogger(__name__)
 
@@ -60,12 +61,11 @@ def radio_locator(locators: Sequence[str], network: ipaddress.IPv4Network) -> st
     """The neighbour's locator on the radio's network (a Hello lists every address
     its router listens on: loopback, the radio, other interfaces)."""
     for locator in locators:
-        proto, _, rest = locator.partition("/")
-        host = rest.split("?")[0].split("#")[0].rsplit(":", 1)[0]
+        parsed = ip_endpoint(locator)
         try:
-            if ipaddress.IPv4Address(host) in network:
-                return f"{proto}/{rest.split('?')[0].split('#')[0]}"
-        except ValueError:
+            if parsed is not None and ipaddress.IPv4Address(parsed[1]) in network:
+                return plain_endpoint(locator)
+        except ValueError:  # an IPv6 or named host
             continue
     return None
 
@@ -93,7 +93,7 @@ class Neighbours:
         self.drone_id = drone_id
         self.bus = bus
         self.interface = interface
-        self.ground_endpoints = {_plain(e) for e in ground_endpoints}
+        self.ground_endpoints = {plain_endpoint(e) for e in ground_endpoints}
         self.own_endpoint = own_endpoint
         self.ground_silent = ground_silent
         self.extra = extra or {}
@@ -101,18 +101,16 @@ class Neighbours:
         self._zid_of: dict[str, str] = {}
         self.heard: dict[str, Heard] = {}
         self.bridges: dict[str, zenoh.Session] = {}
-        self.need: NeedWatch | None = None
-        self._needed = False
 
     def direct_link(self) -> bool:
         """The agent's router holds a link it dialled to one of the ground's endpoints."""
-        return any(_plain(str(link.dst)) in self.ground_endpoints for link in self.bus.session.info.links())
+        return any(plain_endpoint(str(link.dst)) in self.ground_endpoints for link in self.bus.session.info.links())
 
     async def run(self) -> None:
         network = interface_network(self.interface).network
         own = {str(self.bus.session.info.zid())}
         loop = asyncio.get_running_loop()
-        need = self.need = NeedWatch(loop.time())
+        need = NeedWatch(loop.time())
         try:
             while True:
                 hellos = await self._scout_round()
@@ -129,12 +127,12 @@ class Neighbours:
                     heard.answers.append(zid in answered)
                     if len(heard.answers) == ANSWER_WINDOW and not any(heard.answers) and zid not in self.bridges:
                         del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
+                was_needed = need.needed
                 needed = need.update(self.direct_link() and not self.ground_silent(), loop.time())
-                if needed != self._needed:
+                if needed != was_needed:
                     log.info("%s: %s", self.drone_id, "no working direct link to the ground; relaying through neighbours"
                              if needed else f"the direct link to the ground has worked {DIRECT_STEADY_S:g} s; "
                              "closing the links through neighbours")
-                    self._needed = needed
                 wanted = choose({z: h.rate for z, h in self.heard.items()}, set(self.bridges)) if needed else set()
                 for zid in set(self.bridges) - wanted:
                     await self._close(zid)
@@ -204,8 +202,3 @@ def new_bridge_zids() -> frozenset[str]:
         if zid[0] != "0":
             zids.add(zid)
     return frozenset(zids)
-
-
-def _plain(endpoint: str) -> str:
-    """An endpoint without its `?config` or `#metadata` parts."""
-    return endpoint.split("?")[0].split("#")[0]

@@ -21,7 +21,7 @@ from typing import Any
 import msgspec
 
 from agent.bundle import BundleRunner, BundleStore
-from agent.config import AgentConfig
+from agent.config import AgentConfig, own_endpoint
 from agent.fc_port import FcError, FcState, FcUnavailable, FlightController
 from agent.fc_sim import SimFlightController, parse_sim_url
 from agent.handler import CommandHandler, FlightSettings
@@ -365,14 +365,3 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
             await bus.close()
     finally:
         await fc.close()
-
-
-def own_endpoint(listen: list[str]) -> str | None:
-    """Where a bridge in this process reaches the agent's own router: its first TCP or
-    TLS listener, on loopback when it listens on every address."""
-    for endpoint in listen:
-        proto, _, rest = endpoint.split("?")[0].split("#")[0].partition("/")
-        host, _, port = rest.rpartition(":")
-        if proto in ("tcp", "tls") and port not in ("", "0"):
-            return f"{proto}/{'127.0.0.1' if host in ('0.0.0.0', '[::]') else host}:{port}"
-    return None

@@ -7,9 +7,11 @@ holding links to lossy neighbours);
 multicast scouting is off unless a mesh interface is named; peers do not gossip (so
 traffic goes through the routers and their access rules); a router opens with no
 scouting delay. A router that also connects out (a drone's agent, a mesh node) never
-waits for the ground at open, retries it every second, and connects to the routers
-it learns of by gossip (and by multicast scouting on `mesh_interface`), so the
-routers form a link-state mesh that carries a drone's traffic through a neighbour. Telemetry goes out
+waits for the ground at open and retries it every second. On a wired network it
+connects to the routers it learns of by gossip; on a radio (`mesh_interface`) it only
+answers scouts, and its agent links it through neighbours while its direct link fails
+(agent/neighbours.py). Routers form a link-state mesh that carries a drone's traffic
+through a neighbour. Telemetry goes out
 with congestion control DROP, everything else with BLOCK from the publisher; every router
 then forwards data and queries with DROP and gives up a blocked push in 0.5 s (ADR 0003:
 nothing that crosses the radio may hold a router). Callbacks run on Zenoh

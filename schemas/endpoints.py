@@ -30,6 +30,25 @@ def check_endpoint(endpoint: str) -> str:
     return endpoint
 
 
+def plain_endpoint(endpoint: str) -> str:
+    """`PROTOCOL/ADDRESS` without its `?metadata` and `#config` parts."""
+    m = _ENDPOINT.match(endpoint)
+    return f"{m.group('proto')}/{m.group('address')}" if m else endpoint
+
+
+def ip_endpoint(endpoint: str) -> tuple[str, str, int] | None:
+    """(protocol, host, port) of an IP endpoint (IPv6 hosts without brackets); None for
+    any other endpoint, or one that does not parse."""
+    m = _ENDPOINT.match(endpoint)
+    if m is None or m.group("proto") not in IP_PROTOCOLS:
+        return None
+    try:
+        host, port = split_host_port(m.group("address"))
+    except ConfigError:
+        return None
+    return m.group("proto"), host, port
+
+
 def split_host_port(text: str, *, what: str | None = None) -> tuple[str, int]:
     """`HOST:PORT` (IPv6 as `[::1]:PORT`) into its parts; ConfigError names `what`."""
     where = what or text

@@ -134,3 +134,13 @@ class Collector:
 def free_udp_base(n: int) -> int:
     """A base port B with B-1 .. B+n-1 free for UDP (the sim's control port and vehicles)."""
     return free_ports(n + 1, socket.SOCK_DGRAM) + 1
+
+
+async def advance_until(sim: Any, predicate: Callable[[], Any], max_s: float) -> None:
+    """Move a fast-time field's virtual clock (`sim.clock`, a SimField's) in 0.1 s steps
+    until `predicate()` holds; fail after `max_s` simulated seconds."""
+    for _ in range(round(max_s * 10)):
+        if predicate():
+            return
+        await sim.clock.advance(0.1)
+    raise AssertionError(f"not within {max_s:g} simulated seconds")

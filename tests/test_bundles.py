@@ -20,6 +20,7 @@ from schemas.errors import CommandRejected, InvalidMessage
 from schemas.geo import destination, distance_m
 from sim.radio import RadioModel, Spot3
 from sim.world import DroneSpec, HeatSource, Spot, World
+from tests.helpers import advance_until
 
 BASE = (40.633490, -8.660815)
 
@@ -176,14 +177,6 @@ class _No:
 
 
 _NO = _No()
-
-
-async def advance_until(sim: SimField, predicate: Any, max_s: float) -> None:
-    for _ in range(round(max_s * 10)):
-        if predicate():
-            return
-        await sim.clock.advance(0.1)
-    raise AssertionError(f"not within {max_s:g} simulated seconds")
 
 
 async def test_a_guard_on_a_sensor_the_drone_does_not_carry_is_refused_at_the_ground() -> None:

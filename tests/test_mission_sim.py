@@ -24,6 +24,7 @@ from schemas.errors import CommandRejected
 from schemas.geo import distance_m
 from sim.projection import LocalFrame
 from sim.world import Fault, World
+from tests.helpers import advance_until
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"
@@ -178,11 +179,7 @@ async def test_critical_battery_fails_and_sends_the_drone_home() -> None:
         record = await field.run_mission(FLY + "sleep(100)\n", max_s=600)
         assert cause(record) == ("cancelled", "return"), record.message
         vehicle = field.vehicles["drone01"]
-        for _ in range(600):  # 300 simulated seconds at most
-            if vehicle.landed_state == "on_ground" and not vehicle.armed:
-                break
-            await field.clock.advance(0.5)
-        assert (vehicle.landed_state, vehicle.armed) == ("on_ground", False), vehicle.mode
+        await advance_until(field, lambda: vehicle.landed_state == "on_ground" and not vehicle.armed, 300)
         assert distance_m(vehicle.lat, vehicle.lon, vehicle.home.lat, vehicle.home.lon) < 1.0
     finally:
         await field.close()

@@ -10,9 +10,8 @@ import ipaddress
 import msgspec
 import pytest
 
-from agent.config import AgentConfig
+from agent.config import AgentConfig, own_endpoint
 from agent.neighbours import radio_locator
-from agent.runtime import own_endpoint
 from bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
