@@ -52,7 +52,7 @@ class RadioAir:
         self.links: dict[tuple[str, str], _Link] = {}
         self._neighbours: dict[str, list[str]] = {}
         self._paths: dict[tuple[str, str], list[str] | None] = {}
-        self._in_flight: dict[tuple[str, str], float] = {}  # last arrival per directed hop (in order)
+        self._in_flight: dict[tuple[str, str], tuple[float, float]] = {}  # per directed hop: (last entry, its arrival)
         self._listeners: list[Callable[[], None]] = []
         self.tick()
 
@@ -75,9 +75,20 @@ class RadioAir:
                 rto *= 2
                 if spent > LEASE_S:
                     return None  # the link's lease runs out first
-            at = max(at + spent, self._in_flight.get((a, b), 0.0))  # a stream keeps its order
-            self._in_flight[(a, b)] = at
+            at = self._in_order((a, b), at, at + spent)
         return at - now
+
+    def _in_order(self, hop: tuple[str, str], enters: float, arrives: float) -> float:
+        """A hop is one stream: a message arrives no earlier than one that entered it
+        before (head-of-line blocking behind a retransmission). Only messages that
+        entered earlier count: a forwarded message computed now may enter the hop later
+        (after its first hops), and what the node itself sends before then is not
+        behind it."""
+        last_enters, last_arrives = self._in_flight.get(hop, (-1.0, 0.0))
+        if enters >= last_enters:
+            arrives = max(arrives, last_arrives)
+            self._in_flight[hop] = (enters, arrives)
+        return arrives
 
     def call_later(self, seconds: float, callback: Callable[[], None]) -> None:
         self.clock.call_later(seconds, callback)

@@ -1,0 +1,204 @@
+"""Random relay worlds from a seed (issue 32): the corpus the relay plugin is judged on.
+
+Each world is a field the plugin has never seen: a radio whose good range is 25-150 m
+and whose total-loss distance is 1.3-2x that; 1-3 working drones, each surveying a
+square area 1.2-3x the loss distance out, in directions at least 45 degrees apart; 2-8
+spare drones in one of several spawn layouts beside the laptop. The mission script
+flies each worker out, surveys its area (`map_area`, thesis script 5.1) and brings it
+home; its first line is the relay plugin's `enable`, which a run replaces per mode.
+
+The world knows what a perfect placement needs (`Needs`): with a relay every `hop_m`
+(where the radio model's quality is still `min_quality`), a worker's farthest corner
+needs `ceil(d / hop_m) - 1` relays in a chain. The fewest relays any placement needs
+is the longest such chain (chains may share their first relays); independent chains
+for every worker are always enough. A world whose spares reach that sum is one "where
+the spare drones suffice".
+
+Pure: no I/O, no clock; the same seed gives the same world.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+from schemas.geo import destination, distance_m
+from sim.radio import RadioModel
+from sim.world import BatteryModel, DroneSpec, Spot, World
+
+ORIGIN = Spot(lat=40.634125, lon=-8.660336, alt=8.2)
+MIN_QUALITY = 0.6  # the plugin's default bar, which the lower bound's hop is measured at
+SPAWN_GAP_M = 7.0  # drones spawn at least this far apart (flying drones keep 5 m)
+MIN_BEARING_GAP = 45.0  # degrees between two workers' directions
+LAYOUTS = ("row", "grid", "ring", "scatter", "offset")
+SURVEY_SPEED = 5.0  # m/s along the survey legs (the simulator's cruise speed)
+TRANSIT_SPEED = 8.0  # m/s out to the area and home
+# Far worlds fly for minutes: a battery that lasts about 25 minutes keeps the corpus
+# about connectivity, not endurance (the replacement plugin is another story).
+CORPUS_BATTERY = BatteryModel(drain_per_s=0.0006, floor=0.38)
+
+
+@dataclass(frozen=True)
+class Survey:
+    drone: str
+    bearing: float  # degrees from the laptop to the area's centre
+    distance_m: float  # laptop to the area's centre
+    side_m: float
+    corner: tuple[float, float]  # lat, lon of the south-west corner (map_area's start)
+    farthest_m: float  # the area's corner farthest from the laptop
+
+
+@dataclass(frozen=True)
+class Needs:
+    hop_m: float  # a perfect relay spacing: the model's quality is min_quality here
+    chains: tuple[int, ...]  # relays one chain to each worker's farthest corner needs
+    lower_bound: int  # the fewest relays any placement needs (the longest chain)
+    enough: int  # relays that always suffice (a chain per worker)
+
+
+@dataclass(frozen=True)
+class CorpusWorld:
+    seed: int
+    world: World
+    layout: str
+    surveys: tuple[Survey, ...]
+    spares: tuple[str, ...]
+    needs: Needs
+
+    @property
+    def workers(self) -> tuple[str, ...]:
+        return tuple(s.drone for s in self.surveys)
+
+    @property
+    def radio(self) -> RadioModel:
+        assert self.world.radio is not None
+        return self.world.radio
+
+    @property
+    def spares_suffice(self) -> bool:
+        return len(self.spares) >= self.needs.enough
+
+    def describe(self) -> str:
+        r = self.radio
+        areas = ", ".join(f"{s.drone} {s.distance_m:.0f} m at {s.bearing:.0f}°" for s in self.surveys)
+        return (f"world {self.seed}: radio {r.good_m:.0f}/{r.lost_m:.0f} m, {areas}; {len(self.spares)} spares ({self.layout}), "
+                f"relays needed ≥ {self.needs.lower_bound} (a chain each: {self.needs.enough})")
+
+    def script(self, relay_line: str | None) -> str:
+        """The mission: every worker surveys its area at once; `relay_line` is the
+        plugin's `enable(...)` (None: no relay plugin)."""
+        lines = [
+            f'"""Corpus {self.describe()}"""',
+            relay_line or "# no relay plugin",
+            'enable("mapping")',
+            "",
+            "",
+            "def survey(drone, corner, side):",
+            "    arm(drone)",
+            "    takeoff(drone)",
+            f"    move(drone, to=corner, speed={TRANSIT_SPEED:g} * m / s)",
+            "    map_area(drone, side, side, 1, 2)",
+            f"    move(drone, to=drone.home, speed={TRANSIT_SPEED:g} * m / s)",
+            "    land(drone)",
+            "",
+            "",
+        ]
+        runs = []
+        for s in self.surveys:
+            lines.append(f'{s.drone} = assign("{s.drone}")')
+            runs.append(f"run(survey, {s.drone}, position({s.corner[0]:.7f}, {s.corner[1]:.7f}), {s.side_m:.1f} * m)")
+        lines.append(f"wait({', '.join(runs)})")
+        return "\n".join(lines) + "\n"
+
+
+def hop_m(radio: RadioModel, min_quality: float = MIN_QUALITY) -> float:
+    """Where the model's quality (1 - loss) falls to `min_quality`."""
+    return radio.good_m + (1.0 - min_quality) * (radio.lost_m - radio.good_m)
+
+
+def needs(radio: RadioModel, surveys: tuple[Survey, ...], min_quality: float = MIN_QUALITY) -> Needs:
+    hop = hop_m(radio, min_quality)
+    chains = tuple(max(0, math.ceil(s.farthest_m / hop) - 1) for s in surveys)
+    return Needs(hop_m=hop, chains=chains, lower_bound=max(chains, default=0), enough=sum(chains))
+
+
+def generate(seed: int) -> CorpusWorld:
+    rng = random.Random(f"relay-corpus:{seed}")
+    good = rng.uniform(25.0, 150.0)
+    lost = good * rng.uniform(1.3, 2.0)
+    radio = RadioModel(good_m=round(good, 1), lost_m=round(lost, 1))
+    n_workers = rng.randint(1, 3)
+    n_spares = rng.randint(2, 8)
+    layout = rng.choice(LAYOUTS)
+    spots = _spawn(rng, layout, n_workers + n_spares, radio.good_m)
+    ids = [f"drone{i + 1:02d}" for i in range(len(spots))]
+    bearings = _bearings(rng, n_workers)
+    surveys = []
+    for drone, bearing in zip(ids[:n_workers], bearings, strict=True):
+        centre = rng.uniform(1.2, 3.0) * radio.lost_m
+        side = round(min(40.0, max(15.0, 0.3 * radio.good_m)) * rng.uniform(0.8, 1.2), 1)
+        c_lat, c_lon = destination(ORIGIN.lat, ORIGIN.lon, centre, bearing)
+        s_lat, _ = destination(c_lat, c_lon, side / 2, 180.0)
+        corner = destination(s_lat, c_lon, side / 2, 270.0)
+        corners = [corner, destination(*corner, side, 0.0), destination(*corner, side, 90.0),
+                   destination(*destination(*corner, side, 0.0), side, 90.0)]
+        farthest = max(distance_m(ORIGIN.lat, ORIGIN.lon, la, lo) for la, lo in corners)
+        surveys.append(Survey(drone, round(bearing, 1), round(centre, 1), side, corner, round(farthest, 1)))
+    drones = [DroneSpec(id=i, lat=lat, lon=lon) for i, (lat, lon) in zip(ids, spots, strict=True)]
+    world = World(origin=ORIGIN, ground_station=Spot(lat=ORIGIN.lat, lon=ORIGIN.lon), drones=drones, radio=radio,
+                  battery=CORPUS_BATTERY)
+    t = tuple(surveys)
+    return CorpusWorld(seed=seed, world=world, layout=layout, surveys=t, spares=tuple(ids[n_workers:]), needs=needs(radio, t))
+
+
+def _bearings(rng: random.Random, n: int) -> list[float]:
+    """`n` directions at least MIN_BEARING_GAP apart."""
+    while True:
+        chosen = [rng.uniform(0.0, 360.0) for _ in range(n)]
+        if all(_angle(a, b) >= MIN_BEARING_GAP for i, a in enumerate(chosen) for b in chosen[i + 1:]):
+            return chosen
+
+
+def _angle(a: float, b: float) -> float:
+    d = abs(a - b) % 360.0
+    return min(d, 360.0 - d)
+
+
+def _spawn(rng: random.Random, layout: str, n: int, good_m: float) -> list[tuple[float, float]]:
+    """Where `n` drones stand at the start, near the laptop and within the radio's good
+    range of it, SPAWN_GAP_M apart at least."""
+    g = SPAWN_GAP_M
+    turn = rng.uniform(0.0, 360.0)
+    offsets: list[tuple[float, float]]  # (distance, bearing) from the origin
+    if layout == "row":
+        offsets = [(g * (i + 1), turn) for i in range(n)]
+    elif layout == "grid":
+        cols = math.ceil(math.sqrt(n))
+        offsets = [_polar(g * (1 + i % cols), g * (1 + i // cols), turn) for i in range(n)]
+    elif layout == "ring":
+        radius = max(g, g * n / (2 * math.pi) * 1.1)
+        offsets = [(radius, turn + 360.0 * i / n) for i in range(n)]
+    elif layout == "offset":  # a row some way off, still in good range
+        away = min(0.5 * good_m, rng.uniform(15.0, 40.0))
+        offsets = [_polar(away, g * (i - (n - 1) / 2), turn) for i in range(n)]
+    else:  # scatter
+        offsets = []
+        reach = max(15.0, min(0.4 * good_m, 30.0))
+        while len(offsets) < n:
+            cand = (rng.uniform(g, reach), rng.uniform(0.0, 360.0))
+            if all(_apart(cand, o) >= g for o in offsets):
+                offsets.append(cand)
+    return [destination(ORIGIN.lat, ORIGIN.lon, d, b % 360.0) for d, b in offsets]
+
+
+def _polar(north: float, east: float, turn: float) -> tuple[float, float]:
+    """A grid offset (north, east), turned by `turn` degrees, as (distance, bearing)."""
+    return math.hypot(north, east), math.degrees(math.atan2(east, north)) + turn
+
+
+def _apart(a: tuple[float, float], b: tuple[float, float]) -> float:
+    (da, ba), (db, bb) = a, b
+    ax, ay = da * math.sin(math.radians(ba)), da * math.cos(math.radians(ba))
+    bx, by = db * math.sin(math.radians(bb)), db * math.cos(math.radians(bb))
+    return math.hypot(ax - bx, ay - by)
