@@ -673,7 +673,7 @@ def build_namespace(mission: Mission, guards: Guards) -> dict[str, Any]:
     base = common_names(guards)  # what a plugin enabled by this mission sees
     base.update(verbs)
     base.update(channel=Channel(m), mission_id=m.id, step=Steps(), when=When(),
-                relays=Relays(lambda: len(m.free_candidates())))
+                relays=Relays(m))
     namespace = dict(base)  # the script's globals
     return namespace
 

@@ -28,7 +28,7 @@ from bus.port import Unreachable
 from mission import assignment as a
 from mission.plugins import MissionPlugins, PluginLibrary
 from mission.port import FleetPort, MissionConfig
-from mission.runtime import Scheduler, Stopped, Subroutine
+from mission.runtime import Scheduler, Stopped, Subroutine, current_subroutine
 from mission.sandbox import Guards, SecurityViolation
 from schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
 from schemas.errors import STATE_UNKNOWN, CommandRejected, FleetError, InvalidMessage
@@ -246,6 +246,17 @@ class Mission:
         self.end(cause, message)
         return MissionOver(message)
 
+    def setback(self, cause: str, message: str) -> MissionOver:
+        """A command refused or failed, or no drone to assign: the mission's failure with
+        `cause` - unless a monitoring plugin's subroutine sent it. Then it is the
+        plugin's problem (SPEC §5: monitoring plugins log and go on): logged, and only
+        that subroutine unwinds; the plugin sees the drone's state next time round."""
+        sub = current_subroutine()
+        if sub is None or sub.plugin is None or self.ending:
+            return self.fail(cause, message)
+        self.log("warn", f"plugin {sub.plugin}: {message}; the plugin goes on")
+        return MissionOver(message)
+
     async def _wind_down(self) -> None:
         assert self.scheduler is not None
         self.scheduler.stop_all()
@@ -440,7 +451,7 @@ class Mission:
             try:
                 ids = a.assign_many(requests, self.free_candidates())
             except a.Unfulfilled as exc:
-                raise self.fail("requirements", str(exc)) from None
+                raise self.setback("requirements", str(exc)) from None
             taken: list[str] = []
             try:
                 for drone_id, request in zip(ids, requests, strict=True):
@@ -453,7 +464,7 @@ class Mission:
                     self.station.release(drone_id)
                 self.changed()
                 if attempt == CLAIM_TRIES:
-                    raise self.fail("requirements", f"could not claim drones: {exc.reason}") from None
+                    raise self.setback("requirements", f"could not claim drones: {exc.reason}") from None
                 self.log("info", f"{exc.reason}; choosing again")
         raise AssertionError("unreachable")
 
@@ -554,7 +565,7 @@ class Mission:
             drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
         ))
         if status.state == "failure":
-            raise self.fail("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
+            raise self.setback("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
 
     async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False) -> None:
@@ -627,12 +638,12 @@ class Mission:
         try:
             yield
         except InvalidMessage as exc:
-            raise self.fail("cmd_parse", f"{name} {drone_id}: {exc}") from None
+            raise self.setback("cmd_parse", f"{name} {drone_id}: {exc}") from None
         except CommandRejected as exc:
             cause = "geofence" if exc.code == FENCE else "cmd_exec"
-            raise self.fail(cause, f"{name} {drone_id} refused: {exc.reason}") from None
+            raise self.setback(cause, f"{name} {drone_id} refused: {exc.reason}") from None
         except Unreachable as exc:
-            raise self.fail("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
+            raise self.setback("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
 
     async def _outcome(self, fut: asyncio.Future[T], drone_id: str) -> T:
         """Wait for a command's or bundle's end. A stopped subroutine stops what it

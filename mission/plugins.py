@@ -446,7 +446,8 @@ class MissionPlugins:
                 callback(wrapper)
                 _call(m, m.next_telemetry(wrapper._live()))
 
-        sub = m.scheduler.spawn(monitor, name=f"plugin {active.plugin.id} on {wrapper.id}", daemon=True)
+        sub = m.scheduler.spawn(monitor, name=f"plugin {active.plugin.id} on {wrapper.id}", daemon=True,
+                                plugin=active.plugin.id)
         active.monitors[id(wrapper)] = (wrapper, sub)
 
     def _verb(self, active: Active, fn: Callable[..., Any]) -> Callable[..., Any]:

@@ -10,15 +10,18 @@ around the ground station, the plan's points become positions again.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mission import units
 from mission.geo import Position, as_position
 from relay import distance as baseline
 from relay import planner
 from sim.projection import LocalFrame
+
+if TYPE_CHECKING:
+    from mission.mission import Mission
 
 AIRBORNE_M = 1.0  # above home: flying
 
@@ -70,10 +73,15 @@ def flight_altitude(drone: Any) -> float | None:
 
 
 class Relays:
-    """The `relays` name in scripts."""
+    """The `relays` name in scripts; `mission` (None where no mission runs: a plugin's
+    load check) gives it the free drones and the clock."""
 
-    def __init__(self, free: Callable[[], int] | None = None) -> None:
-        self._free = free
+    def __init__(self, mission: Mission | None = None) -> None:
+        self._mission = mission
+
+    def now(self) -> float:
+        """Seconds on the mission's clock (monotonic; virtual in fast time)."""
+        return self._mission.clock.monotonic() if self._mission is not None else 0.0
 
     def metres(self, value: Any, what: str = "distance") -> float:
         """A length input (`5*m` or a plain number of metres) as metres."""
@@ -81,7 +89,7 @@ class Relays:
 
     def spare(self) -> int:
         """How many drones of the fleet are free to be dispatched as relays now."""
-        return self._free() if self._free is not None else 0
+        return len(self._mission.free_candidates()) if self._mission is not None else 0
 
     def duty_altitude(self, index: int, served: Sequence[Any], **inputs: Any) -> float:
         """Script 5.9's alternating duty altitudes (index 0: base_alt + alt_diff, 1:

@@ -17,6 +17,7 @@ docs/adr/0001-mission-runtime.md for the choice and its limits.
 from __future__ import annotations
 
 import asyncio
+import contextvars
 import itertools
 import time
 from collections.abc import Awaitable, Callable
@@ -27,6 +28,16 @@ from greenlet import getcurrent, greenlet
 T = TypeVar("T")
 SLICE_S = 0.01  # real time a script may compute before yielding to the loop
 SLICE_TICKS = 2000  # the same in ticks, used under a virtual clock (deterministic)
+
+
+_CURRENT: contextvars.ContextVar[Subroutine | None] = contextvars.ContextVar("subroutine", default=None)
+
+
+def current_subroutine() -> Subroutine | None:
+    """The subroutine running now: its script greenlet, or its driver task (or a task
+    that one started), if any."""
+    sub: Subroutine | None = getattr(getcurrent(), "sub", None)
+    return sub if sub is not None else _CURRENT.get()
 
 
 class Stopped(BaseException):
@@ -40,12 +51,13 @@ class _ScriptGreenlet(greenlet):
 class Subroutine:
     """The handle `run()` returns: `.running`, `.finished`, `.result`."""
 
-    __slots__ = ("_error", "_result", "_stopping", "_task", "_done", "daemon", "name", "owner")
+    __slots__ = ("_error", "_result", "_stopping", "_task", "_done", "daemon", "name", "owner", "plugin")
 
-    def __init__(self, owner: Scheduler, name: str, daemon: bool = False) -> None:
+    def __init__(self, owner: Scheduler, name: str, daemon: bool = False, plugin: str | None = None) -> None:
         self.owner = owner
         self.name = name
         self.daemon = daemon  # a plugin's monitor: the mission does not wait for it
+        self.plugin = plugin  # the monitoring plugin that started it (or an ancestor), if any
         self._task: asyncio.Task[Any] | None = None
         self._stopping = False
         self._result: Any = None
@@ -91,8 +103,14 @@ class Scheduler:
 
     # ---- starting and stopping ----------------------------------------------------
 
-    def spawn(self, fn: Callable[..., Any], *args: Any, name: str | None = None, daemon: bool = False) -> Subroutine:
-        sub = Subroutine(self, name or f"sub{next(self._names)}", daemon)
+    def spawn(self, fn: Callable[..., Any], *args: Any, name: str | None = None, daemon: bool = False,
+              plugin: str | None = None) -> Subroutine:
+        """Start `fn(*args)` as a subroutine; one started by a plugin's subroutine
+        belongs to that plugin too (`plugin`)."""
+        if plugin is None:
+            parent = current_subroutine()
+            plugin = parent.plugin if parent is not None else None
+        sub = Subroutine(self, name or f"sub{next(self._names)}", daemon, plugin)
         self.subroutines.append(sub)
         sub._task = asyncio.get_running_loop().create_task(self._drive(sub, fn, args), name=sub.name)
         # A task cancelled before its first step never runs _drive's `finally`: the
@@ -138,6 +156,7 @@ class Scheduler:
     # ---- the bridge ---------------------------------------------------------------
 
     async def _drive(self, sub: Subroutine, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        _CURRENT.set(sub)  # this task's own context (and that of the tasks it starts)
         g = _ScriptGreenlet(fn)
         g.sub = sub
         try:

@@ -217,3 +217,40 @@ def test_simulate_cli_enables_plugins(tmp_path: Path) -> None:
     assert code != 0 and "no plugin 'nope'" in out
     code, out = simulate("--enable", "counter label")
     assert code != 0 and "expected key=value" in out
+
+
+CLUMSY = '''
+def nudge(drone):
+    move(drone, forward=5 * m)  # the drone is on the ground, disarmed: refused
+
+def main(drone):
+    if count == 0:
+        vars_set(1)
+        run(nudge, drone)
+
+def vars_set(value):
+    global count
+    count = value
+
+plugin(id="clumsy", type=monitoring, vars={"count": 0}, callback=main)
+'''
+
+
+async def test_a_monitoring_plugins_refused_command_is_its_own_problem_not_the_missions(tmp_path: Path) -> None:
+    """Issue 32 item 2: a plugin's refused or failed command (a relay's reposition) is
+    logged and the plugin goes on; the same command sent by the script itself still
+    ends the mission (cmd_exec)."""
+    script = '''
+        enable("clumsy")
+        d = assign()
+        for _ in range(4):
+            wait(d)
+        print("script done")
+    '''
+    [(record, log)] = await run(library(tmp_path, clumsy=CLUMSY), script)
+    assert (record.status, record.cause) == ("finished", "success"), record.message
+    refused = [line for line in log if line.startswith("plugin clumsy: goto drone01 refused")]
+    assert refused and refused[0].endswith("the plugin goes on"), log
+    assert "script done" in log
+    [(record, _)] = await run(library(tmp_path), 'd = assign()\nmove(d, forward=5 * m)\n')
+    assert (record.status, record.cause) == ("failed", "cmd_exec"), record.message

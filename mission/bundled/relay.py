@@ -14,6 +14,14 @@ drones; chains form where one hop is not enough.
 
 `ground=[lat, lon]` is the ground station (default: the first served drone's home);
 `good_m`/`lost_m` the radio model the plan starts from (the world's `radio:`).
+
+A relay on duty is part of the link (issue 32): it flies its spot as a task bundle
+whose `on_link_loss` is `continue`, so its own lost-link failsafe does not pull it off
+duty when the chain behind it breaks. The bundle holds the spot for DUTY_S and is
+renewed while the plugin still plans; a relay the plugin no longer renews (the ground
+gone for that long) ends its duty and its agent's lost-link policy brings it home.
+A relay's refused or failed command is the plugin's problem: logged, never the
+mission's failure (the mission's `setback`).
 """
 
 duty = {}  # relay id -> {"target": position, "alt": metres above home, "serving": bool, "ready": bool}
@@ -21,6 +29,9 @@ crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
 state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {}}
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
+steps = step  # the bundle steps' builder: the input `step` (a length) takes its name once enabled
+DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
+RENEW_S = 60  # ... and is renewed when less than this is left
 
 
 def ground_spot(drone):
@@ -55,10 +66,13 @@ def on_duty(relay):
 
 
 def go(relay):
+    """Fly to the duty spot and hold it, as a bundle that keeps flying through a lost link."""
     if not on_duty(relay):
         return
     d = duty[relay.id]
-    move(relay, to=d["target"], alt=relay.home.alt + d["alt"], speed=speed_for(relay, d["target"]))
+    d["until"] = relays.now() + DUTY_S
+    spot = steps.move(to=d["target"], alt=relay.home.alt + d["alt"], speed=speed_for(relay, d["target"]))
+    push(relay, [spot, steps.wait(DUTY_S * s)], on_link_loss="continue", timeout=(DUTY_S + 300) * s)
 
 
 def recall(relay):
@@ -103,6 +117,7 @@ def measured(drone):
                        min_quality=min_quality, base_alt=base_alt, alt_diff=alt_diff, step=step,
                        min_separation=min_separation, good_m=good_m, lost_m=lost_m)
     state["scale"], state["steady"] = plan.scale, plan.steady
+    moved = [rid for rid, _, _ in plan.moves]
     for rid, spot, alt in plan.moves:
         d = duty[rid]
         called_back = not d["serving"]
@@ -112,6 +127,10 @@ def measured(drone):
         if called_back and d["ready"]:
             run(recall, crew[rid])
         elif d["ready"]:
+            run(go, crew[rid])
+    for rid, d in duty.items():  # duty bundles that run out soon are renewed
+        if d["serving"] and d["ready"] and d.get("until") is not None and d["until"] - relays.now() < RENEW_S and rid not in moved:
+            d["until"] = None  # once: go() sets it again
             run(go, crew[rid])
     for spot, alt in plan.dispatch:
         state["dispatching"] += 1
