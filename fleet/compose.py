@@ -311,8 +311,7 @@ class SimField:
             return
         for drone_id, track in self.tracks.items():
             p = self.vehicles[drone_id].position()
-            track.flown.append({"t_s": round(self.clock.monotonic(), 3), "lat": p.lat, "lon": p.lon, "alt": p.alt,
-                                "rel_alt": p.rel_alt})
+            track.flown.append({"t_s": round(self.clock.monotonic(), 3), "lat": p.lat, "lon": p.lon, "rel_alt": p.rel_alt})
 
     async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S,
                           enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:

@@ -21,7 +21,6 @@ from typing import Any
 
 from fleet import relay_experiments as rx
 from fleet.compose import simulate
-from schemas.geo import distance_m
 from sim.corpus import CorpusWorld, generate
 
 MODES = {
@@ -48,8 +47,6 @@ class Outcome:
     spares: int
     separation_m: float  # least 3-D distance between two flying drones (inf: never two)
     battery: float
-    held: bool  # the plugin held a worker at the edge at least once
-    notes: tuple[str, ...]  # the relay plugin's warnings, for the report
 
     @property
     def finished(self) -> bool:
@@ -73,16 +70,13 @@ async def fly(world: CorpusWorld, mode: str, seed: int | None = None, max_s: flo
 def judge(world: CorpusWorld, mode: str, result: dict[str, Any]) -> Outcome:
     record = result["mission"]
     workers = world.workers
-    log = [line["message"] for line in result["log"]]
     return Outcome(
         seed=world.seed, mode=mode, status=record["status"], cause=record["cause"], message=record.get("message") or "",
         longest_gap_s=round(max(rx.longest_gap(result, d) for d in workers), 2),
         relays=len(rx.relays_flown(result, workers)),
         lower_bound=world.needs.lower_bound, enough=world.needs.enough, spares=len(world.spares),
-        separation_m=least_separation(result),
+        separation_m=rx.least_distance(result, itertools.combinations(sorted(result["drones"]), 2)),
         battery=round(rx.battery_spent(result), 3),
-        held=any("held at the edge" in line for line in log),
-        notes=tuple(line for line in log if "relay" in line.lower() and ("refused" in line or "failsafe" in line)),
     )
 
 
@@ -92,18 +86,6 @@ def run_world(seed: int, mode: str) -> Outcome:
     logging.disable(logging.WARNING)
     world = generate(seed)
     return judge(world, mode, asyncio.run(fly(world, mode)))
-
-
-def least_separation(result: dict[str, Any]) -> float:
-    """The least 3-D distance between any two drones flying at the same moment."""
-    at = {d: {p["t_s"]: p for p in rx.track(result, d) if p["rel_alt"] > rx.AIRBORNE_M} for d in result["drones"]}
-    least = math.inf
-    for a, b in itertools.combinations(sorted(at), 2):
-        for t in at[a].keys() & at[b].keys():
-            pa, pb = at[a][t], at[b][t]
-            flat = distance_m(pa["lat"], pa["lon"], pb["lat"], pb["lon"])
-            least = min(least, math.hypot(flat, pa["alt"] - pb["alt"]))
-    return least
 
 
 def _pct(values: Sequence[float], q: float) -> float:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -122,19 +123,25 @@ def battery_spent(result: dict[str, Any]) -> float:
 
 
 def least_separation(result: dict[str, Any], served: tuple[str, ...]) -> float:
+    """The least 3-D distance between an airborne relay and another relay or a served drone."""
     relays = relays_flown(result, served)
+    pairs = [(relay, other) for relay in relays for other in [*relays, *served]
+             if not (other <= relay and other in relays)]  # each pair of relays once
+    return least_distance(result, pairs)
+
+
+def least_distance(result: dict[str, Any], pairs: Iterable[tuple[str, str]]) -> float:
+    """The least 3-D distance between the two drones of any of `pairs`, at the moments
+    both were airborne (inf: never)."""
     at = {d: {p["t_s"]: p for p in track(result, d)} for d in result["drones"]}
     least = math.inf
-    for relay in relays:
-        for other in [*relays, *served]:
-            if other <= relay and other in relays:
-                continue  # each pair of relays once
-            for t, a in at[relay].items():
-                b = at[other].get(t)
-                if b is None or a["rel_alt"] <= AIRBORNE_M or b["rel_alt"] <= AIRBORNE_M:
-                    continue
-                flat = distance_m(a["lat"], a["lon"], b["lat"], b["lon"])
-                least = min(least, math.hypot(flat, a["rel_alt"] - b["rel_alt"]))
+    for one, other in pairs:
+        for t, a in at[one].items():
+            b = at[other].get(t)
+            if b is None or a["rel_alt"] <= AIRBORNE_M or b["rel_alt"] <= AIRBORNE_M:
+                continue
+            flat = distance_m(a["lat"], a["lon"], b["lat"], b["lon"])
+            least = min(least, math.hypot(flat, a["rel_alt"] - b["rel_alt"]))
     return least
 
 

@@ -32,7 +32,6 @@ MIN_QUALITY = 0.6  # the plugin's default bar, which the lower bound's hop is me
 SPAWN_GAP_M = 7.0  # drones spawn at least this far apart (flying drones keep 5 m)
 MIN_BEARING_GAP = 45.0  # degrees between two workers' directions
 LAYOUTS = ("row", "grid", "ring", "scatter", "offset")
-SURVEY_SPEED = 5.0  # m/s along the survey legs (the simulator's cruise speed)
 TRANSIT_SPEED = 8.0  # m/s out to the area and home
 # Far worlds fly for minutes: a battery that lasts about 25 minutes keeps the corpus
 # about connectivity, not endurance (the replacement plugin is another story).

@@ -224,13 +224,10 @@ def nudge(drone):
     move(drone, forward=5 * m)  # the drone is on the ground, disarmed: refused
 
 def main(drone):
-    if count == 0:
-        vars_set(1)
-        run(nudge, drone)
-
-def vars_set(value):
     global count
-    count = value
+    if count == 0:
+        count = 1
+        run(nudge, drone)
 
 plugin(id="clumsy", type=monitoring, vars={"count": 0}, callback=main)
 '''
