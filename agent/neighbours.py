@@ -128,7 +128,8 @@ class Neighbours:
                     if len(heard.answers) == ANSWER_WINDOW and not any(heard.answers) and zid not in self.bridges:
                         del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
                 was_needed = need.needed
-                needed = need.update(self.direct_link() and not self.ground_silent(), loop.time())
+                direct = await asyncio.to_thread(self.direct_link)  # a Zenoh call: off the loop, as stop() above
+                needed = need.update(direct and not self.ground_silent(), loop.time())
                 if needed != was_needed:
                     log.info("%s: %s", self.drone_id, "no working direct link to the ground; relaying through neighbours"
                              if needed else f"the direct link to the ground has worked {DIRECT_STEADY_S:g} s; "
@@ -155,7 +156,11 @@ class Neighbours:
             while (hello := scout.try_recv()) is not None:
                 hellos.append((str(hello.zid), [str(loc) for loc in hello.locators]))
         finally:
-            scout.stop()
+            # Never on the event loop: Zenoh's Scout.stop() waits (up to 10 s) for the
+            # scout task to end, and that task runs on the runtime that also accepts
+            # links; while a neighbour's link was being accepted over a lossy hop, a
+            # stop held this agent's loop 9.9 s and its telemetry with it (ADR 0003).
+            await asyncio.to_thread(scout.stop)
         await asyncio.sleep(ROUND_S * 0.2)
         return hellos
 

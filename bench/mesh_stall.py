@@ -79,6 +79,7 @@ class Field:
         self.gaps: dict[str, float] = {}
         self.token_losses: dict[str, int] = {}
         self.alive: set[str] = set()
+        self.gap_log: list[str] = []
         self.h_zid = ""
         ground.subscribe("drone/*/telem", self._on_telem)
         ground.watch_liveliness("drone/*/alive", self._on_alive)
@@ -89,6 +90,9 @@ class Field:
         last = self.last_telem.get(drone)
         if last is not None:
             self.gaps[drone] = max(self.gaps.get(drone, 0.0), now - last)
+            if now - last >= GAP_BAR_S:  # when, to match against the agents' logs (--keep)
+                self.gap_log.append(f"{time.strftime('%H:%M:%S', time.localtime(time.time() - (now - last)))} "
+                                    f"{drone} unheard for {now - last:.2f} s")
         self.last_telem[drone] = now
         json.loads(sample.payload)  # decoded as the ground does
 
@@ -160,6 +164,7 @@ class Field:
 
     def reset_counters(self) -> None:
         self.gaps.clear()
+        self.gap_log.clear()
         self.token_losses.clear()
 
 
@@ -251,6 +256,9 @@ async def measure(runs: int, scenarios: list[str], keep: Path | None = None, *, 
                     say(f"  {scenario:6s} run {i:2d}: H's longest gap {run.gap_s:5.2f} s, token lost {run.token_lost}, "
                           f"link closed {run.link_closed}  (F through R: longest gap {run.far_gap_s:5.2f} s)"
                           f"{'' if run.ok else '  FAIL'}", flush=True)
+                    if keep is not None:
+                        for line in fld.gap_log:
+                            say(f"      {line}", flush=True)
         finally:
             fld.stop_all()
             await ground.close()

@@ -5,14 +5,19 @@ tests/test_field_network.py and bench/mesh_stall.py."""
 
 from __future__ import annotations
 
+import asyncio
 import ipaddress
+import threading
+from typing import cast
 
 import msgspec
 import pytest
+import zenoh
 
 from agent.config import AgentConfig, own_endpoint
-from agent.neighbours import radio_locator
+from agent.neighbours import Neighbours, radio_locator
 from bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose
+from bus.zenoh_bus import ZenohBus
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
 
@@ -73,3 +78,30 @@ def test_a_mesh_interface_needs_a_listener_on_a_fixed_port() -> None:
     with pytest.raises(msgspec.ValidationError, match="mesh_interface needs a `listen` TCP or TLS endpoint"):
         msgspec.convert({"mesh_interface": "radio0", "listen": ["tcp/0.0.0.0:0"]}, AgentConfig)
     assert msgspec.convert({"mesh_interface": "radio0"}, AgentConfig).listen == ["tcp/0.0.0.0:7448"]
+
+
+async def test_a_scouting_round_never_holds_the_event_loop(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Zenoh's `Scout.stop()` waits (up to 10 s) for the scout task, which runs on the
+    runtime that also accepts links: in bench/mesh_stall.py a stop held the healthy
+    drone's event loop, and its telemetry, for 9.9 s. The round stops its scout off the
+    loop. Here a stop that only the event loop can release: run on the loop, it would
+    wait out its deadline instead."""
+    stopping, released = threading.Event(), threading.Event()
+    held: list[bool] = []
+
+    class StuckScout:
+        def try_recv(self) -> None:
+            return None
+
+        def stop(self) -> None:
+            stopping.set()
+            held.append(not released.wait(timeout=10))
+
+    monkeypatch.setattr(zenoh, "scout", lambda *args, **kwargs: StuckScout())
+    neighbours = Neighbours("d1", cast(ZenohBus, None), "lo", [], "tcp/127.0.0.1:7448", lambda: False)
+    scouting = asyncio.create_task(neighbours._scout_round())
+    async with asyncio.timeout(30):
+        assert await asyncio.to_thread(stopping.wait, 20)
+        released.set()  # the loop turns while the stop waits
+        assert await scouting == []
+    assert held == [False]
