@@ -30,6 +30,7 @@ from ground.describe import describe_step
 from ground.eventlog import EventLog
 from ground.recording import MissionRecordings
 from ground.registry import Event, InfoChanged, LogLine, Registry
+from ground.throttle import WarningThrottle
 from schemas.auth import T, signer_of
 from schemas.bundles import BundleRecord, BundleReply, BundleStatus, new_bundle_id, parse_bundle, sensor_guards
 from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
@@ -70,6 +71,7 @@ class GroundStation:
         self.bus = bus
         self.events = events
         self.clock = clock or SystemClock()
+        self._warnings = WarningThrottle(log, self.clock)
         self.keys = Keys(config.namespace)
         self.registry = Registry(config, relays_of(config.security))  # who the mesh lets relay
         self._watchers: set[Watcher] = set()
@@ -356,7 +358,7 @@ class GroundStation:
         if parsed is None or status.drone_id != parsed.drone_id:
             # A status speaks for the drone whose key it came on, and only for it: one
             # naming another drone would move that drone's commands and bundles.
-            log.warning("ignored a status on %s that names drone %r", sample.key, status.drone_id)
+            self._warnings.warn(sample.key, "ignored a status on %s that names drone %r", sample.key, status.drone_id)
             return
         if not self.registry.first_heard(status):
             return
@@ -422,12 +424,11 @@ class GroundStation:
             message = msgspec.structs.replace(message, drone_id=parsed.drone_id)
         return message
 
-    @staticmethod
-    def _decode(decoder: Any, sample: Sample) -> Any:
+    def _decode(self, decoder: Any, sample: Sample) -> Any:
         try:
             return decoder(sample.payload)
         except InvalidMessage as exc:
-            log.warning("ignored a bad message on %s: %s", sample.key, exc)
+            self._warnings.warn(sample.key, "ignored a bad message on %s: %s", sample.key, exc)
             return None
 
     # ---- events out ----------------------------------------------------------------

@@ -67,7 +67,8 @@ class BatteryModel(_Strict, frozen=True):
 class World(_Strict, frozen=True):
     origin: Spot = Spot(lat=40.633490, lon=-8.660815, alt=8.2)
     ground_station: Spot | None = None
-    drones: list[DroneSpec] = []
+    # Listed drones (none listed: `count` of them in a row); a file listing none is refused.
+    drones: Annotated[list[DroneSpec], Meta(min_length=1)] = []
     count: Annotated[int, Meta(ge=1, le=100)] | None = None
     environment_temp: float = 20.0
     heat_sources: list[HeatSource] = []

@@ -22,7 +22,7 @@ from schemas.codec import decode_status, decode_telemetry
 from schemas.commands import CommandReply
 from schemas.keys import Keys
 from schemas.status import CommandStatus, SystemStatus
-from schemas.telemetry import Telemetry
+from schemas.telemetry import Position, Telemetry
 from tests.helpers import Collector, free_port, free_udp_base, signal_and_wait, until
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,22 +62,24 @@ class ChildProcess:
     def __init__(self, args: list[str], log: Path) -> None:
         self.args = args
         self.log = log
-        self.proc: subprocess.Popen[bytes] | None = None
-        self.start()
+        self.proc = self._spawn()
+
+    def _spawn(self) -> subprocess.Popen[bytes]:
+        with open(self.log, "ab") as out:  # the child holds its own copy of the descriptor
+            return subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
 
     def start(self) -> None:
-        with open(self.log, "ab") as out:  # the child holds its own copy of the descriptor
-            self.proc = subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
+        """Start it again (after a stop or a kill)."""
+        self.proc = self._spawn()
 
     def kill(self) -> None:
         """SIGKILL: no cleanup of any kind, as in a crash."""
-        assert self.proc is not None
         self.proc.kill()
         self.proc.wait()
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 10) -> int | None:
-        if self.proc is None or self.proc.poll() is not None:
-            return self.proc.returncode if self.proc else None
+        if self.proc.poll() is not None:
+            return self.proc.returncode
         try:
             return signal_and_wait(self.proc, sig, timeout_s, self.name)
         except AssertionError as exc:
@@ -113,6 +115,12 @@ class AgentProcess(ChildProcess):
             fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args),
             tmp / f"{drone_id}.log",
         )
+
+
+def at(telemetry: Telemetry) -> Position:
+    """The sample's position, which a test's flight always has (an assertion otherwise)."""
+    assert telemetry.position is not None, telemetry
+    return telemetry.position
 
 
 class Operator:

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
-from tests.harness import AgentProcess, Operator
+from tests.harness import AgentProcess, Operator, at
 from tests.helpers import until
 
 pytestmark = pytest.mark.integration
@@ -52,55 +52,56 @@ async def test_flight_contract(
     intervals = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
     assert 80 <= statistics.mean(intervals) <= 130, intervals
     assert [t.seq for t in op.telem.items[-11:]] == list(range(op.telem.items[-11].seq, op.telem.items[-11].seq + 11))
-    home = op.last.position
+    home = at(op.last)
 
     # Takeoff is refused while disarmed, with the reason.
     reply = await op.send("takeoff", alt=5)
     assert not reply.accepted and reply.reason == "disarmed"
-    await op.expect(reply.command_id, "failure", 5)
+    await op.expect(reply.command_id, "failure", 30)
 
-    await op.expect(await op.accepted("arm"), "success", 10)
+    await op.expect(await op.accepted("arm"), "success", 30)
     takeoff = await op.accepted("takeoff", alt=5)
     assert (await op.expect(takeoff, "start", 10)).altitude == 5
     await op.expect(takeoff, "finish", 30)
     t = await op.next_telemetry()
-    assert t.position.rel_alt == pytest.approx(5, abs=0.5)
+    assert at(t).rel_alt == pytest.approx(5, abs=0.5)
 
     # Goto 30 m north, yaw null (face the target), no alt (keep altitude).
-    alt_before = t.position.alt
-    lat, lon = destination(t.position.lat, t.position.lon, 30, 0)
+    alt_before = at(t).alt
+    lat, lon = destination(at(t).lat, at(t).lon, 30, 0)
     goto = await op.accepted("goto", lat=lat, lon=lon, yaw=None)
-    start = await op.expect(goto, "start", 10)
+    start = await op.expect(goto, "start", 30)
+    assert start.coords is not None
     assert (start.coords.lat, start.coords.lon) == pytest.approx((lat, lon))
     assert start.coords.alt == pytest.approx(alt_before, abs=0.3)
     await op.expect(goto, "finish", 40)
     t = await op.next_telemetry()
-    assert distance_m(t.position.lat, t.position.lon, lat, lon) <= 0.5 + 0.5
+    assert distance_m(at(t).lat, at(t).lon, lat, lon) <= 0.5 + 0.5
     assert abs(angle_diff_deg(t.heading, 0)) < 3
-    assert t.position.alt == pytest.approx(alt_before, abs=0.5)
+    assert at(t).alt == pytest.approx(alt_before, abs=0.5)
 
     # Turn 90° clockwise.
     turn = await op.accepted("turn", deg=90)
-    await op.expect(turn, "finish", 15)
+    await op.expect(turn, "finish", 30)
     t = await op.next_telemetry()
     assert abs(angle_diff_deg(t.heading, 90)) < 3
 
     # Move 10 m to the right of the heading (east-facing: right is south).
-    before = t.position
+    before = at(t)
     move = await op.accepted("move", x=10)
     await op.expect(move, "finish", 30)
     t = await op.next_telemetry()
-    assert distance_m(before.lat, before.lon, t.position.lat, t.position.lon) == pytest.approx(10, abs=1.0)
-    assert abs(angle_diff_deg(bearing_deg(before.lat, before.lon, t.position.lat, t.position.lon), 180)) < 5
+    assert distance_m(before.lat, before.lon, at(t).lat, at(t).lon) == pytest.approx(10, abs=1.0)
+    assert abs(angle_diff_deg(bearing_deg(before.lat, before.lon, at(t).lat, at(t).lon), 180)) < 5
 
     # A goto far west faces west (yaw null), and a cancel stops it.
-    lat, lon = destination(t.position.lat, t.position.lon, 300, 270)
+    lat, lon = destination(at(t).lat, at(t).lon, 300, 270)
     far = await op.accepted("goto", lat=lat, lon=lon, yaw=None)
-    await op.expect(far, "start", 10)
+    await op.expect(far, "start", 30)
     await op.next_telemetry(lambda t: abs(angle_diff_deg(t.heading, 270)) < 3 and t.speed > 1, 20, "flying west")
     cancel = await op.accepted("cancel")
-    await op.expect(far, "cancel", 10)
-    await op.expect(cancel, "success", 10)
+    await op.expect(far, "cancel", 30)
+    await op.expect(cancel, "success", 30)
     await op.next_telemetry(lambda t: t.speed < 0.1, 10, "holding after cancel")
 
     # Return to launch: climb to at least 10 m, fly home, land, disarm by itself.
@@ -109,35 +110,35 @@ async def test_flight_contract(
     await op.expect(ret, "finish", 90)
     t = await op.next_telemetry()
     assert t.landed_state == "on_ground"
-    assert distance_m(t.position.lat, t.position.lon, home.lat, home.lon) < 1.0
-    await op.system("disarm", 10)
+    assert distance_m(at(t).lat, at(t).lon, home.lat, home.lon) < 1.0
+    await op.system("disarm", 30)
 
     # Two gotos during a takeoff are queued; only the last one flies.
-    await op.expect(await op.accepted("arm"), "success", 10)
+    await op.expect(await op.accepted("arm"), "success", 30)
     takeoff = await op.accepted("takeoff", alt=4)
-    here = op.last.position
+    here = at(op.last)
     first = await op.accepted("goto", **dict(zip(("lat", "lon"), destination(here.lat, here.lon, 15, 90), strict=True)))
     lat, lon = destination(here.lat, here.lon, 15, 0)
     last = await op.accepted("goto", lat=lat, lon=lon)
-    await op.expect(first, "queued", 5)
-    await op.expect(last, "queued", 5)
-    await op.expect(first, "cancel", 5)
+    await op.expect(first, "queued", 30)
+    await op.expect(last, "queued", 30)
+    await op.expect(first, "cancel", 30)
     await op.expect(takeoff, "finish", 30)
-    await op.expect(last, "start", 10)
+    await op.expect(last, "start", 30)
     await op.expect(last, "finish", 30)
     assert op.statuses_of(first) == ["queued", "cancel"]
     t = await op.next_telemetry()
-    assert distance_m(t.position.lat, t.position.lon, lat, lon) < 1.0
+    assert distance_m(at(t).lat, at(t).lon, lat, lon) < 1.0
 
     # A goto is refused while landing; the landing finishes on the ground and the
     # drone disarms itself.
     land = await op.accepted("land")
-    await op.expect(land, "start", 10)
+    await op.expect(land, "start", 30)
     reply = await op.send("goto", lat=here.lat, lon=here.lon)
     assert not reply.accepted and reply.reason == "landing"
     await op.expect(land, "finish", 40)
     assert (await op.next_telemetry()).landed_state == "on_ground"
-    await op.system("disarm", 10)
+    await op.system("disarm", 30)
     assert not (await op.next_telemetry(lambda t: not t.armed, 5)).armed
 
 
@@ -167,10 +168,10 @@ async def test_the_agent_keeps_its_geofence_whatever_path_a_command_takes(
 
     high = await op.send("takeoff", alt=25)  # over max_alt_m 20 above home
     assert not high.accepted and high.reason is not None and high.reason.startswith("geofence: "), high
-    await op.expect(await op.accepted("arm"), "success", 10)
+    await op.expect(await op.accepted("arm"), "success", 30)
     takeoff = await op.accepted("takeoff", alt=5)
     await op.expect(takeoff, "finish", 30)
-    here = (await op.next_telemetry()).position
+    here = at(await op.next_telemetry())
     far = destination(here.lat, here.lon, 45, 0)
     out = await op.send("goto", lat=far[0], lon=far[1])
     assert not out.accepted and out.reason is not None and "outside the fence" in out.reason, out
@@ -183,4 +184,4 @@ async def test_the_agent_keeps_its_geofence_whatever_path_a_command_takes(
     failsafe = await op.system("failsafe", 30)
     assert failsafe.reason is not None and failsafe.reason.startswith("return: outside the geofence"), failsafe
     landed = await op.next_telemetry(lambda t: t.landed_state == "on_ground" and not t.armed, 90, "home, landed")
-    assert distance_m(landed.position.lat, landed.position.lon, *SPAWN) < 2.0
+    assert distance_m(at(landed).lat, at(landed).lon, *SPAWN) < 2.0

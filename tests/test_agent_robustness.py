@@ -67,10 +67,10 @@ async def test_agent_refuses_bad_commands_and_keeps_running(
         reply = msgspec.json.decode(raw, type=CommandReply)
         assert not reply.accepted, payload
         if field:
-            assert reply.reason.startswith(f"{field}:"), reply.reason
+            assert (reply.reason or "").startswith(f"{field}:"), reply.reason
             assert reply.command_id == payload.split(b'"')[3].decode()
         else:
-            assert "malformed" in reply.reason
+            assert "malformed" in (reply.reason or "")
     # The bundle queryable too: raw bytes, JSON that is not a bundle.
     for payload, words in ((b"\x00\xff not json", "malformed"), (b'{"steps": "all of them"}', "steps")):
         raw = await client.query(Keys().bundle("drone02"), payload, timeout_s=3)

@@ -39,7 +39,7 @@ FREE = [
         (ByKind("fixed_wing"), "survey"),
     ],
 )
-def test_one_request_picks_the_thesis_choice(request_, expected: str) -> None:  # type: ignore[no-untyped-def]
+def test_one_request_picks_the_thesis_choice(request_, expected: str) -> None:
     assert choose(request_, FREE).drone_id == expected
 
 

@@ -307,6 +307,13 @@ print("the move returned")
 
 
 
+def first_home(sim: SimField) -> tuple[float, float]:
+    """Where the world's first drone starts (the tests' worlds place it)."""
+    spec = sim.world.drones[0]
+    assert spec.lat is not None and spec.lon is not None
+    return spec.lat, spec.lon
+
+
 def radio_shadow(sim: SimField, begins: Callable[[Spot3], bool], lasts_s: float, after_s: float = 0.0) -> dict[str, float]:
     """drone01's messages are lost for `lasts_s`, from `after_s` after `begins(where it
     is)` first holds; the returned dict gets "from", the shadow's start."""
@@ -336,8 +343,8 @@ async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered
     shadows: list[dict[str, float]] = []
 
     def sixteen_metres_out(sim: SimField) -> None:
-        home = sim.world.drones[0]
-        shadows.append(radio_shadow(sim, lambda spot: distance_m(home.lat, home.lon, spot.lat, spot.lon) > 16, 3.0))
+        home = first_home(sim)
+        shadows.append(radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 16, 3.0))
 
     caplog.set_level(logging.INFO, logger="agent.runtime")
     _, (record, log), _ = await fly("""
@@ -380,8 +387,8 @@ async def test_a_goto_its_lost_link_hold_interrupted_is_sent_again_when_the_link
     the drone is back, so the verb returns with the drone at its goal (before, the
     cancel ended the verb there and the drone stayed short of it)."""
     def twenty_metres_out(sim: SimField) -> None:
-        home = sim.world.drones[0]
-        radio_shadow(sim, lambda spot: distance_m(home.lat, home.lon, spot.lat, spot.lon) > 20, 7.0)
+        home = first_home(sim)
+        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 20, 7.0)
 
     sim, (record, log), _ = await fly("""
 d = assign("drone01")
@@ -403,11 +410,11 @@ async def test_a_lost_link_hold_does_not_stop_a_drone_on_its_way_home(caplog: py
     it returns: the hold would stop it in the air, out of reach; the agent lets the
     return go on, so the return ends once (finish), never cancelled."""
     def once_it_heads_home(sim: SimField) -> None:
-        home = sim.world.drones[0]
+        home = first_home(sim)
         state = {"out": False}
 
         def heading_home(spot: Spot3) -> bool:  # out past 30 m, then back inside 25 m
-            far = distance_m(home.lat, home.lon, spot.lat, spot.lon)
+            far = distance_m(*home, spot.lat, spot.lon)
             state["out"] = state["out"] or far > 30
             return state["out"] and far < 25
 
@@ -434,8 +441,8 @@ async def test_a_command_sent_into_a_radio_shadow_waits_for_the_link_instead_of_
     shadow begins about a second after drone01 finishes its first hop, as the script
     sends the second: the mission waits for the drone and the second hop flies."""
     def after_the_first_hop(sim: SimField) -> None:
-        home = sim.world.drones[0]
-        radio_shadow(sim, lambda spot: distance_m(home.lat, home.lon, spot.lat, spot.lon) > 14.5, 10.0, after_s=1.0)
+        home = first_home(sim)
+        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 14.5, 10.0, after_s=1.0)
 
     _, (record, log), _ = await fly("""
 d = assign("drone01")

@@ -120,11 +120,12 @@ async def test_query_is_answered_by_the_matching_queryable(mesh: MeshFactory) ->
 
 async def test_query_without_queryable_is_unreachable_at_once(mesh: MeshFactory) -> None:
     client = await mesh()
-    started = time.monotonic()
+    # With a 60 s timeout, a wait for it would end in the test's own timeout: the
+    # answer "nobody serves this key" comes without waiting for the timeout.
     with pytest.raises(Unreachable) as info:
-        await client.query("drone/nobody/cmd", b"{}", timeout_s=5)
+        async with asyncio.timeout(30):
+            await client.query("drone/nobody/cmd", b"{}", timeout_s=60)
     assert not isinstance(info.value, QueryTimeout)
-    assert time.monotonic() - started < 4.0  # not the 5 s timeout: no queryable, no wait
 
 
 async def test_slow_queryable_times_out(mesh: MeshFactory) -> None:

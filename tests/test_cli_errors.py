@@ -41,6 +41,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
             (pki / damage).unlink()
     (d / "world_lat.yml").write_text("drones: [{id: d1, lat: 95}]\n")
     (d / "world_fault.yml").write_text("drones: [{id: d1, faults: [{at_s: 5, fault: meteor}]}]\n")
+    (d / "world_empty.yml").write_text("drones: []\n")
     return d
 
 
@@ -61,6 +62,8 @@ CASES = [
     ("simulate: world latitude out of range", ["mission", "simulate", EXAMPLE, "--world", "{d}/world_lat.yml"], {2},
      "drones[0].lat"),
     ("simulate: unknown fault name", ["mission", "simulate", EXAMPLE, "--world", "{d}/world_fault.yml"], {2}, "meteor"),
+    ("simulate: a world listing no drones", ["mission", "simulate", EXAMPLE, "--world", "{d}/world_empty.yml"], {2},
+     "drones"),
     ("simulate: world not YAML", ["mission", "simulate", EXAMPLE, "--world", "{d}/not_yaml.yml"], {2}, "not_yaml.yml"),
     ("simulate: --out not writable", ["mission", "simulate", EXAMPLE, "--out", "{d}/a_file/out"], {1, 2}, "a_file"),
     ("simulate: unknown plugin", ["mission", "simulate", EXAMPLE, "--enable", "nothing"], {2}, "nothing"),

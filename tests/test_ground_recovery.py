@@ -32,11 +32,13 @@ async def ground_and_agent(tmp_path: Path) -> AsyncIterator[tuple[GroundProcess,
         ground.stop()
 
 
-async def test_killed_agent_is_unknown_within_3_s_and_ready_again_after_restart(ground_and_agent: tuple[GroundProcess, AgentProcess]) -> None:
+async def test_killed_agent_is_unknown_and_ready_again_after_restart(ground_and_agent: tuple[GroundProcess, AgentProcess]) -> None:
     ground, agent = ground_and_agent
     async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
         agent.kill()
-        await wait_state(http, "drone01", "unknown", 3.0)  # a killed agent's TCP link closes at once
+        # A killed agent's TCP link closes at once (how soon is bench/mesh.py's failover
+        # figure); here a liveness deadline.
+        await wait_state(http, "drone01", "unknown", 15.0)
         log = (await http.get("/drone/logs", params={"drone_id": "drone01", "loglevel": "warn"})).text
         assert "WARN drone01 - Link lost: stopped receiving messages from drone" in log
         refused = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})

@@ -39,7 +39,7 @@ def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path
     venv = tmp_path / "venv"
     made = run(sys.executable, "-m", "venv", venv, cwd=tmp_path)
     assert made.returncode == 0, made.stderr
-    pip = [venv / "bin" / "python", "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
+    pip: list[str | Path] = [venv / "bin" / "python", "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
            "-c", REPO / "requirements.lock"]
     fleet = venv / "bin" / "fleet"
     work = tmp_path / "work"  # not the checkout: nothing can come from the source tree

@@ -7,8 +7,7 @@ import asyncio
 import signal
 import struct
 import subprocess
-import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -24,7 +23,7 @@ from schemas.geo import destination, distance_m
 from sim.faults import send_fault
 from sim.mavlink_endpoint import MavlinkVehicle
 from sim.vehicle import Vehicle
-from tests.harness import AgentProcess, Operator, SimProcess, fleet_command
+from tests.harness import AgentProcess, Operator, SimProcess, at, fleet_command
 from tests.helpers import Collector, free_udp_base
 
 pytestmark = pytest.mark.integration
@@ -44,33 +43,37 @@ async def test_three_vehicles_from_fleet_sim_agents_fly_concurrently(endpoint: s
     try:
         ops = [Operator(client, f"drone0{i}") for i in (1, 2, 3)]
 
+        airborne_at: list[int] = []  # each vehicle's goto start, on its agent's clock (ms)
+        landed_at: list[int] = []
+
         async def fly(op: Operator, metres: float) -> tuple[float, float]:
             await airborne(op, alt=3 + metres / 10)
-            here = op.last.position
+            here = at(op.last)
             lat, lon = destination(here.lat, here.lon, metres, 0)
-            await op.expect(await op.accepted("goto", lat=lat, lon=lon, yaw=None), "finish", 40)
-            await op.expect(await op.accepted("land"), "finish", 40)
+            goto = await op.accepted("goto", lat=lat, lon=lon, yaw=None)
+            airborne_at.append((await op.expect(goto, "start", 40)).timestamp)
+            await op.expect(goto, "finish", 40)
+            landed_at.append((await op.expect(await op.accepted("land"), "finish", 40)).timestamp)
             return lat, lon
 
-        started = time.monotonic()
         targets = await asyncio.gather(*(fly(op, m) for op, m in zip(ops, (20, 25, 30), strict=True)))
-        elapsed = time.monotonic() - started
         for op, (lat, lon) in zip(ops, targets, strict=True):
             t = await op.next_telemetry()
             assert t.landed_state == "on_ground"
-            assert distance_m(t.position.lat, t.position.lon, lat, lon) < 1.0
-        # Concurrent, not one after the other: one flight alone takes ~15-20 s.
-        assert elapsed < 60, elapsed
-        homes = {round(op.last.home.lon, 6) for op in ops}
+            assert distance_m(at(t).lat, at(t).lon, lat, lon) < 1.0
+        # Concurrent, not one after the other: all three were flying their gotos before
+        # the first one landed (order on the agents' own timestamps, not a speed).
+        assert max(airborne_at) < min(landed_at), (airborne_at, landed_at)
+        homes = {round(op.last.home.lon, 6) for op in ops if op.last.home is not None}
         assert len(homes) == 3  # three distinct vehicles, not one System seen thrice
     finally:
         sim.stop()
-    assert sim.proc.returncode == 0
+    assert sim.proc is not None and sim.proc.returncode == 0
     assert "agent drone03 started" in sim.log.read_text()
 
 
 @pytest.fixture
-def sim_and_agent(agents: Callable[..., AgentProcess], tmp_path: Path) -> tuple[SimProcess, AgentProcess]:
+def sim_and_agent(agents: Callable[..., AgentProcess], tmp_path: Path) -> Iterator[tuple[SimProcess, AgentProcess]]:
     sim = SimProcess(tmp_path)
     agent = agents("drone01", fc=sim.fc_url())
     yield sim, agent
@@ -98,7 +101,7 @@ async def test_rc_takeover_and_release(sim_and_agent, operator) -> None:
     sim, _ = sim_and_agent
     op = operator("drone01")
     await airborne(op)
-    here = op.last.position
+    here = at(op.last)
     lat, lon = destination(here.lat, here.lon, 200, 0)
     goto = await op.accepted("goto", lat=lat, lon=lon)
     await op.expect(goto, "start", 10)

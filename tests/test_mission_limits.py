@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import os
 import signal
-import time
 from collections.abc import AsyncIterator, Iterator
 
 import httpx
@@ -76,7 +75,6 @@ async def test_scripts_over_their_limits_fail_security_while_a_flight_finishes(f
     assert (hog_end["status"], hog_end["cause"]) == ("failed", "security"), hog_end
     assert "max_memory_mb" in hog_end["message"] and "line 3" in hog_end["message"], hog_end["message"]
 
-    started = time.monotonic()
     for mission_id in (c_spin, py_spin):
         final = await ended(http, mission_id, 4 * MAX_CPU_S + 20)
         assert (final["status"], final["cause"]) == ("failed", "security"), final
@@ -85,7 +83,8 @@ async def test_scripts_over_their_limits_fail_security_while_a_flight_finishes(f
         # It had its CPU seconds (wall time is at least that much), and no more than the limit allows.
         assert final["end"] - final["start"] >= MAX_CPU_S * 1000, final
     # Meanwhile the ground took telemetry in all along, and answered.
-    assert await telemetry_seq(http, "drone02") >= seq + (time.monotonic() - started) * 2
+    # (at least 20 samples of the 5 Hz stream arrived while the two spun for 2 x MAX_CPU_S).
+    assert await telemetry_seq(http, "drone02") >= seq + 20
     flown = await ended(http, flight, 60)
     assert (flown["status"], flown["cause"]) == ("finished", "success"), flown
     # The gigabytes were never the ground's: its own memory stayed where it was.

@@ -75,7 +75,7 @@ def test_command_life_cycle_sets_current_command_and_words_the_log(reg: Registry
     info = reg.info("drone01")
     assert info.state == "active"
     assert info.current_command is not None and info.current_command.description == "Takeoff with altitude 10.0m"
-    goto = dict(command="goto", command_id="g1", coords=Coords(lat=40.634421, lon=-8.660437, alt=15.0))
+    goto: dict[str, Any] = dict(command="goto", command_id="g1", coords=Coords(lat=40.634421, lon=-8.660437, alt=15.0))
     assert lines(reg.on_status(cmd_status("queued", **goto), 40)) == ["INFO Queued go to 40.634421, -8.660437 at 15.0m"]
     assert lines(reg.on_status(cmd_status("finish"), 50)) == ["INFO Finish takeoff"]
     assert lines(reg.on_status(cmd_status("start", **goto), 51)) == ["INFO Start go to 40.634421, -8.660437 at 15.0m"]

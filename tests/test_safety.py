@@ -64,7 +64,7 @@ async def test_a_verb_the_fence_refuses_at_the_ground_fails_the_mission_with_cau
     record, log, _ = await fly(FLY_OUT, tmp_path, fence=L_FENCE)
     assert (record.status, record.cause) == ("failed", "geofence"), (record, log)
     assert "inside" in log and "outside" not in log, log
-    assert "is outside the fence" in record.message, record.message
+    assert "is outside the fence" in (record.message or ""), record.message
 
 
 async def test_the_agent_refuses_what_the_ground_let_through_and_the_mission_fails_with_cause_geofence(
@@ -73,7 +73,7 @@ async def test_the_agent_refuses_what_the_ground_let_through_and_the_mission_fai
     way); the agent's own fence refuses the flight with reason `geofence`."""
     record, log, _ = await fly(FLY_OUT, tmp_path, agent_fence=L_FENCE)
     assert (record.status, record.cause) == ("failed", "geofence"), (record, log)
-    assert "outside" not in log and "geofence: the target" in record.message, record.message
+    assert "outside" not in log and "geofence: the target" in (record.message or ""), record.message
 
 
 async def test_a_path_across_the_fence_with_both_ends_inside_is_refused_and_return_always_goes(tmp_path: Path) -> None:
@@ -92,7 +92,7 @@ move(d, to=position(LAT2, LON2))
     try:
         record = await sim.run_mission(script, max_s=300)
         assert (record.status, record.cause) == ("failed", "geofence"), record
-        assert "straight path to the target leaves the fence" in record.message, record.message
+        assert "straight path to the target leaves the fence" in (record.message or ""), record.message
         # The ground also refuses a goto with an altitude over the ceiling; return always goes.
         with pytest.raises(CommandRejected) as refused:
             await sim.station.command("drone01", json.dumps({"cmd": "goto", "lat": lat1, "lon": lon1, "alt": 8.2 + 41}).encode())
@@ -128,7 +128,7 @@ def same_spot(wait_clear: bool) -> str:
 async def test_two_drones_sent_to_one_spot_the_second_is_refused_naming_the_first(tmp_path: Path) -> None:
     record, log, _ = await fly(same_spot(False), tmp_path)
     assert (record.status, record.cause) == ("failed", "cmd_exec"), (record, log)
-    assert "goto drone02 refused: conflict: the target is 0.0 m from the target of drone01" in record.message, record.message
+    assert "goto drone02 refused: conflict: the target is 0.0 m from the target of drone01" in (record.message or ""), record.message
 
 
 async def test_with_wait_clear_the_second_waits_until_the_first_has_moved_on(tmp_path: Path) -> None:
@@ -173,7 +173,7 @@ async def test_a_world_fence_reaches_the_agents_too(tmp_path: Path) -> None:
     try:
         record = await sim.run_mission(FLY_OUT.replace("40*m", "100*m"), max_s=300)
         assert (record.status, record.cause) == ("failed", "geofence"), record
-        assert "geofence: the target" in record.message
+        assert "geofence: the target" in (record.message or ""), record.message
     finally:
         await sim.close()
 
@@ -201,7 +201,7 @@ print("still flying")
         log = [line.message for line in sim.mission_log(record.mission_id)]
         assert (record.status, record.cause) == ("failed", "geofence"), (record, log)
         assert "near the east edge" in log and "still flying" not in log, log
-        assert "drone01 was found outside the geofence" in record.message, record.message
+        assert "drone01 was found outside the geofence" in (record.message or ""), record.message
         vehicle = sim.vehicles["drone01"]
         assert vehicle.mode == "return_to_launch", vehicle.mode
         await sim.clock.advance(90)  # it flies home and lands: inside again

@@ -37,6 +37,6 @@ def test_bare_numbers_are_accepted_where_units_are_expected() -> None:
         (lambda: length(float("nan") * m), "must be finite"),
     ],
 )
-def test_mixing_units_is_an_error_naming_both(expression, message: str) -> None:  # type: ignore[no-untyped-def]
+def test_mixing_units_is_an_error_naming_both(expression, message: str) -> None:
     with pytest.raises(UnitError, match=message.replace("(", r"\(").replace(")", r"\)")):
         expression()

@@ -51,7 +51,7 @@ async def next_message(proc: asyncio.subprocess.Process, key_suffix: str, predic
         while True:
             line = (await proc.stdout.readline()).decode()  # type: ignore[union-attr]
             if not line:
-                stderr = (await proc.stderr.read()).decode() if proc.stderr else ""  # type: ignore[union-attr]
+                stderr = (await proc.stderr.read()).decode() if proc.stderr else ""
                 raise AssertionError(f"zenoh-cli exited ({proc.returncode}):\n{stderr}")
             key, _, value = line.rstrip("\n").partition(" ")
             message = json.loads(value)  # readable JSON, or the test fails here
