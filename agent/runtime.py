@@ -82,6 +82,8 @@ class Agent:
         store = BundleStore(Path(config.state_dir) / "bundles.json" if config.state_dir else None)
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
         self._recent_statuses: collections.deque[CommandStatus] = collections.deque(maxlen=RECENT_STATUSES)
+        # Published before the ground first answered (None after): sent again then.
+        self._before_contact: list[CommandStatus | BundleStatus] | None = []
         self._last_contact_ms: int | None = None  # when the ground last answered a probe
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
@@ -107,6 +109,15 @@ class Agent:
         for decision, summary in self.lost_link.contact(now):
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)
+        if self._before_contact is not None:
+            # The first answer since start: what was published before the ground's
+            # subscriptions reached this router (a bundle the restarted agent reports
+            # failed, at once after start) may have gone nowhere. Sent again.
+            unheard, self._before_contact = self._before_contact, None
+            if unheard:
+                log.info("%s: repeating %d statuses published before the ground answered", self.drone_id, len(unheard))
+            for status in unheard:
+                self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
         if gap_began_ms is not None and now_ms - gap_began_ms > 1.5 * period_ms:
             # At least one probe went unanswered: the link dropped for a while, maybe for
             # less than the lost-link timeout, and a reliable publication whose link closed
@@ -188,6 +199,9 @@ class Agent:
 
     def _publish_status(self, status: CommandStatus | SystemStatus | BundleStatus) -> None:
         self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
+        if self._before_contact is not None and isinstance(status, CommandStatus | BundleStatus) \
+                and len(self._before_contact) < RECENT_STATUSES:
+            self._before_contact.append(status)
         if isinstance(status, CommandStatus):
             self._recent_statuses.append(status)
             self.bundles.on_status(status)

@@ -81,7 +81,7 @@ class _Drone:
     bundle: BundleInfo | None = None
     bundle_steps: dict[str, list[str]] = field(default_factory=dict)  # bundle id → step descriptions (pushed here)
     bundle_heard: dict[str, set[tuple[int, str]]] = field(default_factory=dict)  # bundle id → (step, state) heard
-    status_heard: dict[tuple[str, str], None] = field(default_factory=dict)  # (command id, state), oldest first
+    status_heard: dict[tuple[object, ...], None] = field(default_factory=dict)  # (command id, state) or a bundle event, oldest first
     info: DroneInfo | None = None
 
 
@@ -191,12 +191,19 @@ class Registry:
             d.bundle_steps.pop(bundle_id, None)
 
     def first_heard(self, status: CommandStatus | SystemStatus | BundleStatus) -> bool:
-        """False for a command status heard before: an agent repeats the statuses the
-        ground may have missed when its probes went unanswered."""
+        """False for a command or bundle status heard before: an agent repeats the
+        statuses the ground may have missed when its probes went unanswered (a repeat is
+        the same status, timestamp and all)."""
         d = self._drones.get(status.drone_id)
-        if d is None or not isinstance(status, CommandStatus) or not status.command_id:
+        heard: tuple[object, ...]
+        if d is None or isinstance(status, SystemStatus):
             return True
-        heard = (status.command_id, status.state)
+        if isinstance(status, BundleStatus):
+            heard = (status.bundle_id, status.step, status.state, status.scope, status.timestamp)
+        elif not status.command_id:
+            return True
+        else:
+            heard = (status.command_id, status.state)
         if heard in d.status_heard:
             return False
         d.status_heard[heard] = None
