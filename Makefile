@@ -85,7 +85,11 @@ bench: $(STAMP)
 	$(BIN)/python bench/security.py
 	$(BIN)/python bench/dashboard_frames.py
 	$(BIN)/python bench/zenoh_modes.py
+	$(BIN)/python bench/relay_experiments.py
+	$(BIN)/python bench/relay_corpus.py --worlds 4
 	$(BIN)/python bench/mesh.py  # needs CAP_NET_ADMIN (root), as fleet sim --radio
+	$(BIN)/python bench/mesh_stall.py --runs 1  # root too
+	$(BIN)/python bench/no_ground_flight.py --minutes 1
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -43,7 +43,8 @@ def main() -> None:
                 check=True, capture_output=True, text=True, cwd=work,
             )
             times.append(float(out.stdout))
-        packages = subprocess.run([python, "-m", "pip", "list", "--format=freeze"], capture_output=True, text=True).stdout
+        packages = subprocess.run([python, "-m", "pip", "list", "--format=freeze"], check=True, capture_output=True,
+                                  text=True).stdout
     print(f"fleet[agent]: {installed:.0f} MiB installed ({len(packages.splitlines())} packages with pip/setuptools)")
     print(f"agent import time: median {statistics.median(times) * 1000:.0f} ms over {RUNS} runs "
           f"(min {min(times) * 1000:.0f} ms)")

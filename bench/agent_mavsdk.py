@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.fc_mavsdk import MavsdkFlightController  # noqa: E402
 from bench.agent_window import measure_agent, report  # noqa: E402
+from bench.verdict import ScenarioFailed  # noqa: E402
 from sim.mavlink_endpoint import MavlinkVehicle  # noqa: E402
 from sim.vehicle import Vehicle  # noqa: E402
 from tests.helpers import free_udp_base  # noqa: E402
@@ -34,6 +35,8 @@ async def agent_usage(seconds: float) -> None:
     sim = subprocess.Popen([fleet, "sim", "-n", "1", "--base-port", str(base)], stdout=subprocess.DEVNULL)
     try:
         rate, usage = await measure_agent(f"udpin://127.0.0.1:{base}", seconds)
+        if sim.poll() is not None:  # the agent would go on sending its last state
+            raise ScenarioFailed(f"fleet sim exited ({sim.returncode}) during the window")
     finally:
         sim.terminate()
         sim.wait(timeout=10)

@@ -13,12 +13,14 @@ import time
 from pathlib import Path
 
 from bench.procstat import Usage, Window
+from bench.verdict import ScenarioFailed
 from bus.port import Sample
 from bus.zenoh_bus import ZenohBus
 from schemas.keys import Keys
 from tests.helpers import free_port
 
 WARM_UP_S = 3.0  # imports, connecting, first heartbeats: not steady state
+TELEMETRY_HZ = 10.0  # --telemetry-rate-ms 100
 
 
 async def measure_agent(fc_url: str, seconds: float) -> tuple[float, Usage]:
@@ -40,14 +42,25 @@ async def measure_agent(fc_url: str, seconds: float) -> tuple[float, Usage]:
 
     try:
         client.subscribe(Keys().telem("bench01"), on_telem)
-        async with asyncio.timeout(30):
-            await first.wait()
+        try:
+            async with asyncio.timeout(30):
+                await first.wait()
+        except TimeoutError:
+            died = "" if agent.poll() is None else f"; it exited ({agent.returncode})"
+            raise ScenarioFailed(f"no telemetry from the agent within 30 s{died}") from None
         await asyncio.sleep(WARM_UP_S)
         count0 = len(received)
         window = Window(agent.pid)
         await asyncio.sleep(seconds)
+        if agent.poll() is not None:  # a dead agent's CPU and RSS are no agent's
+            raise ScenarioFailed(f"the agent exited ({agent.returncode}) during the window")
         usage = window.stop()
-        return (len(received) - count0) / usage.window_s, usage
+        got = len(received) - count0
+        rate = got / usage.window_s
+        # The agent stalled or lost its FC: not the steady state measured (a window's edges may cut one sample).
+        if got < 0.9 * TELEMETRY_HZ * usage.window_s - 1:
+            raise ScenarioFailed(f"{rate:.2f} telemetry msg/s at the ground, under 90 % of the agent's {TELEMETRY_HZ:g} Hz")
+        return rate, usage
     finally:
         agent.terminate()
         agent.wait(timeout=10)

@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx  # noqa: E402
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
 from schemas.bundles import parse_bundle  # noqa: E402
 from schemas.keys import Keys  # noqa: E402
@@ -54,6 +55,7 @@ async def push_latency(pushes: int) -> tuple[list[float], float]:
         agent = AgentProcess("drone01", ground.endpoint, tmp, state_dir=str(tmp / "state"))
         starts: dict[str, asyncio.Future[float]] = {}
         status_bytes = 0
+        bus: ZenohBus | None = None
 
         def on_status(sample: object) -> None:
             nonlocal status_bytes
@@ -67,7 +69,7 @@ async def push_latency(pushes: int) -> tuple[list[float], float]:
         try:
             await ground.ready()
             bus = await ZenohBus.open("client", connect=[ground.endpoint])
-            sub = bus.subscribe(Keys().status("drone01"), on_status, maxsize=100_000)
+            bus.subscribe(Keys().status("drone01"), on_status, maxsize=100_000)
             async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
                 async def ready() -> bool:
                     r = await http.get("/drone/drone01", params={"data": "info"})
@@ -80,14 +82,18 @@ async def push_latency(pushes: int) -> tuple[list[float], float]:
                     starts[bundle_id] = asyncio.get_running_loop().create_future()
                     t0 = time.perf_counter()
                     r = await http.post("/drone/drone01/bundle", json={"bundle_id": bundle_id, "steps": [{"cmd": "arm"}]})
-                    assert r.status_code == 200, r.text
-                    t1 = await asyncio.wait_for(starts[bundle_id], 10)
+                    if r.status_code != 200:
+                        raise ScenarioFailed(f"push {i} answered {r.status_code}: {r.text}")
+                    try:
+                        t1 = await asyncio.wait_for(starts[bundle_id], 10)
+                    except TimeoutError:
+                        raise ScenarioFailed(f"push {i} accepted, but its start status not heard within 10 s") from None
                     if i >= 10:  # warm-up
                         samples.append((t1 - t0) * 1000)
                 per_step = status_bytes / (pushes + 10)
-            sub.close()
-            await bus.close()
         finally:
+            if bus is not None:  # also on a failure: an open session keeps the interpreter from exiting
+                await bus.close()
             agent.stop()
             ground.stop()
     return samples, per_step

@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import msgspec  # noqa: E402
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
 from ground.config import GroundConfig  # noqa: E402
 from ground.eventlog import EventLog  # noqa: E402
@@ -128,13 +129,18 @@ def trial(n: int, seconds: float) -> dict[str, Any]:
     me = [sys.executable, __file__]
     ground = subprocess.Popen([*me, "ground", "--port", str(port), "--seconds", str(seconds)], stdout=subprocess.PIPE, text=True)
     assert ground.stdout is not None
-    assert ground.stdout.readline().strip() == "ready"
+    if ground.stdout.readline().strip() != "ready":
+        raise ScenarioFailed(f"the ground side for {n} drones did not start (exit {ground.wait()})")
     pubs = subprocess.Popen([*me, "publish", "--port", str(port), "-n", str(n), "--seconds", str(seconds + WARM_UP_S + 5)])
     try:
         out, _ = ground.communicate(timeout=seconds + WARM_UP_S + 90)
+        died = pubs.poll()  # None: still publishing, as they should be (they outlast the window)
     finally:
         pubs.terminate()
         pubs.wait(timeout=15)
+    for side, code in (("publishers", died), ("ground side", ground.returncode)):  # the first is the likelier cause
+        if code:  # its traceback is on stderr above
+            raise ScenarioFailed(f"{n} drones: the {side} exited {code}")
     return json.loads(out.strip().splitlines()[-1])
 
 
@@ -165,6 +171,8 @@ def main() -> None:
         if not (ok and paced):
             break
         best = n
+    if not best:  # the search ended at its first size: nothing was sustained to report
+        raise ScenarioFailed(f"not even {args.sizes.split(',')[0]} drones sustained (p99 < {P99_LIMIT_MS:g} ms, no loss)")
     print(f"largest N sustained (p99 < {P99_LIMIT_MS:g} ms, no loss): {best}")
 
 

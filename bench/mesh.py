@@ -28,6 +28,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.procstat import Window  # noqa: E402
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.port import Sample, echo  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
 from schemas.keys import Keys  # noqa: E402
@@ -67,6 +68,11 @@ class Mesh:
         self.agents[drone] = proc
         return proc
 
+    def running(self, drone: str) -> None:
+        """After a window: a dead agent's /proc entry and radio bytes still read, as nobody's."""
+        if self.agents[drone].poll() is not None:
+            raise ScenarioFailed(f"drone {drone}'s agent exited ({self.agents[drone].returncode}) during the window")
+
     def stop_agent(self, drone: str) -> None:
         proc = self.agents.pop(drone)
         proc.terminate()
@@ -78,7 +84,7 @@ class Mesh:
     def direct_neighbours(self) -> int:
         return len(list(self.ground._session.info.routers_zid()))
 
-    async def wait(self, predicate, what: str) -> float:  # type: ignore[no-untyped-def]
+    async def wait(self, predicate, what: str) -> float:
         deadline = time.monotonic() + DEADLINE_S
         while not predicate():
             if time.monotonic() > deadline:
@@ -86,7 +92,7 @@ class Mesh:
             await asyncio.sleep(0.005)
         return time.time()
 
-    async def steady(self, predicate, seconds: float, what: str) -> None:  # type: ignore[no-untyped-def]
+    async def steady(self, predicate, seconds: float, what: str) -> None:
         """Until `predicate` has held for `seconds` without a break."""
         since: float | None = None
 
@@ -142,6 +148,7 @@ async def probe_bytes(mesh: Mesh, seconds: float) -> tuple[float, float]:
         b0, t0 = mesh.rx_tx_bytes("P"), time.monotonic()
         await asyncio.sleep(seconds)
         rates.append((mesh.rx_tx_bytes("P") - b0) / (time.monotonic() - t0))
+        mesh.running("P")
         mesh.stop_agent("P")
     return rates[0], rates[1]
 
@@ -163,6 +170,7 @@ async def main(trials: int, seconds: float, logs: Path | None, steady_s: float) 
             times = await failover(mesh, trials, steady_s)
             window = Window(mesh.agents["A"].pid)
             await asyncio.sleep(seconds)
+            mesh.running("A")
             usage = window.stop()
             with_probes, without = await probe_bytes(mesh, seconds)
         finally:

@@ -21,14 +21,22 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx  # noqa: E402
 
 from bench.procstat import children, cpu_seconds, rss_mib  # noqa: E402
+from bench.verdict import ScenarioFailed  # noqa: E402
 from tests.harness import GroundFleet, ended, record, submit  # noqa: E402
 from tests.helpers import until  # noqa: E402
+
+
+def finished(final: dict[str, Any], what: str) -> dict[str, Any]:
+    if final["status"] != "finished":
+        raise ScenarioFailed(f"{what} ended {final['status']} ({final['cause']}): {final['message']}")
+    return final
 
 
 async def running(http: httpx.AsyncClient, mission_id: str) -> bool:
@@ -52,15 +60,13 @@ async def main() -> None:
                 starts = []
                 for _ in range(args.missions):
                     t0 = time.time() * 1000
-                    final = await ended(http, await submit(http, "sleep(0.1*s)\n"), 30)
-                    assert final["status"] == "finished", final
+                    final = finished(await ended(http, await submit(http, "sleep(0.1*s)\n"), 30), "a start mission")
                     starts.append(final["start"] - t0)  # the record's start: the script's first line
                 print(f"start (POST → running): first {starts[0]:.0f} ms (with the fork server), "
                       f"then median {statistics.median(starts[1:]):.0f} ms, max {max(starts[1:]):.0f} ms")
 
                 script = 'd = assign("drone01")\n' + f"for i in range({args.verbs}):\n    arm(d)\n    disarm(d)\n"
-                final = await ended(http, await submit(http, script), 120)
-                assert final["status"] == "finished", final
+                final = finished(await ended(http, await submit(http, script), 120), "the verb mission")
                 print(f"verb (arm or disarm to its terminal status, from the script): "
                       f"{(final['end'] - final['start']) / (2 * args.verbs):.1f} ms each over {2 * args.verbs}")
 
@@ -74,6 +80,13 @@ async def main() -> None:
                 worker = workers[0]
                 c0, t0 = cpu_seconds(worker), time.monotonic()
                 await asyncio.sleep(args.period)  # a bench measures over a period: nothing to wait for
+                # The events are counted from the drones' rate, not seen: the worker and every agent must have lasted
+                # (checked first: an ended worker's /proc entry is gone).
+                state = await record(http, waiting)
+                if state["status"] != "running":
+                    raise ScenarioFailed(f"the waiting mission ended {state['status']} ({state['cause']}) in the period")
+                if dead := [d for d, agent in fleet.agents.items() if agent.proc.poll() is not None]:
+                    raise ScenarioFailed(f"agent(s) {', '.join(dead)} exited in the period")
                 used, elapsed = cpu_seconds(worker) - c0, time.monotonic() - t0
                 events = args.drones * 10 * elapsed
                 print(f"worker: RSS {rss_mib(worker):.0f} MB (ground {rss_mib(ground):.0f} MB); CPU {used:.2f} s over "

@@ -27,10 +27,13 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from agent.runtime import Agent  # noqa: E402
+from bench.verdict import ScenarioFailed  # noqa: E402
 from fleet.compose import SimField, simulate  # noqa: E402
 from mission import dsl  # noqa: E402
 from schemas.geo import destination  # noqa: E402
 from sim.world import DroneSpec, World  # noqa: E402
+
+SPEEDUP_TARGET = 100  # (a), simulated seconds per wall second
 
 PATROL = """
 def patrol(d):
@@ -50,14 +53,6 @@ wait(*[run(land, d) for d in drones])
 """
 
 
-class ScenarioFailed(SystemExit):
-    """A bench whose scenario failed measures nothing: it says why and exits 1."""
-
-    def __init__(self, what: str) -> None:
-        print(f"bench/mission_sim.py: {what}; no figure", file=sys.stderr)
-        super().__init__(1)
-
-
 def patrol_world() -> World:
     """Four drones 40 m apart on an east-west line: their 100 m squares never bring two
     within the deconfliction distance of each other's targets."""
@@ -75,6 +70,9 @@ async def speedup() -> None:
         raise ScenarioFailed(f"(a) the 4-drone patrol ended {record['status']} ({record['cause']}): "
                              f"{record.get('message')}")
     simulated = (record["end"] - record["start"]) / 1000
+    if simulated / wall < SPEEDUP_TARGET:
+        raise ScenarioFailed(f"(a) the 4-drone patrol ran {simulated / wall:.0f}x real time, under the target of "
+                             f"{SPEEDUP_TARGET}x ({simulated:.0f} s simulated in {wall:.2f} s wall)")
     samples = sum(len(d["samples"]) for d in result["drones"].values())
     print(f"(a) 4-drone patrol: {record['status']} ({record['cause']}), {simulated:.0f} s simulated "
           f"in {wall:.2f} s wall (field start included): {simulated / wall:.0f}x real time; {samples} telemetry samples")
@@ -101,7 +99,7 @@ async def verb_overhead(n: int) -> None:
         received.append(time.perf_counter())
         return await original_on_command(self, key, payload)
 
-    dsl.build_namespace = build  # type: ignore[assignment]
+    dsl.build_namespace = build
     Agent._on_command = on_command  # type: ignore[method-assign]
     field = SimField(World(), 1)
     try:
@@ -110,7 +108,7 @@ async def verb_overhead(n: int) -> None:
         assert record.status == "finished", record
     finally:
         await field.close()
-        dsl.build_namespace = original_build  # type: ignore[assignment]
+        dsl.build_namespace = original_build
         Agent._on_command = original_on_command  # type: ignore[method-assign]
     lat = sorted((r - s) * 1000 for s, r in zip(sent, received, strict=True))[20:]
     q = statistics.quantiles(lat, n=100)

@@ -19,6 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.recording import Recorder, read  # noqa: E402
 from schemas.codec import encode  # noqa: E402
 from schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
@@ -59,7 +60,9 @@ def main() -> None:
         started = time.perf_counter()
         contents = read(path)
         read_s = time.perf_counter() - started
-        assert len(contents.messages) == messages and contents.complete
+        if len(contents.messages) != messages or not contents.complete:
+            raise ScenarioFailed(f"read back {len(contents.messages)} of {messages} messages"
+                                 f"{'' if contents.complete else ' from an incomplete file'}")
     print(f"{messages} telemetry messages ({args.drones} drones x 10 Hz x {args.seconds} s of log time)")
     print(f"write: {cpu / messages * 1e6:.1f} us CPU per message ({messages / cpu:,.0f} msg/s on one core)")
     print(f"file: {size / messages:.1f} bytes per message on disk for {raw / messages:.0f}-byte payloads "

@@ -6,7 +6,7 @@ separation between flying drones and the battery spent.
     .venv/bin/python bench/relay_corpus.py --worlds 200 [--first 0] [--jobs 2] [--modes measured,distance]
 
 Each world runs in fast time in a worker process; a line per world goes to stderr as
-it ends (progress), the table to stdout. Exits 1 if any run crashed.
+it ends (progress), the table to stdout. If any run crashed, exits 1 with no table.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from fleet import relay_corpus as rc  # noqa: E402
 
 
@@ -56,11 +57,13 @@ def main() -> int:
             print(f"[{done}/{len(jobs)}] {mark} world {seed} {mode}: {o.status} ({o.cause}) gap {o.longest_gap_s:.1f} s, "
                   f"relays {o.relays} (≥ {o.lower_bound}, spares {o.spares}), sep {o.separation_m:.1f} m"
                   + (f" — {o.message}" if not o.finished else ""), file=sys.stderr, flush=True)
-    print(rc.table([rc.summary(sorted(outcomes[m], key=lambda o: o.seed)) for m in modes]))
     print(f"\n{len(jobs)} runs in {time.monotonic() - started:.0f} s on {args.jobs} processes", file=sys.stderr)
     if args.json:
         args.json.write_text(json.dumps({m: [asdict(o) for o in v] for m, v in outcomes.items()}, indent=1))
-    return 1 if crashed else 0
+    if crashed:  # the table would quietly leave those worlds out
+        raise ScenarioFailed(f"{crashed} of {len(jobs)} runs crashed")
+    print(rc.table([rc.summary(sorted(outcomes[m], key=lambda o: o.seed)) for m in modes]))
+    return 0
 
 
 if __name__ == "__main__":

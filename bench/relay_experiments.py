@@ -13,6 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from fleet import relay_experiments as rx  # noqa: E402
 
 
@@ -27,6 +28,12 @@ async def main() -> None:
         out.mkdir(parents=True, exist_ok=True)
         print(f"running {experiment.name} …", file=sys.stderr, flush=True)
         result = await rx.run(experiment, out, seed=args.seed)
+        # The control is out of reach for good without relays; with them, the mission must finish.
+        expected = ("finished", "success") if experiment.relay is not None else ("failed", "link_lost")
+        record = result["mission"]
+        if (record["status"], record["cause"]) != expected:
+            raise ScenarioFailed(f"{experiment.name}: the mission ended {record['status']} ({record['cause']}), "
+                                 f"not {expected[0]} ({expected[1]}): {record.get('message')}")
         rows.append((experiment.name, rx.metrics(result, experiment.served)))
     print(rx.table(rows))
     print(f"\nresults and plots in {args.out}/<experiment>/", file=sys.stderr)

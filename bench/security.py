@@ -26,6 +26,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.mesh_security import mesh_security  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
 from schemas.auth import Signer, Verifier, load_private_key, load_public_key  # noqa: E402
@@ -81,7 +82,10 @@ async def fan_in(messages: int, pki: Path | None) -> float:
         started = time.perf_counter()
         for _ in range(messages):
             sender.publish("drone/drone01/telem", payload, reliable=True)
-        await asyncio.wait_for(done.wait(), 60)
+        try:
+            await asyncio.wait_for(done.wait(), 60)
+        except TimeoutError:  # reliable: none may be missing
+            raise ScenarioFailed(f"fan-in over {scheme}: {got} of {messages} samples within 60 s") from None
         return messages / (time.perf_counter() - started)
     finally:
         await sender.close()
@@ -97,9 +101,11 @@ def signing_us(pki: Path, rounds: int = 2000) -> tuple[float, float]:
     sign = (time.perf_counter() - started) / rounds * 1e6
     wires = [decode_command(encode(s)) for s in signed]
     started = time.perf_counter()
-    for i, wire in enumerate(wires):
-        assert verifier.refusal(wire, str(i), 1) is None
+    refusals = [verifier.refusal(wire, str(i), 1) for i, wire in enumerate(wires)]
     verify = (time.perf_counter() - started) / rounds * 1e6
+    if any(refusals):
+        raise ScenarioFailed(f"the agent's verifier refused {sum(map(bool, refusals))} of {rounds} signed commands: "
+                             f"{next(r for r in refusals if r)}")
     return sign, verify
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.procstat import Usage, Window  # noqa: E402
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
 
@@ -49,12 +50,17 @@ async def measure(mode: str, seconds: float) -> Usage:
     child = subprocess.Popen(args, stdout=subprocess.PIPE, cwd=Path(__file__).resolve().parents[1])
     try:
         assert child.stdout is not None
-        line = await asyncio.wait_for(asyncio.to_thread(child.stdout.readline), 30)
+        try:
+            line = await asyncio.wait_for(asyncio.to_thread(child.stdout.readline), 30)
+        except TimeoutError:
+            line = b""
         if line.strip() != b"open":
-            raise SystemExit(f"bench: the {mode} session did not open")
+            raise ScenarioFailed(f"the {mode} session did not open within 30 s")
         await asyncio.sleep(WARM_UP_S)
         window = Window(child.pid)
         await asyncio.sleep(seconds)
+        if child.poll() is not None:  # a dead session's CPU and RSS are no session's
+            raise ScenarioFailed(f"the {mode} session's process exited ({child.returncode}) during the window")
         return window.stop()
     finally:
         child.terminate()
