@@ -14,6 +14,7 @@ import collections
 import json
 import logging
 import uuid
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -114,10 +115,7 @@ class Agent:
             # subscriptions reached this router (a bundle the restarted agent reports
             # failed, at once after start) may have gone nowhere. Sent again.
             unheard, self._before_contact = self._before_contact, None
-            if unheard:
-                log.info("%s: repeating %d statuses published before the ground answered", self.drone_id, len(unheard))
-            for status in unheard:
-                self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
+            self._send_again(unheard, "statuses published before the ground answered")
         if gap_began_ms is not None and now_ms - gap_began_ms > 1.5 * period_ms:
             # At least one probe went unanswered: the link dropped for a while, maybe for
             # less than the lost-link timeout, and a reliable publication whose link closed
@@ -134,9 +132,12 @@ class Agent:
         """Command statuses published while the ground may not have heard them, again: a
         mission waiting for a command's end learns it (the ground ignores repeats)."""
         missed = [s for s in self._recent_statuses if s.timestamp >= since_ms]
-        if missed:
-            log.info("%s: repeating %d command statuses the ground may have missed", self.drone_id, len(missed))
-        for status in missed:
+        self._send_again(missed, "command statuses the ground may have missed")
+
+    def _send_again(self, statuses: Sequence[CommandStatus | BundleStatus], what: str) -> None:
+        if statuses:
+            log.info("%s: repeating %d %s", self.drone_id, len(statuses), what)
+        for status in statuses:
             self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
 
     async def _lost_link_loop(self) -> None:
