@@ -88,7 +88,7 @@ class Mesh:
         deadline = time.monotonic() + DEADLINE_S
         while not predicate():
             if time.monotonic() > deadline:
-                raise SystemExit(f"bench: {what} not within {DEADLINE_S:g} s")
+                raise ScenarioFailed(f"{what} not within {DEADLINE_S:g} s")
             await asyncio.sleep(0.005)
         return time.time()
 

@@ -37,6 +37,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.loop_watch import LoopWatch  # noqa: E402
 from bus.port import Sample, echo  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
@@ -53,10 +54,6 @@ OUT_M, SPEED = 92.0, 5.0
 FROZEN_S = 20.0
 AFTER_S = 3.0  # watched after R is home or running again
 BENCH_BLOCK_S = 0.5  # the bench's loop (the ground's stand-in) held this long voids the run
-
-
-class NotWhole(RuntimeError):
-    """The mesh did not come back between runs: no measurement can be made."""
 
 
 @dataclass
@@ -182,7 +179,7 @@ class Field:
             if time.monotonic() > deadline:
                 state = (f"alive {sorted(self.alive)}, telemetry fresh from "
                          f"{sorted(d for d in 'HRF' if self.fresh(d))}, {self.ground_links()} direct links at the ground")
-                raise NotWhole(f"{what} not within {deadline_s:g} s ({state})")
+                raise ScenarioFailed(f"{what} not within {deadline_s:g} s ({state})")
             await asyncio.sleep(0.02)
 
     def fresh(self, drone: str, within_s: float = 0.5) -> bool:
@@ -327,5 +324,5 @@ if __name__ == "__main__":
     chosen = ["lossy", "frozen"] if args.scenario == "both" else [args.scenario]
     try:
         sys.exit(asyncio.run(main(args.runs, chosen, args.keep)))
-    except (RadioUnavailable, NotWhole) as exc:
+    except RadioUnavailable as exc:
         raise SystemExit(f"bench/mesh_stall.py: {exc}") from None

@@ -24,15 +24,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.verdict import ScenarioFailed  # noqa: E402
 from bus.zenoh_bus import ZenohBus  # noqa: E402
 from schemas.geo import destination  # noqa: E402
 from schemas.status import CommandStatus, SystemStatus  # noqa: E402
 from tests.harness import AgentProcess, Operator, SimProcess, at, stop_all  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
-
-
-class Failed(RuntimeError):
-    """The scenario failed: no figure."""
 
 
 async def cycle(op: Operator, n: int) -> None:
@@ -60,7 +57,7 @@ def failsafes(op: Operator) -> list[str]:
 
 
 async def fly(adapter: str, minutes: float, workdir: Path) -> tuple[int, float]:
-    """Cycles flown and seconds commanded, against one adapter; Failed on any failsafe."""
+    """Cycles flown and seconds commanded, against one adapter; ScenarioFailed on any failsafe."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = await ZenohBus.open("router", listen=[endpoint])  # a plain router: no ground
     children: list[AgentProcess | SimProcess] = []
@@ -81,14 +78,14 @@ async def fly(adapter: str, minutes: float, workdir: Path) -> tuple[int, float]:
             try:
                 await cycle(op, cycles)
             except (AssertionError, TimeoutError) as exc:
-                raise Failed(f"{adapter}: flight {cycles + 1} did not end as asked: {exc}") from None
+                raise ScenarioFailed(f"{adapter}: flight {cycles + 1} did not end as asked: {exc}") from None
             cycles += 1
             print(f"  {adapter}: flight {cycles} done, {time.monotonic() - started:.0f} s commanded, "
                   f"failsafe actions so far: {len(failsafes(op))}", file=sys.stderr, flush=True)
             if failsafes(op):
                 break
         if failsafes(op) or "failsafe" in agent.output():
-            raise Failed(f"{adapter}: the agent ran its lost-link failsafe with no ground on the mesh: "
+            raise ScenarioFailed(f"{adapter}: the agent ran its lost-link failsafe with no ground on the mesh: "
                          f"{failsafes(op) or 'see its log'}")
         return cycles, time.monotonic() - started
     finally:
@@ -111,7 +108,4 @@ if __name__ == "__main__":
     parser.add_argument("--minutes", type=float, default=3.0, help="commanded time per adapter")
     parser.add_argument("--fc", choices=["sim", "mavsdk", "both"], default="both")
     args = parser.parse_args()
-    try:
-        asyncio.run(main(args.minutes, ["sim", "mavsdk"] if args.fc == "both" else [args.fc]))
-    except Failed as exc:
-        raise SystemExit(f"bench/no_ground_flight.py: {exc}") from None
+    asyncio.run(main(args.minutes, ["sim", "mavsdk"] if args.fc == "both" else [args.fc]))
