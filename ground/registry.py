@@ -72,6 +72,7 @@ class _Drone:
     last_telem_ms: int
     unknown: bool = False
     alive: bool | None = None  # None: never saw a liveliness token
+    token_lost_ms: int = 0  # when its liveliness token went, to tell late samples from a live session
     fc_disconnected: bool = False
     current: CurrentCommand | None = None
     described: dict[str, Described] = field(default_factory=dict)  # command_id → how to name it
@@ -83,6 +84,11 @@ class _Drone:
     bundle_heard: dict[str, set[tuple[int, str]]] = field(default_factory=dict)  # bundle id → (step, state) heard
     status_heard: dict[tuple[object, ...], None] = field(default_factory=dict)  # (command id, state) or a bundle event, oldest first
     info: DroneInfo | None = None
+
+
+# Telemetry heard this long after a drone's liveliness token went is a live session
+# whose token did not come back, not a late sample of a dead one.
+TOKEN_LATE_MS = 1000
 
 
 class Registry:
@@ -155,7 +161,14 @@ class Registry:
             assert d.info is not None
             before_errors, before_warns = d.info.errors, d.info.warns
             if d.alive is False:
-                return out  # late samples of a session whose token is gone
+                if now_ms - d.token_lost_ms <= TOKEN_LATE_MS:
+                    return out  # late samples of a session whose token is gone
+                # Still heard well after its token went: the session lives and the token
+                # did not come back (a router's token table after a link closed and
+                # reopened, ADR 0003). Telemetry is the truth; silence still times out.
+                d.alive = None
+                out.append(self._line(now_ms, "info", d, "Heard again without its liveliness token: "
+                                      "telemetry decides its link until the token is back"))
             reconnected, first = d.unknown, False
             d.telem, d.last_telem_ms, d.unknown = telem, now_ms, False
             if d.current is not None and d.current.command in ("return", "land") \
@@ -320,6 +333,8 @@ class Registry:
         if d is None:
             return []
         d.alive = alive
+        if not alive:
+            d.token_lost_ms = now_ms
         if alive or d.unknown:
             return []
         return self._lose(d, now_ms, f"{LINK_LOST}: stopped receiving messages from drone (liveliness token lost)")

@@ -132,6 +132,22 @@ def test_liveliness_loss_is_unknown_at_once_and_late_samples_do_not_revive(reg: 
     assert lines(reg.on_telemetry(telem(), 2100)) == ["INFO Link restored: established connection with ground station"]
 
 
+def test_a_drone_heard_long_after_its_token_went_is_back_without_the_token(reg: Registry) -> None:
+    # Seen in bench/mesh_stall.py: a link closed and reopened, telemetry flowed again, and
+    # the ground's router never redelivered the token (upstream zenoh #2602's family).
+    reg.on_telemetry(telem(), 0)
+    reg.on_liveliness("drone01", True, 1)
+    reg.on_liveliness("drone01", False, 100)
+    assert reg.on_telemetry(telem(), 1100) == []  # within the grace: still a late sample
+    assert lines(reg.on_telemetry(telem(), 1101)) == [
+        "INFO Heard again without its liveliness token: telemetry decides its link until the token is back",
+        "INFO Link restored: established connection with ground station",
+    ]
+    assert reg.info("drone01").state == "ready"
+    # Without the token, silence is still found by the timeout.
+    assert lines(reg.tick(1101 + 5001)) == ["WARN Link lost: stopped receiving messages from drone"]
+
+
 def test_flight_controller_disconnect_is_a_warning(reg: Registry) -> None:
     reg.on_telemetry(telem(), 0)
     sys = SystemStatus(drone_id="drone01", timestamp=0, component="system", state="disconnect")
