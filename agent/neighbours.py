@@ -45,6 +45,11 @@ log = logging.getLogger(__name__)
 
 ROUND_S = 1.0  # one Scout per round
 HELLOS_PER_ROUND = 256  # answers kept from one round (one per router in range)
+# A bridge opens only if both its links are up within this, or not at all. With
+# Zenoh's retry-for-ever connect (the agent's own), a bridge the agent had already
+# given up on linked into a neighbour 8 s later over a lossy hop, while it was
+# being closed, and that neighbour's ground link expired (bench/mesh_stall.py, ADR 0003).
+BRIDGE_CONNECT_MS = 2000
 SIOCGIFADDR, SIOCGIFNETMASK = 0x8915, 0x891B
 
 
@@ -169,6 +174,7 @@ class Neighbours:
         extra = {
             **self.extra, "listen/endpoints": [],
             "scouting/gossip/autoconnect": {"router": [], "peer": []},
+            "connect/timeout_ms": BRIDGE_CONNECT_MS, "connect/exit_on_failure": True,
         }
         own_zid = self.free_zids.pop() if self.free_zids else None
         if own_zid is not None:

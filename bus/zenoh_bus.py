@@ -13,8 +13,9 @@ answers scouts, and its agent links it through neighbours while its direct link 
 (agent/neighbours.py). Routers form a link-state mesh that carries a drone's traffic
 through a neighbour. Telemetry goes out
 with congestion control DROP, everything else with BLOCK from the publisher; every router
-then forwards data and queries with DROP and gives up a blocked push in 0.5 s (ADR 0003:
-nothing that crosses the radio may hold a router). Callbacks run on Zenoh
+then forwards data and queries with DROP and gives up a blocked push in 0.1 s, and
+Zenoh's acceptor runs on 2 threads (ADR 0003: nothing that crosses the radio may hold
+a router). Callbacks run on Zenoh
 threads: they only hand off into bounded inboxes or the loop and return.
 """
 
@@ -45,14 +46,17 @@ from bus.port import (
 log = logging.getLogger(__name__)
 Mode = Literal["client", "peer", "router"]
 DEFAULT_LEASE_MS = 2000  # with links through neighbours only when needed, 2 s holds (ADR 0003)
-BLOCK_WAIT_US = 500_000  # a blocked push gives up after 0.5 s (Zenoh's default: 5 s)
+BLOCK_WAIT_US = 100_000  # a blocked push gives up after 0.1 s (Zenoh's default: 5 s; ADR 0003)
 QUEUE_BATCHES = 16  # per priority, Zenoh's maximum (default 2)
 _PRIORITIES = ("control", "real_time", "interactive_high", "interactive_low", "data_high", "data", "data_low", "background")
 # Zenoh forwards a message on the receiving link's thread; by default 2 such threads
 # serve every link, so two pushes waiting on one bad neighbour starve every other link.
+# The acceptor runs every link's handshake on 1 thread by default: a drone redialling
+# the ground waited there behind a handshake over a lossy hop (8 s, ADR 0003).
 # Read once when Zenoh starts its runtimes: set before it does; an operator's wins.
 RX_THREADS = 4
-os.environ.setdefault("ZENOH_RUNTIME", f"(rx: (worker_threads: {RX_THREADS}))")
+ACC_THREADS = 2
+os.environ.setdefault("ZENOH_RUNTIME", f"(rx: (worker_threads: {RX_THREADS}), acc: (worker_threads: {ACC_THREADS}))")
 
 # Zenoh's own log (links opening and closing, why a connect failed) goes to stdout when
 # RUST_LOG asks for it, e.g. RUST_LOG=zenoh=debug; errors only otherwise.
@@ -108,7 +112,9 @@ def zenoh_config(
     if mode == "router":
         # Nothing a router forwards may hold it for long (ADR 0003, bench/mesh_stall.py):
         # a push that finds no room towards a neighbour that stopped reading gives up
-        # (and closes that link) in 0.5 s, well inside the lease, instead of 5 s;
+        # (and closes that link) in 0.1 s instead of 5 s: the thread that waits is the
+        # one reading another link, and several such pushes in a row must stay well
+        # inside that link's lease;
         # deeper queues absorb a burst before anything waits; and data and queries
         # are dropped rather than waited for when a link is congested (what must not
         # be lost is caught up end to end: statuses repeated, bundle records read).

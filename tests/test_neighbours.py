@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import ipaddress
+import select
+import socket
 import threading
 from typing import cast
 
@@ -15,9 +17,10 @@ import pytest
 import zenoh
 
 from agent.config import AgentConfig, own_endpoint
-from agent.neighbours import Neighbours, radio_locator
+from agent.neighbours import Heard, Neighbours, radio_locator
 from bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose
-from bus.zenoh_bus import ZenohBus
+from bus.zenoh_bus import ZenohBus, zenoh_config
+from tests.helpers import free_port
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
 
@@ -105,3 +108,35 @@ async def test_a_scouting_round_never_holds_the_event_loop(monkeypatch: pytest.M
         released.set()  # the loop turns while the stop waits
         assert await scouting == []
     assert held == [False]
+
+
+async def test_a_bridge_that_cannot_link_within_its_bound_is_not_opened_and_never_dials_later() -> None:
+    """A neighbour whose hop does not carry a handshake (here a socket that accepts and
+    never answers, as a lossy radio may): the bridge is not opened, its ZID is free
+    again, and nothing is left to link into that neighbour later. With Zenoh's
+    retry-for-ever connect, a bridge given up on in bench/mesh_stall.py linked in 8 s
+    late, while being closed, and cost that neighbour its ground link."""
+    port = free_port()
+    own = zenoh.open(zenoh_config("router", listen=[f"tcp/127.0.0.1:{port}"]))
+    silent = socket.create_server(("127.0.0.1", 0))
+    silent.setblocking(False)
+    neighbours = Neighbours("d1", cast(ZenohBus, None), "lo", [], f"tcp/127.0.0.1:{port}", lambda: False,
+                            zids=frozenset({"a1b2c3"}))
+    try:
+        neighbours.heard["n1"] = Heard(f"tcp/127.0.0.1:{silent.getsockname()[1]}")
+        async with asyncio.timeout(30):
+            await neighbours._open("n1")
+        assert neighbours.bridges == {} and neighbours.free_zids == ["a1b2c3"]
+        while True:  # the attempts made while it tried: queued before it gave up
+            try:
+                silent.accept()[0].close()
+            except BlockingIOError:
+                break
+        # No new attempt within twice Zenoh's retry period (1 s) after it gave up.
+        readable, _, _ = await asyncio.to_thread(select.select, [silent], [], [], 2.5)
+        assert readable == [], "something still dials the neighbour the bridge gave up on"
+    finally:
+        for session in neighbours.bridges.values():
+            session.close()
+        silent.close()
+        own.close()
