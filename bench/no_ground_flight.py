@@ -86,7 +86,7 @@ async def fly(adapter: str, minutes: float, workdir: Path) -> tuple[int, float]:
                 break
         if failsafes(op) or "failsafe" in agent.output():
             raise ScenarioFailed(f"{adapter}: the agent ran its lost-link failsafe with no ground on the mesh: "
-                         f"{failsafes(op) or 'see its log'}")
+                                 f"{failsafes(op) or 'see its log'}")
         return cycles, time.monotonic() - started
     finally:
         stop_all(children)
