@@ -43,6 +43,17 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     items[:] = order
 
 
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """With FLEET_TEST_TIMELINE=FILE, each phase of each test appends a line to FILE:
+    worker, phase, start and stop (epoch seconds), test id; `python -m tests.timeline
+    FILE` draws the schedule (which worker ran what when, where the run waited)."""
+    path = os.environ.get("FLEET_TEST_TIMELINE")
+    if path:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(path, "a", encoding="utf-8") as out:
+            out.write(f"{worker} {report.when} {report.start:.3f} {report.stop:.3f} {report.nodeid}\n")
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _agent_state_outside_home(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
     """Agents started by tests (and by the `fleet` processes they start) keep their

@@ -40,8 +40,11 @@ async def test_flight_contract(
     agents("drone01", fc=flight_controller, return_altitude=10, acceptance_radius=0.5)
     op = operator("drone01")
 
-    # Telemetry carries every SPEC field, at the configured 100 ms.
-    await op.next_telemetry(timeout_s=30, what="first telemetry")
+    # Telemetry carries every SPEC field, at the configured 100 ms, once the flight
+    # controller has sent each (until then that field is null: MAVSDK's home, say, can
+    # come a second after the first position on a loaded machine).
+    await op.next_telemetry(lambda t: all(getattr(t, key) is not None for key in NESTED), timeout_s=30,
+                            what="telemetry with every field known")
     for _ in range(11):
         await op.next_telemetry(timeout_s=5)
     raw = json.loads(op.raw_telem[-1])
