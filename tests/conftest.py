@@ -13,7 +13,7 @@ import pytest
 
 from bus.zenoh_bus import ZenohBus
 from tests.harness import AgentProcess, Operator, SimProcess, open_ground_router, stop_all
-from tests.helpers import free_port
+from tests.helpers import RADIO_SLOTS, free_port
 
 
 def pytest_configure() -> None:
@@ -25,7 +25,8 @@ def pytest_configure() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+@pytest.hookimpl(trylast=True)  # after pytest-xdist has suffixed the grouped tests' ids
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Longest first (the `slow` marker's estimate), each followed by a short test.
 
     `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test;
@@ -37,10 +38,41 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         marker = item.get_closest_marker("slow")
         return float(marker.args[0]) if marker is not None else 0.0
 
-    long = sorted((i for i in items if seconds(i)), key=seconds, reverse=True)
+    if getattr(config.option, "loadgroup", False):
+        lost = [i.nodeid for i in items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
+        if lost:  # pytest 9.2 with xdist 3.8 (pytest-dev/pytest-xdist#1386): groups spread over workers
+            raise pytest.UsageError(f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: "
+                                    "see pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
+    long = _radio_tests_when_a_slot_is_free(sorted((i for i in items if seconds(i)), key=seconds, reverse=True), seconds)
     short = [i for i in items if not seconds(i)]
     order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
     items[:] = order
+
+
+def _radio_tests_when_a_slot_is_free(long: list[pytest.Item], seconds: Callable[[pytest.Item], float]) -> list[pytest.Item]:
+    """The long tests in the order the workers should start them: longest first, but a
+    radio test (one that needs one of RADIO_SLOTS slots) only once a slot should be
+    free, as a list schedule on the `slow` estimates says. A radio test handed out with
+    every slot taken would hold its worker idle until one frees (74 s, measured)."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    free_at = [0.0] * workers  # when each worker is next free
+    slots = [0.0] * RADIO_SLOTS  # when each radio slot is next free
+    def radio(item: pytest.Item) -> bool:
+        return "radio_slot" in getattr(item, "fixturenames", ())
+
+    pending, order = list(long), []
+    while pending:
+        worker = min(range(workers), key=free_at.__getitem__)
+        now = free_at[worker]
+        slot = min(range(RADIO_SLOTS), key=slots.__getitem__)
+        item = next((i for i in pending if not radio(i) or slots[slot] <= now), pending[0])
+        pending.remove(item)
+        order.append(item)
+        start = max(now, slots[slot]) if radio(item) else now
+        free_at[worker] = start + seconds(item)
+        if radio(item):
+            slots[slot] = free_at[worker]
+    return order
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

@@ -1,5 +1,8 @@
 """`fleet demo --until-done`, run as CI runs it (`make demo ARGS=--until-done`): a real
 subprocess with its ground, three agents and the fire-tracing mission over real Zenoh.
+`run_demo` starts it, `check_demo` judges a run on the default world (the suite flies
+that once, from the installed wheel: tests/test_install.py; the radio's demo is
+tests/test_field_network.py's).
 
 The demo runs in its own process group, so whatever happens the test can make sure no
 agent outlives it.
@@ -71,15 +74,10 @@ def run_demo(*args: str, timeout_s: float, fleet: list[str] | None = None, cwd: 
             os.killpg(proc.pid, signal.SIGKILL)
 
 
-@pytest.mark.slow(75)
-@pytest.mark.timeout(480)
-def test_bounded_demo_traces_the_fire_and_writes_its_plots(tmp_path: Path) -> None:
-    zenoh_port, http_port = free_port(), free_port()
-    out = tmp_path / "demo-out"
-    code, stdout, stderr, elapsed = run_demo(
-        "--until-done", "--port", str(zenoh_port), "--http-port", str(http_port), "--out", str(out), timeout_s=420,
-    )
-    assert code == 0, f"exit {code} after {elapsed:.0f} s:\n{stdout[-4000:]}\n{stderr[-4000:]}"
+def check_demo(stdout: str, out: Path, zenoh_port: int, http_port: int) -> None:
+    """What `fleet demo --until-done` on the default world must show and leave in `out`.
+    tests/test_install.py runs the demo from the installed wheel, outside the checkout,
+    and checks it with this (one demo run in the suite: the wheel's is the stricter)."""
     assert f"http://127.0.0.1:{http_port}/" in stdout
     assert f"fleet sub 'drone/**' --connect tcp/127.0.0.1:{zenoh_port}" in stdout
     assert "all drones ready: drone01, drone02, drone03" in stdout

@@ -30,16 +30,11 @@ from schemas.geo import destination, distance_m
 from sim.fleet_sim import CHILDREN_STOP_S
 from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, stop_all, submit
-from tests.helpers import free_port, free_udp_base, signal_and_wait, until
+from tests.helpers import RADIO_SLOTS, free_port, free_udp_base, signal_and_wait, until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 GROUND = (40.633490, -8.660815)
 FIELD_ALT = 8.2
-# Radio runs at once on this host, each a ground, a `fleet sim` and an agent per drone.
-# With four at once beside the rest of `make test` on two cores, every drone of one run
-# lost the ground together for ~10 s, twice, and a command to a drone 55 m out went
-# unanswered for 3 s (full-suite runs of 2026-11-23); each passes alone.
-RADIO_SLOTS = 2
 SIM_STOP_S = CHILDREN_STOP_S + 10  # `fleet sim --radio` gives its agents CHILDREN_STOP_S, then takes the radio down
 SLOT_WAIT_S = 240
 

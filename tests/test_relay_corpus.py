@@ -48,22 +48,20 @@ def test_the_lower_bound_uses_the_radios_min_quality_hop() -> None:
     assert hop_m(w.radio) == pytest.approx(w.radio.good_m + 0.4 * (w.radio.lost_m - w.radio.good_m))
 
 
-@pytest.mark.xdist_group("relay-corpus")
-def test_twenty_corpus_worlds_never_fail_through_a_relay() -> None:
+@pytest.mark.parametrize("seed", range(20))
+def test_corpus_worlds_never_fail_through_a_relay(seed: int) -> None:
     """Issue 32 item 2 on 20 worlds: a relay on duty is part of the link, so no mission
     fails because a relay's failsafe pulled it off duty or a relay's move was refused,
     and no relay's command is interrupted by its lost-link failsafe. (The rates the
-    issue asks for are the bench's: bench/relay_corpus.py.)"""
-    outcomes = []
-    for seed in range(20):
-        world = generate(seed)
-        result = asyncio.run(rc.fly(world, "measured"))
-        o = rc.judge(world, "measured", result)
-        outcomes.append(o)
-        relays = set(result["drones"]) - set(world.workers)
-        named = set(re.findall(r"drone\d+", o.message))
-        assert not (named & relays) or o.finished, f"{world.describe()}: {o.cause}: {o.message}"
-        interrupted = [line["message"] for line in result["log"]
-                       if "lost-link failsafe" in line["message"] and line["message"].split(":")[0] in relays]
-        assert not interrupted, f"{world.describe()}: {interrupted}"
-    assert len(outcomes) == 20 and all(not math.isnan(o.longest_gap_s) for o in outcomes)
+    issue asks for are the bench's: bench/relay_corpus.py.) One test per world, so the
+    suite's workers share the 20 (each is a few seconds of one core)."""
+    world = generate(seed)
+    result = asyncio.run(rc.fly(world, "measured"))
+    o = rc.judge(world, "measured", result)
+    relays = set(result["drones"]) - set(world.workers)
+    named = set(re.findall(r"drone\d+", o.message))
+    assert not (named & relays) or o.finished, f"{world.describe()}: {o.cause}: {o.message}"
+    interrupted = [line["message"] for line in result["log"]
+                   if "lost-link failsafe" in line["message"] and line["message"].split(":")[0] in relays]
+    assert not interrupted, f"{world.describe()}: {interrupted}"
+    assert not math.isnan(o.longest_gap_s), world.describe()
