@@ -25,6 +25,16 @@ def pytest_configure() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+LOADGROUP_BROKEN = pytest.StashKey[str]()
+
+
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """A grouped test fails, saying why, when its group was not kept together."""
+    broken = item.config.stash.get(LOADGROUP_BROKEN, None)
+    if broken and item.get_closest_marker("xdist_group"):
+        pytest.fail(broken)
+
+
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has suffixed the grouped tests' ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Longest first (the `slow` marker's estimate), each followed by a short test.
@@ -41,8 +51,9 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if getattr(config.option, "loadgroup", False):
         lost = [i.nodeid for i in items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
         if lost:  # pytest 9.2 with xdist 3.8 (pytest-dev/pytest-xdist#1386): groups spread over workers
-            raise pytest.UsageError(f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: "
-                                    "see pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
+            config.stash[LOADGROUP_BROKEN] = (
+                f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: see "
+                "pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
     long = _radio_tests_when_a_slot_is_free(sorted((i for i in items if seconds(i)), key=seconds, reverse=True), seconds)
     short = [i for i in items if not seconds(i)]
     order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
