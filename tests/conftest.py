@@ -4,6 +4,7 @@ and agent subprocesses that are always stopped."""
 from __future__ import annotations
 
 import os
+import resource
 import signal
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
@@ -95,6 +96,25 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
         worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
         with open(path, "a", encoding="utf-8") as out:
             out.write(f"{worker} {report.when} {report.start:.3f} {report.stop:.3f} {report.nodeid}\n")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
+    """With FLEET_TEST_TIMELINE, also the CPU seconds each test cost: this worker's and
+    its reaped children's (the `fleet` processes it started and stopped)."""
+    path = os.environ.get("FLEET_TEST_TIMELINE")
+    before = _cpu_seconds() if path else 0.0
+    result = yield
+    if path:
+        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+        with open(path, "a", encoding="utf-8") as out:
+            out.write(f"{worker} cpu {_cpu_seconds() - before:.3f} 0 {item.nodeid}\n")
+    return result
+
+
+def _cpu_seconds() -> float:
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 @pytest.fixture(autouse=True, scope="session")

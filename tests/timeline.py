@@ -1,7 +1,7 @@
 """The suite's schedule from a FLEET_TEST_TIMELINE file (tests/conftest.py): per worker,
 the tests it ran in order with their start and length, then the idle time, the tests
 that ended last and the longest setups (a setup that waits is a test waiting for a
-radio slot). `python -m tests.timeline FILE`."""
+radio slot), and what each test cost in CPU. `python -m tests.timeline FILE`."""
 
 from __future__ import annotations
 
@@ -12,8 +12,12 @@ from collections import defaultdict
 def main(path: str) -> None:
     spans: dict[tuple[str, str], list[float]] = {}
     setup: dict[str, float] = {}
+    cpu: dict[str, float] = {}
     for line in open(path, encoding="utf-8"):
         worker, when, start, stop, nodeid = line.split(" ", 4)
+        if when == "cpu":
+            cpu[nodeid.strip()] = float(start)
+            continue
         key = (worker, nodeid.strip())
         span = spans.setdefault(key, [float(start), float(stop)])
         span[0], span[1] = min(span[0], float(start)), max(span[1], float(stop))
@@ -32,6 +36,10 @@ def main(path: str) -> None:
         for s, e, nodeid in runs:
             if e - s >= 5:
                 print(f"  {s:6.0f} +{e - s:5.0f}  {nodeid}")
+    if cpu:
+        print(f"\nCPU: {sum(cpu.values()):.0f} s in all (the tests' workers and the processes they reaped); the most:")
+        for nodeid, c in sorted(cpu.items(), key=lambda kv: -kv[1])[:20]:
+            print(f"  {c:6.1f}  {nodeid}")
     print("\nlongest setups:")
     for nodeid, d in sorted(setup.items(), key=lambda kv: -kv[1])[:8]:
         print(f"  {d:6.1f}  {nodeid}")
