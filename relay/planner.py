@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 Point = tuple[float, float]  # (north, east), metres from the ground station
@@ -202,23 +202,59 @@ def path_quality(at: Point, nodes: Sequence[Point], p: Params, scale: float) -> 
     LINK_HOLDS of them. A relay only helps where it is not short-cut by a
     longer, lossy link; among the fewest-hop paths the worst is counted (which one the
     mesh picks is not ours to choose)."""
-    everything = [(0.0, 0.0), *nodes, at]
-    target = len(everything) - 1
-    level = {0: 0}
-    quality = {0: 1.0}
-    frontier = [0]
-    while frontier and target not in level:
-        nxt: list[int] = []
-        for j in range(len(everything)):
-            if j in level:
-                continue
-            links = [(i, q) for i in frontier if (q := link_quality(everything[i], everything[j], p, scale)) is not None]
-            if links:
-                level[j] = level[frontier[0]] + 1
-                quality[j] = min(quality[i] * q for i, q in links)
-                nxt.append(j)
-        frontier = nxt
-    return quality.get(target, 0.0)
+    return Mesh(nodes, p, scale).quality_at(at)
+
+
+class Mesh:
+    """The mesh's hop levels from the ground over `nodes` (breadth first, links that
+    hold), each node's quality at its level; then any spot's path quality (path_quality)
+    without walking the mesh again. A spot joins at the first level with a node it links
+    to, at the worst such link: what a walk that stops at the spot gives, since a spot
+    never carries traffic for the nodes. link_quality and model_quality are inlined here,
+    the same arithmetic in the same order: this is most of a relay plan's CPU."""
+
+    def __init__(self, nodes: Sequence[Point], p: Params, scale: float) -> None:
+        self._good, self._lost, self._scale = p.good_m, p.lost_m, scale
+        self._holds = p.good_m + LINK_HOLDS * (p.lost_m - p.good_m)
+        points = [(0.0, 0.0), *nodes]
+        quality = {0: 1.0}
+        level = [(0.0, 0.0, 1.0)]  # (x, y, quality) of each node at this many hops
+        self._levels: list[Callable[[float, float], float | None]] = []  # a spot's best link into each level
+        while level:
+            best = self._best(level)
+            self._levels.append(best)
+            nxt: list[int] = []
+            for j, (xj, yj) in enumerate(points):
+                if j not in quality and (q := best(xj, yj)) is not None:
+                    quality[j] = q
+                    nxt.append(j)
+            level = [(points[j][0], points[j][1], quality[j]) for j in nxt]
+
+    def _best(self, nodes: list[tuple[float, float, float]]) -> Callable[[float, float], float | None]:
+        """The worst path quality through a link from one of `nodes` to a spot, None
+        where no link holds."""
+        good, lost, scale, holds, hypot = self._good, self._lost, self._scale, self._holds, math.hypot
+
+        def best(xj: float, yj: float) -> float | None:
+            worst: float | None = None
+            for xi, yi, qi in nodes:
+                d = hypot(xi - xj, yi - yj) / scale
+                if d >= holds:
+                    continue
+                q = 1.0 if d <= good else 0.0 if d >= lost else 1.0 - (d - good) / (lost - good)
+                value = qi * q
+                if worst is None or value < worst:
+                    worst = value
+            return worst
+        return best
+
+    def quality_at(self, at: Point) -> float:
+        x, y = at
+        for best in self._levels:
+            found = best(x, y)
+            if found is not None:
+                return found
+        return 0.0
 
 
 def wanted_spots(d: Drone, p: Params) -> list[Point]:
@@ -242,8 +278,11 @@ class _Scene:
     start: Sequence[Point] = ()  # the serving relays' targets before this plan
 
     def qualities(self, points: Sequence[Point]) -> list[float]:
-        return [path_quality(spot, [*(d.at for d in self.drones if d.id != name), *points], self.p, self.scale)
-                for name, spot in self.wanted]
+        meshes: dict[str, Mesh] = {}  # one per drone whose spots are judged (its own position left out)
+        for name, _ in self.wanted:
+            if name not in meshes:
+                meshes[name] = Mesh([*(d.at for d in self.drones if d.id != name), *points], self.p, self.scale)
+        return [meshes[name].quality_at(spot) for name, spot in self.wanted]
 
     def worst(self, points: Sequence[Point]) -> float:
         return min(self.qualities(points), default=1.0)
