@@ -53,9 +53,10 @@ demo: $(STAMP)
 
 # Five workers on the 2 cores: most tests wait on real time (drones flying), not CPU
 # (eight, measured, kept both cores at 100 % and real-time tests missed deadlines).
-# The longest start first (the `slow` marker, tests/conftest.py): `--dist loadgroup` hands
-# out work units (a test; all Chromium tests are one) in collection order, two per worker
-# at first, then one each time a worker finishes one; each run prints its 25 slowest tests.
+# `--dist loadgroup` hands out work units: the groups first (the Chromium tests; the radio
+# tests of each of the two radio slots), then single tests longest first (the `slow`
+# marker, tests/conftest.py); a worker gets another unit when it has two tests or fewer
+# left (ADR 0011). Each run prints its 25 slowest tests.
 # The lint runs beside the tests (13 s of mypy and friends); either failing fails it.
 test: $(STAMP) sysdeps
 	@$(MAKE) --no-print-directory -j2 lint pytest

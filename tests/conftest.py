@@ -30,21 +30,28 @@ LOADGROUP_BROKEN = pytest.StashKey[str]()
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
-    """A grouped test fails, saying why, when its group was not kept together."""
+    """A grouped test fails, saying why, when its group was not kept together; a radio
+    test fails outside the radio groups (tests/test_field_network.py), one per slot."""
     broken = item.config.stash.get(LOADGROUP_BROKEN, None)
-    if broken and item.get_closest_marker("xdist_group"):
+    group = item.get_closest_marker("xdist_group")
+    if broken and group:
         pytest.fail(broken)
+    if "radio_slot" in getattr(item, "fixturenames", ()):
+        groups = {f"radio-{chr(ord('a') + i)}" for i in range(RADIO_SLOTS)}
+        if group is None or group.args[0] not in groups:
+            pytest.fail(f"a radio test belongs to one of the groups {sorted(groups)} (one per radio slot)")
 
 
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has suffixed the grouped tests' ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Longest first (the `slow` marker's estimate), each followed by a short test.
 
-    `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test;
-    the Chromium group is one unit) in collection order: two per worker at first, then
-    one each time a worker finishes one. So the long real-time tests start early, and
-    a short one sits between two long ones. The order is the same on every worker (a
-    stable sort), as xdist requires."""
+    `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test,
+    or a group: the Chromium tests, each radio slot's tests) with the groups first (the
+    most tests first), then in collection order: one per worker at first, a second to
+    each, then one each time a worker is down to two tests. So the long real-time tests
+    start early, and a short one sits between two long ones. The order is the same on
+    every worker (a stable sort), as xdist requires."""
     def seconds(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return float(marker.args[0]) if marker is not None else 0.0
@@ -55,36 +62,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             config.stash[LOADGROUP_BROKEN] = (
                 f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: see "
                 "pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
-    long = _radio_tests_when_a_slot_is_free(sorted((i for i in items if seconds(i)), key=seconds, reverse=True), seconds)
+    long = sorted((i for i in items if seconds(i)), key=seconds, reverse=True)
     short = [i for i in items if not seconds(i)]
     order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
     items[:] = order
-
-
-def _radio_tests_when_a_slot_is_free(long: list[pytest.Item], seconds: Callable[[pytest.Item], float]) -> list[pytest.Item]:
-    """The long tests in the order the workers should start them: longest first, but a
-    radio test (one that needs one of RADIO_SLOTS slots) only once a slot should be
-    free, as a list schedule on the `slow` estimates says. A radio test handed out with
-    every slot taken would hold its worker idle until one frees (74 s, measured)."""
-    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    free_at = [0.0] * workers  # when each worker is next free
-    slots = [0.0] * RADIO_SLOTS  # when each radio slot is next free
-    def radio(item: pytest.Item) -> bool:
-        return "radio_slot" in getattr(item, "fixturenames", ())
-
-    pending, order = list(long), []
-    while pending:
-        worker = min(range(workers), key=free_at.__getitem__)
-        now = free_at[worker]
-        slot = min(range(RADIO_SLOTS), key=slots.__getitem__)
-        item = next((i for i in pending if not radio(i) or slots[slot] <= now), pending[0])
-        pending.remove(item)
-        order.append(item)
-        start = max(now, slots[slot]) if radio(item) else now
-        free_at[worker] = start + seconds(item)
-        if radio(item):
-            slots[slot] = free_at[worker]
-    return order
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

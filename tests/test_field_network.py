@@ -124,6 +124,14 @@ class OnBoard(ChildProcess):
         return out
 
 
+# The radio tests in two groups, one per radio slot (RADIO_SLOTS): `--dist loadgroup` runs
+# each group on one worker, one test after another, so no radio test waits for a slot on
+# a worker that could be running something else (one waited 42-75 s a run). Balanced on
+# their measured times: about 240 s each.
+RADIO_A = pytest.mark.xdist_group("radio-a")
+RADIO_B = pytest.mark.xdist_group("radio-b")
+
+
 @pytest.fixture
 def radio_slot() -> Iterator[None]:
     """One of RADIO_SLOTS host-wide slots (a lock file each), held while the test runs."""
@@ -183,6 +191,7 @@ def index_of(lines: list[str], text: str, start: int = 0) -> int:
     raise AssertionError(f"no line with {text!r} after line {start}:\n" + "\n".join(lines[-40:]))
 
 
+@RADIO_B
 @pytest.mark.slow(70)
 async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """A drone flies from 20 m towards 150 m and is brought home by its lost-link policy;
@@ -248,6 +257,7 @@ async def _has(http: httpx.AsyncClient, text: str) -> bool:
     return any(text in line for line in await log_lines(http, "drone01"))
 
 
+@RADIO_A
 @pytest.mark.slow(20)
 async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """Ground, A at 50 m, B at 105 m: B is reachable only through A; A leaves, B is
@@ -313,6 +323,7 @@ print(f"relay {relay.id}; another: {other.id}")
 """
 
 
+@RADIO_B
 @pytest.mark.slow(60)
 async def test_a_healthy_drone_stays_heard_beside_a_lossy_or_frozen_neighbour(tmp_path: Path, radio_slot: None) -> None:
     """Issue 30's reproduction (bench/mesh_stall.py, one run of each scenario): H 20 m
@@ -333,6 +344,7 @@ async def test_a_healthy_drone_stays_heard_beside_a_lossy_or_frozen_neighbour(tm
     assert all(line.split(": ", 1)[1].startswith("1/1 runs kept H heard") for line in lines[-2:]), lines
 
 
+@RADIO_B
 @pytest.mark.slow(40)
 async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
         tmp_path: Path, processes: list[ChildProcess]) -> None:
@@ -415,6 +427,7 @@ home(d)
 """
 
 
+@RADIO_A
 @pytest.mark.slow(60)
 async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """Issue 14 on real packets: two drones take survey bundles past the radio's 100 m,
@@ -480,6 +493,7 @@ land(d)
 """
 
 
+@RADIO_A
 @pytest.mark.slow(90)
 async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_commanded(
         tmp_path: Path, processes: list[ChildProcess]) -> None:
@@ -556,6 +570,7 @@ async def _reachable(http: httpx.AsyncClient, drone_id: str) -> bool:
     return d is not None and d["info"]["state"] != "unknown"
 
 
+@RADIO_B
 def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path, radio_slot: None) -> None:
     """SIGKILL `fleet sim --radio`: its namespaces stay (and its agents die with it);
     the next radio run removes them before it builds its own."""
@@ -581,6 +596,7 @@ def test_a_killed_launcher_leaves_nothing_after_the_next_start(tmp_path: Path, r
     assert fleet_resources(second.pid) == []
 
 
+@RADIO_A
 def test_radio_runs_started_together_get_their_own_subnets(radio_slot: None) -> None:
     """Parallel radio runs (these tests under xdist, two operators on one laptop) must
     not pick the same /24: the pick holds a lock until the address is taken."""
@@ -634,6 +650,7 @@ def _wait_sync(predicate: Any, timeout_s: float, what: str) -> None:
         time.sleep(0.1)
 
 
+@RADIO_B
 @pytest.mark.slow(80)
 @pytest.mark.timeout(480)
 def test_the_demo_on_the_radio_traces_the_fire_and_leaves_nothing(tmp_path: Path, radio_slot: None) -> None:
