@@ -72,25 +72,24 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """With FLEET_TEST_TIMELINE=FILE, each phase of each test appends a line to FILE:
     worker, phase, start and stop (epoch seconds), test id; `python -m tests.timeline
     FILE` draws the schedule (which worker ran what when, where the run waited)."""
-    path = os.environ.get("FLEET_TEST_TIMELINE")
-    if path:
-        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-        with open(path, "a", encoding="utf-8") as out:
-            out.write(f"{worker} {report.when} {report.start:.3f} {report.stop:.3f} {report.nodeid}\n")
+    _timeline(f"{report.when} {report.start:.3f} {report.stop:.3f} {report.nodeid}")
 
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """With FLEET_TEST_TIMELINE, also the CPU seconds each test cost: this worker's and
     its reaped children's (the `fleet` processes it started and stopped)."""
-    path = os.environ.get("FLEET_TEST_TIMELINE")
-    before = _cpu_seconds() if path else 0.0
+    before = _cpu_seconds()
     result = yield
-    if path:
-        worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-        with open(path, "a", encoding="utf-8") as out:
-            out.write(f"{worker} cpu {_cpu_seconds() - before:.3f} 0 {item.nodeid}\n")
+    _timeline(f"cpu {_cpu_seconds() - before:.3f} 0 {item.nodeid}")
     return result
+
+
+def _timeline(line: str) -> None:
+    path = os.environ.get("FLEET_TEST_TIMELINE")
+    if path:
+        with open(path, "a", encoding="utf-8") as out:
+            out.write(f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')} {line}\n")
 
 
 def _cpu_seconds() -> float:
