@@ -72,7 +72,8 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """With FLEET_TEST_TIMELINE=FILE, each phase of each test appends a line to FILE:
     worker, phase, start and stop (epoch seconds), test id; `python -m tests.timeline
     FILE` draws the schedule (which worker ran what when, where the run waited)."""
-    _timeline(f"{report.when} {report.start:.3f} {report.stop:.3f} {report.nodeid}")
+    if getattr(report, "node", None) is None:  # not the copy pytest-xdist's controller gets
+        _timeline(f"{report.when} {report.start:.3f} {report.stop:.3f} {report.nodeid}")
 
 
 @pytest.hookimpl(wrapper=True)
