@@ -80,6 +80,8 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
 def pytest_runtest_protocol(item: pytest.Item) -> Iterator[None]:
     """With FLEET_TEST_TIMELINE, also the CPU seconds each test cost: this worker's and
     its reaped children's (the `fleet` processes it started and stopped)."""
+    if not os.environ.get("FLEET_TEST_TIMELINE"):
+        return (yield)
     before = _cpu_seconds()
     result = yield
     _timeline(f"cpu {_cpu_seconds() - before:.3f} 0 {item.nodeid}")

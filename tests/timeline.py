@@ -1,7 +1,8 @@
 """The suite's schedule from a FLEET_TEST_TIMELINE file (tests/conftest.py): per worker,
-the tests it ran in order with their start and length, then the idle time, the tests
-that ended last and the longest setups (a setup that waits is a test waiting for a
-radio slot), and what each test cost in CPU. `python -m tests.timeline FILE`."""
+how busy it was and when it ended, with its tests of 5 s or more (start and length);
+then what the tests cost in CPU (the most first) and the longest setups (a setup that
+waits is a test waiting on a host lock, such as a radio slot another run holds).
+`python -m tests.timeline FILE`."""
 
 from __future__ import annotations
 
