@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
+import random
 
 import pytest
 
 from relay.distance import keep_clear
-from relay.planner import Drone, Params, Relay, dist, duty_altitude, path_quality, plan
+from relay.planner import Drone, Params, Relay, dist, duty_altitude, link_quality, path_quality, plan
 
 P = Params()  # the default radio: good to 60 m, lost at 100 m; min_quality 0.6 → 76 m, 64.6 m with the margin
 
@@ -164,3 +165,28 @@ def test_duty_altitudes_rise_clear_of_the_altitude_the_drones_fly_at() -> None:
     moved = plan([Drone("d1", at(150, 30), alt=12.0)], [relay], P).moves
     assert [m.relay for m in moved] == ["r1"] and abs(moved[0].alt - 12.0) >= P.min_separation, moved
     assert duty_altitude(0, P, [30.0]) == 10.0  # drones far above: the thesis's levels
+
+
+def test_path_quality_is_the_fewest_hop_walk_over_link_quality() -> None:
+    """relay.planner.Mesh inlines the link model for speed: on 300 random meshes (radios,
+    scales, node counts) it gives exactly what a walk over link_quality gives, so the
+    model has one meaning however often it is written."""
+    rng = random.Random(32)
+    for _ in range(300):
+        good = rng.uniform(25, 150)
+        p = Params(good_m=good, lost_m=good * rng.uniform(1.3, 2.0))
+        scale = rng.uniform(0.5, 1.5)
+        nodes = [(rng.uniform(-300, 300), rng.uniform(-300, 300)) for _ in range(rng.randint(0, 8))]
+        spot = (rng.uniform(-400, 400), rng.uniform(-400, 400))
+        everything = [(0.0, 0.0), *nodes, spot]
+        quality, frontier = {0: 1.0}, [0]
+        while frontier and len(everything) - 1 not in quality:
+            level = {}
+            for j, b in enumerate(everything):
+                links = [quality[i] * q for i in frontier if j not in quality
+                         and (q := link_quality(everything[i], b, p, scale)) is not None]
+                if links:
+                    level[j] = min(links)
+            quality.update(level)
+            frontier = list(level)
+        assert path_quality(spot, nodes, p, scale) == quality.get(len(everything) - 1, 0.0)
