@@ -63,7 +63,10 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
                 f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: see "
                 "pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
     long = sorted((i for i in items if seconds(i)), key=seconds, reverse=True)
-    short = [i for i in items if not seconds(i)]
+    # The short tests that start processes go between the long ones, the pure ones last:
+    # they fill the end in a few CPU-seconds, where tests that start processes would
+    # compete for both cores with the last long tests.
+    short = sorted((i for i in items if not seconds(i)), key=lambda i: i.get_closest_marker("integration") is None)
     order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
     items[:] = order
 

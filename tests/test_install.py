@@ -60,7 +60,8 @@ def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path
     # time for matplotlib, Litestar and the rest); the demo finds its world and script
     # in the package.
     uv = Path(sys.executable).parent / "uv"
-    everything = run(uv, "pip", "install", "--quiet", "--python", venv / "bin" / "python", "-c", REPO / "requirements.lock",
+    everything = run(uv, "pip", "install", "--quiet", "--compile-bytecode", "--python", venv / "bin" / "python",
+                     "-c", REPO / "requirements.lock",
                      f"{wheel}[all]", cwd=work)
     assert everything.returncode == 0, everything.stderr
     located = run(venv / "bin" / "python", "-c", "import fleet_examples; print(fleet_examples.DIR)", cwd=work)

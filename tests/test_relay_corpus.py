@@ -48,6 +48,7 @@ def test_the_lower_bound_uses_the_radios_min_quality_hop() -> None:
     assert hop_m(w.radio) == pytest.approx(w.radio.good_m + 0.4 * (w.radio.lost_m - w.radio.good_m))
 
 
+@pytest.mark.slow(5)  # of one core: ordered among the long tests, while cores are idle (ADR 0011)
 @pytest.mark.parametrize("seed", range(20))
 def test_corpus_worlds_never_fail_through_a_relay(seed: int) -> None:
     """Issue 32 item 2 on 20 worlds: a relay on duty is part of the link, so no mission

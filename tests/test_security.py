@@ -285,8 +285,9 @@ async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path,
     async def dial(directory: Path, **security: Any) -> None:
         extra = mesh_security(Security(pki_dir=str(directory), tls=True, **security), "drone01", endpoint, router=True)
         # Fail the open instead of retrying for ever, as an agent's router does.
+        # No listener (a router's default is tcp/[::]:7447, which another test may hold).
         node = await ZenohBus.open("router", connect=endpoint, extra={**extra, "connect/exit_on_failure": True,
-                                                                      "connect/timeout_ms": 2000})
+                                                                      "connect/timeout_ms": 2000, "listen/endpoints": []})
         await node.close()
 
     try:
