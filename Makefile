@@ -32,6 +32,8 @@ sysdeps:
 # PYTHONDONTWRITEBYTECODE=1 (the image of this 2-core VM does), every `fleet` process and
 # every pytest worker compiled its imports again, half of a process's start (0.7 s of
 # CPU against 0.3 s for the ground's imports) and a sixth of the suite's CPU (ADR 0011).
+# A venv from before the package was renamed (ADR 0012) still holds the old `fleet`
+# distribution: it is removed first, or its finder would serve stale modules.
 UV_PIN := $(shell sed -n 's/^uv==//p' requirements.lock)
 unexport PYTHONDONTWRITEBYTECODE
 
@@ -39,6 +41,7 @@ $(STAMP): pyproject.toml requirements.lock
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@echo "installing requirements.lock into $(VENV)"
 	@if $(BIN)/python -m pip install --quiet --disable-pip-version-check uv==$(UV_PIN) 2>/dev/null \
+	    && { $(BIN)/uv pip uninstall --quiet --python $(BIN)/python fleet 2>/dev/null; true; } \
 	    && $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -r requirements.lock \
 	    && $(BIN)/uv pip install --quiet --python $(BIN)/python --no-deps -e .; then :; else \
 	  echo "uv could not install the lock; installing it with pip"; \
@@ -99,6 +102,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/mesh.py  # needs CAP_NET_ADMIN (root), as fleet sim --radio
 	$(BIN)/python bench/mesh_stall.py --runs 1  # root too
 	$(BIN)/python bench/no_ground_flight.py --minutes 1
+	$(BIN)/python bench/example_hashes.py  # the bytes each example writes (compare before/after a refactoring)
 
 clean:
 	rm -rf $(VENV) .pytest_cache build *.egg-info

@@ -24,9 +24,9 @@ from typing import Any, Literal
 
 import msgspec
 
-from agent.handler import CommandHandler
-from bus.clock import Clock
-from schemas.bundles import (
+from dronefleet.agent.handler import CommandHandler
+from dronefleet.bus.clock import Clock
+from dronefleet.schemas.bundles import (
     Bundle,
     BundleEvent,
     BundleRecord,
@@ -37,9 +37,9 @@ from schemas.bundles import (
     StepEvent,
     describe_guard,
 )
-from schemas.commands import Cancel, Command, Return
-from schemas.status import CommandStatus
-from schemas.telemetry import Telemetry
+from dronefleet.schemas.commands import Cancel, Command, Return
+from dronefleet.schemas.status import CommandStatus
+from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 GUARD_POLL_S = 0.1

@@ -14,10 +14,10 @@ from typing import Annotated
 import msgspec
 from msgspec import Meta
 
-from agent.link import LostLinkPolicy
-from schemas.config import Security
-from schemas.endpoints import AGENT_PORT, check_endpoints, ip_endpoint, plain_endpoint
-from schemas.fence import Geofence
+from dronefleet.agent.link import LostLinkPolicy
+from dronefleet.schemas.config import Security
+from dronefleet.schemas.endpoints import AGENT_PORT, check_endpoints, ip_endpoint, plain_endpoint
+from dronefleet.schemas.fence import Geofence
 
 
 class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

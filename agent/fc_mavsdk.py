@@ -19,10 +19,10 @@ from collections.abc import AsyncIterator, Callable
 from typing import Any
 from urllib.parse import urlsplit
 
-from agent.fc_port import FcRejected, FcState, FcUnavailable
-from schemas.errors import ConfigError
-from schemas.geo import normalize_deg
-from schemas.telemetry import Battery, GpsInfo, Home, Position, VelocityNed
+from dronefleet.agent.fc_port import FcRejected, FcState, FcUnavailable
+from dronefleet.schemas.errors import ConfigError
+from dronefleet.schemas.geo import normalize_deg
+from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, VelocityNed
 
 log = logging.getLogger(__name__)
 

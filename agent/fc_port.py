@@ -13,8 +13,8 @@ from typing import Protocol
 
 import msgspec
 
-from schemas.errors import FleetError
-from schemas.telemetry import Battery, GpsInfo, Home, Position, VelocityNed
+from dronefleet.schemas.errors import FleetError
+from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, VelocityNed
 
 
 class FcError(FleetError):

@@ -19,11 +19,11 @@ from urllib.parse import parse_qs, urlsplit
 
 import msgspec
 
-from agent.fc_port import FcRejected, FcState
-from bus.clock import Clock
-from schemas.errors import ConfigError
-from sim.faults import FaultChannel, open_fault_channel
-from sim.vehicle import Vehicle
+from dronefleet.agent.fc_port import FcRejected, FcState
+from dronefleet.bus.clock import Clock
+from dronefleet.schemas.errors import ConfigError
+from dronefleet.sim.faults import FaultChannel, open_fault_channel
+from dronefleet.sim.vehicle import Vehicle
 
 DEFAULT_SPAWN = (40.633490, -8.660815, 8.2)  # thesis test field, Aveiro
 STEP_S = 0.02

@@ -18,15 +18,15 @@ from dataclasses import dataclass, field
 import msgspec
 from msgspec import UNSET
 
-from agent.fc_port import FcError, FcState, FlightController
-from agent.priority import INSTANT, Active, Situation, decide, end_state
-from agent.tracker import Goal, finished, interrupted, system_events
-from bus.clock import Clock
-from schemas import commands as c
-from schemas.commands import Command, CommandReply
-from schemas.fence import Geofence, refusal
-from schemas.geo import bearing_deg, normalize_deg, offset_body
-from schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, CommandStatus, Coords, SystemStatus
+from dronefleet.agent.fc_port import FcError, FcState, FlightController
+from dronefleet.agent.priority import INSTANT, Active, Situation, decide, end_state
+from dronefleet.agent.tracker import Goal, finished, interrupted, system_events
+from dronefleet.bus.clock import Clock
+from dronefleet.schemas import commands as c
+from dronefleet.schemas.commands import Command, CommandReply
+from dronefleet.schemas.fence import Geofence, refusal
+from dronefleet.schemas.geo import bearing_deg, normalize_deg, offset_body
+from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, CommandStatus, Coords, SystemStatus
 
 log = logging.getLogger(__name__)
 

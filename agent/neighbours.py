@@ -37,9 +37,9 @@ from typing import Any
 
 import zenoh
 
-from bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, MAX_BRIDGES, NeedWatch, choose
-from bus.zenoh_bus import ZenohBus, zenoh_config
-from schemas.endpoints import ip_endpoint, plain_endpoint
+from dronefleet.bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, MAX_BRIDGES, NeedWatch, choose
+from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
+from dronefleet.schemas.endpoints import ip_endpoint, plain_endpoint
 
 log = logging.getLogger(__name__)
 

@@ -15,12 +15,12 @@ from collections.abc import Callable
 
 import msgspec
 
-from agent.link import WINDOW, LinkWindow
-from bus.clock import Clock
-from bus.port import Bus, BusError
-from schemas.codec import encode
-from schemas.keys import Keys
-from schemas.telemetry import GROUND_PEER, LinkQuality
+from dronefleet.agent.link import WINDOW, LinkWindow
+from dronefleet.bus.clock import Clock
+from dronefleet.bus.port import Bus, BusError
+from dronefleet.schemas.codec import encode
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import GROUND_PEER, LinkQuality
 
 log = logging.getLogger(__name__)
 

@@ -11,10 +11,10 @@ from typing import Any
 
 import msgspec
 
-from bus.port import Bus
-from schemas.codec import encode
-from schemas.commands import CommandReply, new_command_id
-from schemas.keys import Keys
+from dronefleet.bus.port import Bus
+from dronefleet.schemas.codec import encode
+from dronefleet.schemas.commands import CommandReply, new_command_id
+from dronefleet.schemas.keys import Keys
 
 DEFAULT_KEYS = Keys()
 

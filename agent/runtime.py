@@ -21,25 +21,25 @@ from typing import Any
 
 import msgspec
 
-from agent.bundle import BundleRunner, BundleStore
-from agent.config import AgentConfig, own_endpoint
-from agent.fc_port import FcError, FcState, FcUnavailable, FlightController
-from agent.fc_sim import SimFlightController, parse_sim_url
-from agent.handler import CommandHandler, FlightSettings
-from agent.link import LostLink, LostLinkAction
-from agent.neighbours import Neighbours, new_bridge_zids
-from agent.prober import LinkProber
-from agent.telemetry import to_telemetry
-from bus.clock import Clock, SystemClock
-from bus.port import Bus, Sample, echo
-from schemas.auth import verifier_of
-from schemas.bundles import BundleReply, BundleStatus, parse_bundle
-from schemas.codec import decode_sensor, encode
-from schemas.commands import Cancel, CommandReply, Land, Return, decode_command
-from schemas.errors import InvalidMessage
-from schemas.keys import Keys, check_id
-from schemas.status import FAILSAFE_ID_PREFIX, GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
-from schemas.telemetry import Telemetry
+from dronefleet.agent.bundle import BundleRunner, BundleStore
+from dronefleet.agent.config import AgentConfig, own_endpoint
+from dronefleet.agent.fc_port import FcError, FcState, FcUnavailable, FlightController
+from dronefleet.agent.fc_sim import SimFlightController, parse_sim_url
+from dronefleet.agent.handler import CommandHandler, FlightSettings
+from dronefleet.agent.link import LostLink, LostLinkAction
+from dronefleet.agent.neighbours import Neighbours, new_bridge_zids
+from dronefleet.agent.prober import LinkProber
+from dronefleet.agent.telemetry import to_telemetry
+from dronefleet.bus.clock import Clock, SystemClock
+from dronefleet.bus.port import Bus, Sample, echo
+from dronefleet.schemas.auth import verifier_of
+from dronefleet.schemas.bundles import BundleReply, BundleStatus, parse_bundle
+from dronefleet.schemas.codec import decode_sensor, encode
+from dronefleet.schemas.commands import Cancel, CommandReply, Land, Return, decode_command
+from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.schemas.keys import Keys, check_id
+from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
+from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
@@ -54,7 +54,7 @@ def make_flight_controller(url: str, clock: Clock) -> FlightController:
     if url == "sim" or url.startswith("sim://"):
         vehicle, control_port = parse_sim_url(url)
         return SimFlightController(vehicle, clock, control_port)
-    from agent.fc_mavsdk import MavsdkFlightController
+    from dronefleet.agent.fc_mavsdk import MavsdkFlightController
 
     return MavsdkFlightController(url, connect_timeout_s=FC_CONNECT_TIMEOUT_S)
 
@@ -341,8 +341,8 @@ def _peek(payload: bytes, field: str) -> str:
 
 async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = None) -> None:
     """The `fleet agent` process: real flight controller, real Zenoh, until cancelled."""
-    from bus.mesh_security import mesh_security
-    from bus.zenoh_bus import ZenohBus
+    from dronefleet.bus.mesh_security import mesh_security
+    from dronefleet.bus.zenoh_bus import ZenohBus
 
     clock = clock or SystemClock()
     # MAVSDK runs its blocking calls in the default executor; 6 threads on 2 cores

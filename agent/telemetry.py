@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import math
 
-from agent.fc_port import FcState
-from schemas.telemetry import Telemetry
+from dronefleet.agent.fc_port import FcState
+from dronefleet.schemas.telemetry import Telemetry
 
 
 def to_telemetry(drone_id: str, seq: int, timestamp_ms: int, s: FcState) -> Telemetry:

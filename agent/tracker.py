@@ -13,10 +13,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from agent.fc_port import FcState
-from agent.priority import SETPOINTS
-from schemas.geo import angle_diff_deg, distance_m
-from schemas.telemetry import MANUAL_MODES
+from dronefleet.agent.fc_port import FcState
+from dronefleet.agent.priority import SETPOINTS
+from dronefleet.schemas.geo import angle_diff_deg, distance_m
+from dronefleet.schemas.telemetry import MANUAL_MODES
 
 HEADING_TOLERANCE_DEG = 2.0
 

@@ -27,7 +27,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", work / "dist", REPO], check=True)
-        (wheel,) = (work / "dist").glob("fleet-*.whl")
+        (wheel,) = (work / "dist").glob("dronefleet-*.whl")
         venv = work / "venv"
         subprocess.run([sys.executable, "-m", "venv", venv], check=True)
         python = venv / "bin" / "python"
@@ -45,7 +45,7 @@ def main() -> None:
             times.append(float(out.stdout))
         packages = subprocess.run([python, "-m", "pip", "list", "--format=freeze"], check=True, capture_output=True,
                                   text=True).stdout
-    print(f"fleet[agent]: {installed:.0f} MiB installed ({len(packages.splitlines())} packages with pip/setuptools)")
+    print(f"dronefleet[agent]: {installed:.0f} MiB installed ({len(packages.splitlines())} packages with pip/setuptools)")
     print(f"agent import time: median {statistics.median(times) * 1000:.0f} ms over {RUNS} runs "
           f"(min {min(times) * 1000:.0f} ms)")
 

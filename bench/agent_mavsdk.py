@@ -21,11 +21,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.fc_mavsdk import MavsdkFlightController  # noqa: E402
 from bench.agent_window import measure_agent, report  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
-from sim.mavlink_endpoint import MavlinkVehicle  # noqa: E402
-from sim.vehicle import Vehicle  # noqa: E402
+from dronefleet.agent.fc_mavsdk import MavsdkFlightController  # noqa: E402
+from dronefleet.sim.mavlink_endpoint import MavlinkVehicle  # noqa: E402
+from dronefleet.sim.vehicle import Vehicle  # noqa: E402
 from tests.helpers import free_udp_base  # noqa: E402
 
 

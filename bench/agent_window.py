@@ -14,9 +14,9 @@ from pathlib import Path
 
 from bench.procstat import Usage, Window
 from bench.verdict import ScenarioFailed
-from bus.port import Sample
-from bus.zenoh_bus import ZenohBus
-from schemas.keys import Keys
+from dronefleet.bus.port import Sample
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.keys import Keys
 from tests.helpers import free_port
 
 WARM_UP_S = 3.0  # imports, connecting, first heartbeats: not steady state

@@ -27,9 +27,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import httpx  # noqa: E402
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.bundles import parse_bundle  # noqa: E402
-from schemas.keys import Keys  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.schemas.bundles import parse_bundle  # noqa: E402
+from dronefleet.schemas.keys import Keys  # noqa: E402
 from tests.harness import AgentProcess, GroundProcess  # noqa: E402
 from tests.helpers import until  # noqa: E402
 

@@ -37,11 +37,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from playwright.async_api import Browser, Page, ViewportSize, async_playwright, expect  # noqa: E402
 
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.codec import encode  # noqa: E402
-from schemas.geo import destination  # noqa: E402
-from schemas.keys import Keys  # noqa: E402
-from schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.schemas.codec import encode  # noqa: E402
+from dronefleet.schemas.geo import destination  # noqa: E402
+from dronefleet.schemas.keys import Keys  # noqa: E402
+from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
 from tests.harness import GroundProcess  # noqa: E402
 
 # Debian's chromium misbehaves without these on a machine with no internet.

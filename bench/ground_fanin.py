@@ -31,13 +31,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import msgspec  # noqa: E402
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from ground.config import GroundConfig  # noqa: E402
-from ground.eventlog import EventLog  # noqa: E402
-from ground.station import GroundStation  # noqa: E402
-from schemas.codec import encode  # noqa: E402
-from schemas.keys import Keys  # noqa: E402
-from schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.ground.config import GroundConfig  # noqa: E402
+from dronefleet.ground.eventlog import EventLog  # noqa: E402
+from dronefleet.ground.station import GroundStation  # noqa: E402
+from dronefleet.schemas.codec import encode  # noqa: E402
+from dronefleet.schemas.keys import Keys  # noqa: E402
+from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
 
 PERIOD_S = 0.1

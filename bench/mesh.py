@@ -29,11 +29,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.procstat import Window  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.port import Sample, echo  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.keys import Keys  # noqa: E402
-from sim.radio import GROUND, LOSS_STEPS, RadioModel  # noqa: E402
-from sim.radio_net import RadioNet, RadioUnavailable, die_with_parent  # noqa: E402
+from dronefleet.bus.port import Sample, echo  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.schemas.keys import Keys  # noqa: E402
+from dronefleet.sim.radio import GROUND, LOSS_STEPS, RadioModel  # noqa: E402
+from dronefleet.sim.radio_net import RadioNet, RadioUnavailable, die_with_parent  # noqa: E402
 
 GROUND_PORT = 7447
 DEADLINE_S = 30.0  # for any one wait: a mesh that does not recover in this is a failure

@@ -38,12 +38,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.loop_watch import LoopWatch  # noqa: E402
-from bus.port import Sample, echo  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.keys import Keys  # noqa: E402
-from sim.radio import GROUND, RadioModel  # noqa: E402
-from sim.radio_net import RadioNet, RadioUnavailable, die_with_parent  # noqa: E402
+from dronefleet.bus.loop_watch import LoopWatch  # noqa: E402
+from dronefleet.bus.port import Sample, echo  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.schemas.keys import Keys  # noqa: E402
+from dronefleet.sim.radio import GROUND, RadioModel  # noqa: E402
+from dronefleet.sim.radio_net import RadioNet, RadioUnavailable, die_with_parent  # noqa: E402
 
 GROUND_PORT = 7447
 DEADLINE_S = 40.0  # for the mesh to be whole again between runs

@@ -26,12 +26,12 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from agent.runtime import Agent  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
-from fleet.compose import SimField, simulate  # noqa: E402
-from mission import dsl  # noqa: E402
-from schemas.geo import destination  # noqa: E402
-from sim.world import DroneSpec, World  # noqa: E402
+from dronefleet.agent.runtime import Agent  # noqa: E402
+from dronefleet.compose import SimField, simulate  # noqa: E402
+from dronefleet.mission.script import script as script_mission  # noqa: E402
+from dronefleet.schemas.geo import destination  # noqa: E402
+from dronefleet.sim.world import DroneSpec, World  # noqa: E402
 
 SPEEDUP_TARGET = 100  # (a), simulated seconds per wall second
 
@@ -81,7 +81,7 @@ async def speedup() -> None:
 async def verb_overhead(n: int) -> None:
     sent: list[float] = []
     received: list[float] = []
-    original_build = dsl.build_namespace
+    original_build = script_mission.build_namespace
     original_on_command = Agent._on_command
 
     def build(mission: Any, guards: Any) -> dict[str, Any]:
@@ -99,7 +99,7 @@ async def verb_overhead(n: int) -> None:
         received.append(time.perf_counter())
         return await original_on_command(self, key, payload)
 
-    dsl.build_namespace = build
+    script_mission.build_namespace = build
     Agent._on_command = on_command  # type: ignore[method-assign]
     field = SimField(World(), 1)
     try:
@@ -108,7 +108,7 @@ async def verb_overhead(n: int) -> None:
         assert record.status == "finished", record
     finally:
         await field.close()
-        dsl.build_namespace = original_build
+        script_mission.build_namespace = original_build
         Agent._on_command = original_on_command  # type: ignore[method-assign]
     lat = sorted((r - s) * 1000 for s, r in zip(sent, received, strict=True))[20:]
     q = statistics.quantiles(lat, n=100)

@@ -25,9 +25,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.geo import destination  # noqa: E402
-from schemas.status import CommandStatus, SystemStatus  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.schemas.geo import destination  # noqa: E402
+from dronefleet.schemas.status import CommandStatus, SystemStatus  # noqa: E402
 from tests.harness import AgentProcess, Operator, SimProcess, at, stop_all  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
 

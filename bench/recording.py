@@ -20,9 +20,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.recording import Recorder, read  # noqa: E402
-from schemas.codec import encode  # noqa: E402
-from schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
+from dronefleet.bus.recording import Recorder, read  # noqa: E402
+from dronefleet.schemas.codec import encode  # noqa: E402
+from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
 
 
 def payload(drone: int, i: int) -> bytes:

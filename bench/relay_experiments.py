@@ -14,7 +14,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from fleet import relay_experiments as rx  # noqa: E402
+from dronefleet import relay_experiments as rx  # noqa: E402
 
 
 async def main() -> None:

@@ -27,12 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.mesh_security import mesh_security  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
-from schemas.auth import Signer, Verifier, load_private_key, load_public_key  # noqa: E402
-from schemas.codec import encode  # noqa: E402
-from schemas.commands import Goto, decode_command  # noqa: E402
-from schemas.config import Security  # noqa: E402
+from dronefleet.bus.mesh_security import mesh_security  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.schemas.auth import Signer, Verifier, load_private_key, load_public_key  # noqa: E402
+from dronefleet.schemas.codec import encode  # noqa: E402
+from dronefleet.schemas.commands import Goto, decode_command  # noqa: E402
+from dronefleet.schemas.config import Security  # noqa: E402
 from tests.harness import GroundFleet, make_pki  # noqa: E402
 from tests.helpers import free_port, until  # noqa: E402
 

@@ -20,14 +20,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.procstat import Usage, Window  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
-from bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from tests.helpers import free_port  # noqa: E402
 
 WARM_UP_S = 3.0
 
 CHILD = """
 import asyncio, sys
-from bus.zenoh_bus import ZenohBus
+from dronefleet.bus.zenoh_bus import ZenohBus
 
 async def main(mode, connect, listen):
     bus = await ZenohBus.open(mode, connect=[connect], listen=[listen] if listen else [])

@@ -22,9 +22,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from bus.delivery import Inbox
-from bus.keyexpr import intersects, strip_parameters
-from bus.port import (
+from dronefleet.bus.delivery import Inbox
+from dronefleet.bus.keyexpr import intersects, strip_parameters
+from dronefleet.bus.port import (
     LivelinessHandler,
     QueryHandler,
     QueryRefused,

@@ -32,8 +32,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from schemas.config import Security
-from schemas.errors import ConfigError
+from dronefleet.schemas.config import Security
+from dronefleet.schemas.errors import ConfigError
 
 ALL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
                 "liveliness_token", "liveliness_query", "declare_liveliness_subscriber"]

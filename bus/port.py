@@ -12,7 +12,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-from schemas.errors import FleetError
+from dronefleet.schemas.errors import FleetError
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,14 +26,14 @@ from typing import IO, Any
 
 import msgspec
 
-from bus.clock import Clock, SystemClock
-from bus.keyexpr import intersects
-from bus.port import Bus, Declaration, Sample
-from schemas.bundles import BundleStatus, TaskBundle
-from schemas.commands import Command
-from schemas.errors import FleetError
-from schemas.status import CommandStatus, SystemStatus
-from schemas.telemetry import LinkQuality, SensorReading, Telemetry
+from dronefleet.bus.clock import Clock, SystemClock
+from dronefleet.bus.keyexpr import intersects
+from dronefleet.bus.port import Bus, Declaration, Sample
+from dronefleet.schemas.bundles import BundleStatus, TaskBundle
+from dronefleet.schemas.commands import Command
+from dronefleet.schemas.errors import FleetError
+from dronefleet.schemas.status import CommandStatus, SystemStatus
+from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 FLUSH_S = 1.0
 SCHEMA_PREFIX = "fleet."

@@ -9,8 +9,8 @@ from typing import Any
 
 import msgspec
 
-from bus.port import Sample
-from bus.zenoh_bus import ZenohBus
+from dronefleet.bus.port import Sample
+from dronefleet.bus.zenoh_bus import ZenohBus
 
 
 def format_sample(sample: Sample) -> str:

@@ -31,8 +31,8 @@ from typing import Any, Literal
 
 import zenoh
 
-from bus.delivery import Inbox
-from bus.port import (
+from dronefleet.bus.delivery import Inbox
+from dronefleet.bus.port import (
     BusError,
     LivelinessHandler,
     QueryHandler,

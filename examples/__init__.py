@@ -1,6 +1,6 @@
 """Mission scripts and worlds that users copy from, installed with Fleet as the
-`fleet_examples` package so that `fleet demo` and a user without the source tree find
-them: `python -c "import fleet_examples; print(fleet_examples.DIR)"`. The scripts are
+`dronefleet.examples` package so that `fleet demo` and a user without the source tree find
+them: `python -c "from dronefleet import examples; print(examples.DIR)"`. The scripts are
 mission DSL (SPEC §5), run by the mission runtime, never imported."""
 
 from pathlib import Path

@@ -6,8 +6,7 @@ route, wrong method), answers `{"error": "...", "detail": ...}`. The command bod
 decoded by the schemas' own decoder (so a 400 names the field exactly as an agent
 would) while the OpenAPI document still describes it as the Command union.
 
-`GET /` serves the web dashboard (SPEC §10): the files of `ground/dashboard/`, read
-from the installed package, and `/dashboard/config.json` with what the page draws.
+`GET /` serves the web dashboard (SPEC §10), routed by ground/dashboard_routes.py.
 """
 
 from __future__ import annotations
@@ -16,8 +15,6 @@ import asyncio
 import logging
 from collections.abc import AsyncIterator, Awaitable
 from dataclasses import dataclass
-from importlib import resources
-from pathlib import PurePath
 from typing import Annotated, Any, Literal
 
 import msgspec
@@ -30,21 +27,22 @@ from litestar.openapi.spec import Components, OpenAPIMediaType, Operation, Reque
 from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
-from bus.port import QueryRefused, Unreachable
-from ground.config import ROLE_RANK, ApiToken, HeatMark, MapSpot
-from ground.describe import Level
-from ground.eventlog import format_line
-from ground.station import GroundStation
-from mission.manager import MissionEnded, MissionManager, UnknownMission
-from mission.mission import MissionLogLine, MissionRecord
-from mission.plugins import PluginListing
-from mission.sandbox import ScriptError
-from schemas.bundles import BundleRecord, BundleReply, TaskBundle
-from schemas.commands import Command, CommandReply
-from schemas.errors import CommandRejected, InvalidMessage
-from schemas.fence import Geofence
-from schemas.fleet import DroneInfo, DroneState, WatchEvent
-from schemas.telemetry import SensorReading, Telemetry
+from dronefleet.bus.port import QueryRefused, Unreachable
+from dronefleet.ground.api_error import ApiError
+from dronefleet.ground.config import ROLE_RANK, ApiToken
+from dronefleet.ground.dashboard_routes import DashboardAssets, dashboard_config, dashboard_file, index
+from dronefleet.ground.describe import Level
+from dronefleet.ground.eventlog import format_line
+from dronefleet.ground.station import GroundStation
+from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
+from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
+from dronefleet.mission.script.plugins import PluginListing
+from dronefleet.mission.script.sandbox import ScriptError
+from dronefleet.schemas.bundles import BundleRecord, BundleReply, TaskBundle
+from dronefleet.schemas.commands import Command, CommandReply
+from dronefleet.schemas.errors import CommandRejected, InvalidMessage
+from dronefleet.schemas.fleet import DroneInfo, DroneState, WatchEvent
+from dronefleet.schemas.telemetry import SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
 KEEPALIVE_S = 15.0
@@ -53,11 +51,6 @@ LOG_CURSOR = "Fleet-Log-Cursor"
 DataParam = Literal["telem", "info", "sensors"]
 EventKind = Literal["telemetry", "status", "drone", "log", "mission", "mission_log"]
 MAX_SCRIPT_BYTES = 1_000_000
-
-
-class ApiError(msgspec.Struct, frozen=True, kw_only=True):
-    error: str
-    detail: Any = None
 
 
 class DroneView(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
@@ -349,80 +342,6 @@ def _message(event: WatchEvent) -> ServerSentEventMessage:
 @get("/plugin", sync_to_thread=False, summary="Loaded plugins with their inputs, and plugin files that failed to load")
 def list_plugins(missions: MissionManager) -> PluginListing:
     return missions.plugins.describe() if missions.plugins is not None else PluginListing(plugins=[], errors=[])
-
-
-# ---- the dashboard (SPEC §10): static files from the package, and what the page needs --
-
-
-_ASSET_TYPES = {
-    ".html": "text/html; charset=utf-8", ".css": "text/css; charset=utf-8",
-    ".js": "text/javascript; charset=utf-8", ".svg": "image/svg+xml",
-}
-# The page is small and changes only with the package: served from memory, always
-# revalidated (an upgraded ground is never shown with yesterday's scripts).
-_ASSET_HEADERS = {"Cache-Control": "no-cache", "X-Content-Type-Options": "nosniff"}
-
-
-class DashboardAssets:
-    """The files of `ground/dashboard/`, read once, by name."""
-
-    def __init__(self, files: dict[str, tuple[bytes, str]]) -> None:
-        self.files = files
-
-    @classmethod
-    def load(cls) -> DashboardAssets:
-        root = resources.files("ground") / "dashboard"
-        if not root.is_dir():  # an install without its package data: the API still serves
-            log.warning("the dashboard's files are not installed (%s): GET / answers 404", root)
-            return cls({})
-        return cls({
-            f.name: (f.read_bytes(), _ASSET_TYPES[suffix]) for f in root.iterdir()
-            if f.is_file() and (suffix := PurePath(f.name).suffix) in _ASSET_TYPES
-        })
-
-    def response(self, name: str) -> Response[Any]:
-        if name not in self.files:
-            return _error(404, f"no dashboard file {name!r}", {"file": name})
-        content, media_type = self.files[name]
-        return Response(content, media_type=media_type, headers=_ASSET_HEADERS)
-
-
-class DashboardConfig(msgspec.Struct, frozen=True, kw_only=True):
-    """GET /dashboard/config.json: what the page draws besides the drones."""
-
-    tiles: str | None
-    event_telemetry_ms: int
-    geofence: Geofence
-    ground_station: MapSpot | None
-    heat_sources: list[HeatMark]
-
-
-_INDEX = {
-    "name": "fleet ground", "dashboard": "/", "openapi": "/openapi.json", "drones": "/drone", "missions": "/mission",
-    "plugins": "/plugin", "events": "/events", "logs": "/drone/logs",
-}
-
-
-@get("/", sync_to_thread=False, include_in_schema=False)
-def index(request: Request[Any, Any, Any], assets: DashboardAssets) -> Response[Any]:
-    """The dashboard; a client asking for JSON gets the map of the API instead."""
-    if request.accept.best_match(["text/html", "application/json"], "text/html") == "application/json":
-        return Response(_INDEX)
-    return assets.response("index.html")
-
-
-@get("/dashboard/config.json", sync_to_thread=False, include_in_schema=False)
-def dashboard_config(station: GroundStation) -> DashboardConfig:
-    c = station.config
-    return DashboardConfig(
-        tiles=c.dashboard.tiles, event_telemetry_ms=c.event_telemetry_ms, geofence=c.geofence,
-        ground_station=c.dashboard.ground_station, heat_sources=c.dashboard.heat_sources,
-    )
-
-
-@get("/dashboard/{name:str}", sync_to_thread=False, include_in_schema=False)
-def dashboard_file(assets: DashboardAssets, name: str) -> Response[Any]:
-    return assets.response(name)
 
 
 @get("/openapi.json", sync_to_thread=False, include_in_schema=False, media_type="application/vnd.oai.openapi+json")

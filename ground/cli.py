@@ -19,8 +19,8 @@ import click
 if TYPE_CHECKING:
     import httpx
 
-from ground.describe import Level
-from schemas.fleet import DRONE_STATES
+from dronefleet.ground.describe import Level
+from dronefleet.schemas.fleet import DRONE_STATES
 
 DEFAULT_URL = "http://127.0.0.1:8001"
 FOLLOW_PERIOD_S = 0.5

@@ -15,10 +15,10 @@ import msgspec
 import yaml
 from msgspec import Meta
 
-from schemas.config import MissionSettings, Security
-from schemas.endpoints import check_endpoints
-from schemas.errors import ConfigError
-from schemas.fence import Geofence
+from dronefleet.schemas.config import MissionSettings, Security
+from dronefleet.schemas.endpoints import check_endpoints
+from dronefleet.schemas.errors import ConfigError
+from dronefleet.schemas.fence import Geofence
 
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
 Millis = Annotated[int, Meta(ge=0, le=86_400_000)]

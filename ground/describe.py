@@ -12,8 +12,8 @@ from typing import Literal
 
 import msgspec
 
-from schemas.bundles import BundleStatus, Step
-from schemas.status import CommandStatus, SystemStatus
+from dronefleet.schemas.bundles import BundleStatus, Step
+from dronefleet.schemas.status import CommandStatus, SystemStatus
 
 Level = Literal["info", "warn", "error"]
 

@@ -15,7 +15,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from ground.registry import LogLine
+from dronefleet.ground.registry import LogLine
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS events (

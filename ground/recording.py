@@ -18,18 +18,18 @@ from typing import Any
 
 import msgspec
 
-from bus.port import Bus
-from bus.recording import BusRecording, Contents, Recorder
-from ground.config import GroundConfig
-from ground.registry import LogLine, Registry
-from mission.mission import MissionLogLine, MissionRecord
-from mission.simulate import telemetry_sample
-from schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry
-from schemas.errors import InvalidMessage
-from schemas.fence import Geofence
-from schemas.fleet import WatchEvent
-from schemas.keys import Keys
-from schemas.telemetry import Telemetry
+from dronefleet.bus.port import Bus
+from dronefleet.bus.recording import BusRecording, Contents, Recorder
+from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.registry import LogLine, Registry
+from dronefleet.mission.hosting.simulate import telemetry_sample
+from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
+from dronefleet.schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry
+from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.schemas.fence import Geofence
+from dronefleet.schemas.fleet import WatchEvent
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 GROUND_KINDS: dict[str, Any] = {"LogLine": LogLine, "MissionRecord": MissionRecord, "MissionLogLine": MissionLogLine}

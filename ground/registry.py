@@ -14,11 +14,11 @@ from dataclasses import dataclass, field
 
 import msgspec
 
-from ground.config import GroundConfig
-from ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
-from schemas.bundles import BundleRecord, BundleStatus
-from schemas.errors import STATE_UNKNOWN
-from schemas.fleet import (
+from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
+from dronefleet.schemas.bundles import BundleRecord, BundleStatus
+from dronefleet.schemas.errors import STATE_UNKNOWN
+from dronefleet.schemas.fleet import (
     CRITICAL_BATTERY,
     FC_DISCONNECTED,
     HEALTH_PREFIX,
@@ -31,8 +31,8 @@ from schemas.fleet import (
     DroneInfo,
     DroneState,
 )
-from schemas.status import CommandStatus, SystemStatus
-from schemas.telemetry import GROUND_PEER, MANUAL_MODES, LinkQuality, SensorReading, Telemetry
+from dronefleet.schemas.status import CommandStatus, SystemStatus
+from dronefleet.schemas.telemetry import GROUND_PEER, MANUAL_MODES, LinkQuality, SensorReading, Telemetry
 
 
 class LogLine(msgspec.Struct, frozen=True, kw_only=True):

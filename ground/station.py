@@ -21,28 +21,42 @@ from typing import Any, NoReturn
 
 import msgspec
 
-from bus.clock import Clock, SystemClock
-from bus.mesh_security import relays_of
-from bus.port import Bus, Declaration, QueryRefused, Sample, Unreachable, echo
-from bus.recording import now_ns_of
-from ground.config import GroundConfig
-from ground.describe import describe_step
-from ground.eventlog import EventLog
-from ground.recording import MissionRecordings
-from ground.registry import Event, InfoChanged, LogLine, Registry
-from ground.throttle import WarningThrottle
-from schemas.auth import T, signer_of
-from schemas.bundles import BundleRecord, BundleReply, BundleStatus, new_bundle_id, parse_bundle, sensor_guards
-from schemas.codec import decode_bundle_record, decode_link, decode_sensor, decode_status, decode_telemetry, encode
-from schemas.commands import Command, CommandReply, decode_command, new_command_id
-from schemas.errors import CommandRejected, InvalidMessage
-from schemas.fence import CONFLICT, flight_of
-from schemas.fence import REASON as FENCE
-from schemas.fleet import WatchEvent
-from schemas.geo import distance_m
-from schemas.keys import Keys
-from schemas.status import TERMINAL_STATES, CommandStatus
-from schemas.telemetry import LinkQuality, SensorReading, Telemetry
+from dronefleet.bus.clock import Clock, SystemClock
+from dronefleet.bus.mesh_security import relays_of
+from dronefleet.bus.port import Bus, Declaration, QueryRefused, Sample, Unreachable, echo
+from dronefleet.bus.recording import now_ns_of
+from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.describe import describe_step
+from dronefleet.ground.eventlog import EventLog
+from dronefleet.ground.recording import MissionRecordings
+from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
+from dronefleet.ground.throttle import WarningThrottle
+from dronefleet.schemas.auth import T, signer_of
+from dronefleet.schemas.bundles import (
+    BundleRecord,
+    BundleReply,
+    BundleStatus,
+    new_bundle_id,
+    parse_bundle,
+    sensor_guards,
+)
+from dronefleet.schemas.codec import (
+    decode_bundle_record,
+    decode_link,
+    decode_sensor,
+    decode_status,
+    decode_telemetry,
+    encode,
+)
+from dronefleet.schemas.commands import Command, CommandReply, decode_command, new_command_id
+from dronefleet.schemas.errors import CommandRejected, InvalidMessage
+from dronefleet.schemas.fence import CONFLICT, flight_of
+from dronefleet.schemas.fence import REASON as FENCE
+from dronefleet.schemas.fleet import WatchEvent
+from dronefleet.schemas.geo import distance_m
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.status import TERMINAL_STATES, CommandStatus
+from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
 TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 
-from bus.clock import Clock
+from dronefleet.bus.clock import Clock
 
 WINDOW_MS = 10_000
 BURST = 10

@@ -27,10 +27,10 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import Meta
 
-from schemas.auth import Auth
-from schemas.commands import COMMAND_TYPES, Command, decode_command
-from schemas.errors import InvalidMessage
-from schemas.telemetry import Telemetry
+from dronefleet.schemas.auth import Auth
+from dronefleet.schemas.commands import COMMAND_TYPES, Command, decode_command
+from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.schemas.telemetry import Telemetry
 
 LinkLossPolicy = Literal["continue", "hold", "return"]
 BundleState = Literal["running", "done", "ended", "failed", "cancelled"]

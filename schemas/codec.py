@@ -11,11 +11,11 @@ from typing import Any
 
 import msgspec
 
-from schemas.bundles import BundleRecord, BundleStatus
-from schemas.commands import decode_command
-from schemas.errors import InvalidMessage
-from schemas.status import CommandStatus, Status, SystemStatus
-from schemas.telemetry import LinkQuality, SensorReading, Telemetry
+from dronefleet.schemas.bundles import BundleRecord, BundleStatus
+from dronefleet.schemas.commands import decode_command
+from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.schemas.status import CommandStatus, Status, SystemStatus
+from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 _encoder = msgspec.json.Encoder()
 encode = _encoder.encode

@@ -20,8 +20,8 @@ from typing import Annotated, ClassVar, Literal
 import msgspec
 from msgspec import UNSET, Meta, UnsetType
 
-from schemas.auth import Auth
-from schemas.errors import InvalidMessage
+from dronefleet.schemas.auth import Auth
+from dronefleet.schemas.errors import InvalidMessage
 
 CommandMode = Literal["action", "offboard", "custom"]
 

@@ -16,7 +16,7 @@ import msgspec
 import yaml
 from msgspec import Meta
 
-from schemas.errors import ConfigError
+from dronefleet.schemas.errors import ConfigError
 
 _UNKNOWN = re.compile(r"unknown field `([^`]*)`(?: - at `\$\.?([^`]*)`)?")
 

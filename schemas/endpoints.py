@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import re
 
-from schemas.errors import ConfigError
+from dronefleet.schemas.errors import ConfigError
 
 # Zenoh's link protocols (zenoh 1.10): `<protocol>/<address>[?<metadata>][#<config>]`.
 AGENT_PORT = 7448  # an agent's own router: on-board programs and neighbours connect here

@@ -22,9 +22,9 @@ from typing import Annotated
 import msgspec
 from msgspec import Meta
 
-from schemas.commands import Command, Goto, Move, Takeoff
-from schemas.geo import EARTH_RADIUS_M, offset_body
-from schemas.telemetry import Position
+from dronefleet.schemas.commands import Command, Goto, Move, Takeoff
+from dronefleet.schemas.geo import EARTH_RADIUS_M, offset_body
+from dronefleet.schemas.telemetry import Position
 
 REASON = "geofence"
 CONFLICT = "conflict"  # the ground's 409 for a target within min_separation_m of another drone's

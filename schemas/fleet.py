@@ -10,8 +10,8 @@ from typing import Any, Literal, get_args
 
 import msgspec
 
-from schemas.status import Coords
-from schemas.telemetry import LinkQuality
+from dronefleet.schemas.status import Coords
+from dronefleet.schemas.telemetry import LinkQuality
 
 DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
 DRONE_STATES: tuple[str, ...] = get_args(DroneState)

@@ -11,7 +11,7 @@ import re
 
 import msgspec
 
-from schemas.errors import InvalidMessage
+from dronefleet.schemas.errors import InvalidMessage
 
 # Zenoh reserves these in key chunks; an id containing one would address other drones.
 _ID = re.compile(r"^[A-Za-z0-9_.\-]+$")

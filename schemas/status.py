@@ -10,7 +10,7 @@ from typing import Literal
 
 import msgspec
 
-from schemas.telemetry import Position
+from dronefleet.schemas.telemetry import Position
 
 FAILSAFE_ID_PREFIX = "failsafe-"  # command ids of what an agent sends itself when it loses the ground
 FAILSAFE_REASON = "lost-link failsafe"  # starts the reason of a command its failsafe ended

@@ -23,9 +23,9 @@ import math
 import random
 from dataclasses import dataclass
 
-from schemas.geo import destination, distance_m
-from sim.radio import RadioModel
-from sim.world import BatteryModel, DroneSpec, Spot, World
+from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.sim.radio import RadioModel
+from dronefleet.sim.world import BatteryModel, DroneSpec, Spot, World
 
 ORIGIN = Spot(lat=40.634125, lon=-8.660336, alt=8.2)
 MIN_QUALITY = 0.6  # the plugin's default bar, which the lower bound's hop is measured at

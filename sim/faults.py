@@ -13,8 +13,8 @@ import json
 import logging
 from collections.abc import Callable
 
-from sim.vehicle import Vehicle
-from sim.world import FaultKind
+from dronefleet.sim.vehicle import Vehicle
+from dronefleet.sim.world import FaultKind
 
 log = logging.getLogger(__name__)
 

@@ -27,15 +27,15 @@ from pathlib import Path
 
 import msgspec
 
-from schemas.config import Security, read_yaml
-from schemas.errors import ConfigError
-from sim.faults import FaultChannel, apply_fault, open_fault_channel
-from sim.mavlink_endpoint import MavlinkVehicle
-from sim.radio import Spot3, spot_of
-from sim.radio_field import RadioField
-from sim.radio_net import die_with_parent, socket_in_netns
-from sim.vehicle import Vehicle
-from sim.world import DroneSpec, World
+from dronefleet.schemas.config import Security, read_yaml
+from dronefleet.schemas.errors import ConfigError
+from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
+from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
+from dronefleet.sim.radio import Spot3, spot_of
+from dronefleet.sim.radio_field import RadioField
+from dronefleet.sim.radio_net import die_with_parent, socket_in_netns
+from dronefleet.sim.vehicle import Vehicle
+from dronefleet.sim.world import DroneSpec, World
 
 log = logging.getLogger(__name__)
 PX4_SITL_BASE = 14540
@@ -142,7 +142,7 @@ async def run_sim(
                 if field is not None:
                     args = field.agent_args(v.spec.id, fc, agent_config)
                 else:
-                    args = [sys.executable, "-m", "fleet", "agent", "--id", v.spec.id, "--fc", fc,
+                    args = [sys.executable, "-m", "dronefleet", "agent", "--id", v.spec.id, "--fc", fc,
                             "--listen", "tcp/127.0.0.1:0"]
                     for ep in connect or []:
                         args += ["--connect", ep]

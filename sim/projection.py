@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from schemas.geo import EARTH_RADIUS_M
+from dronefleet.schemas.geo import EARTH_RADIUS_M
 
 _M_PER_DEG = EARTH_RADIUS_M * math.pi / 180.0
 

@@ -17,8 +17,8 @@ from typing import Annotated
 import msgspec
 from msgspec import Meta
 
-from schemas.geo import distance_m
-from schemas.telemetry import GROUND_PEER, Position
+from dronefleet.schemas.geo import distance_m
+from dronefleet.schemas.telemetry import GROUND_PEER, Position
 
 GROUND = GROUND_PEER  # the node name of the field laptop in every link table
 LOSS_STEPS = 1000  # loss is applied in 1/1000ths (nftables `numgen random mod 1000`)

@@ -21,8 +21,8 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from bus.clock import VirtualClock
-from sim.radio import GROUND, RadioModel, Spot3, distance_3d
+from dronefleet.bus.clock import VirtualClock
+from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
 LEASE_S = 2.0  # a link with nothing through it for this long is closed
 KEEPALIVE_S = LEASE_S / 4  # how often each link shows it is alive

@@ -21,11 +21,11 @@ from pathlib import Path
 import msgspec
 import yaml
 
-from schemas.config import Security
-from schemas.endpoints import AGENT_PORT
-from sim.radio import GROUND, Spot3, distance_3d, link_losses
-from sim.radio_net import RadioNet
-from sim.world import World
+from dronefleet.schemas.config import Security
+from dronefleet.schemas.endpoints import AGENT_PORT
+from dronefleet.sim.radio import GROUND, Spot3, distance_3d, link_losses
+from dronefleet.sim.radio_net import RadioNet
+from dronefleet.sim.world import World
 
 log = logging.getLogger(__name__)
 RADIO_INTERFACE = "radio0"
@@ -67,7 +67,7 @@ class RadioField:
             await asyncio.sleep(period)
 
     def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None) -> list[str]:
-        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "agent", "--id", drone_id,
+        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "dronefleet", "agent", "--id", drone_id,
                 "--fc", fc, "--connect", self.ground_endpoint, "--listen", f"{self.scheme}/0.0.0.0:{AGENT_PORT}",
                 "--mesh-interface", RADIO_INTERFACE]
         return args + (["--config", str(agent_config)] if agent_config is not None else [])
@@ -78,7 +78,7 @@ class RadioField:
             return None
         heat = config_dir / f"{drone_id}-heat.yml"
         heat.write_text(yaml.safe_dump(msgspec.to_builtins(self.world.heat_config())))
-        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "fleet", "sensor", "temperature",
+        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "dronefleet", "sensor", "temperature",
                 "--drone", drone_id, "--config", str(heat), "--connect", f"{self.scheme}/127.0.0.1:{AGENT_PORT}"]
         if self.security.tls:
             assert self.security.pki_dir is not None

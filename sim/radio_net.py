@@ -33,8 +33,8 @@ import subprocess
 import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
 
-from schemas.errors import FleetError
-from sim.radio import GROUND, LOSS_STEPS, RadioModel
+from dronefleet.schemas.errors import FleetError
+from dronefleet.sim.radio import GROUND, LOSS_STEPS, RadioModel
 
 log = logging.getLogger(__name__)
 NETNS_PREFIX = "fleet-"

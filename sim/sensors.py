@@ -16,42 +16,19 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable, Coroutine
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Any
 
-import msgspec
-from msgspec import Meta
-
-from bus.clock import Clock, SystemClock
-from bus.port import Bus, Sample
-from schemas.codec import decode_telemetry, encode
-from schemas.geo import distance_m
-from schemas.keys import Keys
-from schemas.telemetry import SensorReading, Telemetry
-from sim.world import HeatSource
+from dronefleet.bus.clock import Clock, SystemClock
+from dronefleet.bus.port import Bus, Sample
+from dronefleet.schemas.codec import decode_telemetry, encode
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import SensorReading, Telemetry
+from dronefleet.sim.heat_field import HeatConfig, temperature_at
 
 if TYPE_CHECKING:
-    from sim.world import World
+    from dronefleet.sim.world import World
 
 log = logging.getLogger(__name__)
-
-
-class HeatConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """`fleet sensor temperature --config heat.yml` (example 21 in snake_case)."""
-
-    drone_id: str | None = None  # or --drone
-    rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200
-    environment_temp: float = 20.0
-    heat_sources: list[HeatSource] = []
-
-
-def temperature_at(environment_temp: float, sources: list[HeatSource], lat: float, lon: float) -> float:
-    """Linear fall-off from each source's centre to its radius; the maximum over sources."""
-    best = environment_temp
-    for src in sources:
-        d = distance_m(lat, lon, src.lat, src.lon)
-        if d < src.radius:
-            best = max(best, src.temp - (src.temp - environment_temp) * d / src.radius)
-    return best
 
 
 class TemperatureSensor:
@@ -121,7 +98,7 @@ async def run_temperature_sensor(drone_id: str, config: HeatConfig, connect: lis
                                  out: Callable[[str], None], count: int | None = None,
                                  extra: dict[str, Any] | None = None) -> None:
     """`fleet sensor temperature`: a Zenoh client next to the drone's agent."""
-    from bus.zenoh_bus import ZenohBus
+    from dronefleet.bus.zenoh_bus import ZenohBus
 
     bus = await ZenohBus.open("client", connect=connect, wait=True, extra=extra)  # the agent may start later
     done = asyncio.Event()

@@ -17,9 +17,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from schemas.geo import angle_diff_deg, normalize_deg
-from schemas.telemetry import MANUAL_MODES, Battery, GpsInfo, Home, Position, VelocityNed
-from sim.projection import LocalFrame
+from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
+from dronefleet.schemas.telemetry import MANUAL_MODES, Battery, GpsInfo, Home, Position, VelocityNed
+from dronefleet.sim.projection import LocalFrame
 
 G = 9.81
 

@@ -5,21 +5,17 @@ is an error naming it."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import Annotated, Literal
 
 import msgspec
 from msgspec import Meta
 
-from schemas.fence import Geofence
-from schemas.geo import destination
-from sim.radio import RadioModel, Spot3
-from sim.vehicle import VehicleParams
+from dronefleet.schemas.fence import Geofence
+from dronefleet.schemas.geo import destination
+from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon
+from dronefleet.sim.radio import RadioModel, Spot3
+from dronefleet.sim.vehicle import VehicleParams
 
-if TYPE_CHECKING:
-    from sim.sensors import HeatConfig
-
-Lat = Annotated[float, Meta(ge=-90, le=90)]
-Lon = Annotated[float, Meta(ge=-180, le=180)]
 FaultKind = Literal[
     "rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore",
     "health_failure", "health_ok", "gps_loss", "gps_ok", "gust",
@@ -50,13 +46,6 @@ class DroneSpec(_Strict, frozen=True):
     alt: float | None = None
     sensors: list[str] = []
     faults: list[Fault] = []
-
-
-class HeatSource(_Strict, frozen=True):
-    lat: Lat
-    lon: Lon
-    radius: Annotated[float, Meta(gt=0)]
-    temp: float
 
 
 class BatteryModel(_Strict, frozen=True):
@@ -96,8 +85,6 @@ class World(_Strict, frozen=True):
         return Spot(lat=spot.lat, lon=spot.lon, alt=spot.alt or self.origin.alt)
 
     def heat_config(self) -> HeatConfig:
-        from sim.sensors import HeatConfig
-
         return HeatConfig(rate_ms=self.sensor_rate_ms, environment_temp=self.environment_temp, heat_sources=self.heat_sources)
 
     def params(self) -> VehicleParams:
@@ -125,6 +112,6 @@ class World(_Strict, frozen=True):
 
 def load_world(path: Path | None) -> World:
     """A world file, as strictly as a config file (schemas/config.py); None: the default world."""
-    from schemas.config import load_config
+    from dronefleet.schemas.config import load_config
 
     return load_config(World, path, {})

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from bus.zenoh_bus import ZenohBus
+from dronefleet.bus.zenoh_bus import ZenohBus
 from tests.harness import AgentProcess, Operator, SimProcess, open_ground_router, stop_all
 from tests.helpers import RADIO_SLOTS, free_port
 

@@ -15,14 +15,14 @@ from typing import Any
 import httpx
 import yaml
 
-from agent.remote import send_command
-from bus.port import Sample, echo
-from bus.zenoh_bus import ZenohBus
-from schemas.codec import decode_status, decode_telemetry
-from schemas.commands import CommandReply
-from schemas.keys import Keys
-from schemas.status import CommandStatus, SystemStatus
-from schemas.telemetry import Position, Telemetry
+from dronefleet.agent.remote import send_command
+from dronefleet.bus.port import Sample, echo
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.codec import decode_status, decode_telemetry
+from dronefleet.schemas.commands import CommandReply
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.status import CommandStatus, SystemStatus
+from dronefleet.schemas.telemetry import Position, Telemetry
 from tests.helpers import Collector, free_port, free_udp_base, signal_and_wait, until
 
 REPO = Path(__file__).resolve().parents[1]
@@ -31,7 +31,7 @@ REPO = Path(__file__).resolve().parents[1]
 def fleet_command(*args: str) -> list[str]:
     """`fleet …` through the installed console script next to this interpreter."""
     script = Path(sys.executable).with_name("fleet")
-    return [str(script), *args] if script.exists() else [sys.executable, "-m", "fleet", *args]
+    return [str(script), *args] if script.exists() else [sys.executable, "-m", "dronefleet", *args]
 
 
 async def open_ground_router(endpoint: str) -> ZenohBus:
@@ -46,7 +46,7 @@ async def open_ground_router(endpoint: str) -> ZenohBus:
 
 def make_pki(directory: Path, nodes: dict[str, str]) -> Path:
     """A fleet PKI (SPEC §9) in `directory` with a certificate per node name → role."""
-    from fleet.pki import init, issue
+    from dronefleet.pki import init, issue
 
     init(directory)
     for name, role in nodes.items():

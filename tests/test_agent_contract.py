@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
+from dronefleet.schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
 from tests.harness import AgentProcess, Operator, at
 from tests.helpers import until
 

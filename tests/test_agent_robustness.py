@@ -11,10 +11,10 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from bus.zenoh_bus import ZenohBus
-from schemas.bundles import BundleReply
-from schemas.commands import CommandReply
-from schemas.keys import Keys
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.bundles import BundleReply
+from dronefleet.schemas.commands import CommandReply
+from dronefleet.schemas.keys import Keys
 from tests.harness import AgentProcess, Operator, fleet_command, open_ground_router
 from tests.helpers import free_port
 
@@ -38,8 +38,8 @@ OUTAGE_S = 1.0
 )
 def test_bad_commands_name_the_field(payload: bytes, field: str) -> None:
     """Pure decoding: every refusal names the field at fault."""
-    from schemas.commands import decode_command
-    from schemas.errors import InvalidMessage
+    from dronefleet.schemas.commands import decode_command
+    from dronefleet.schemas.errors import InvalidMessage
 
     with pytest.raises(InvalidMessage) as info:
         decode_command(payload)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mission.assignment import (
+from dronefleet.mission.lifecycle.assignment import (
     AnyDrone,
     AnyRelay,
     ById,

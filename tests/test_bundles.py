@@ -12,14 +12,15 @@ from typing import Any
 
 import pytest
 
-from agent.config import AgentConfig
-from agent.link import LostLinkPolicy
-from fleet.compose import SimField
-from schemas.bundles import MAX_STEPS, parse_bundle
-from schemas.errors import CommandRejected, InvalidMessage
-from schemas.geo import destination, distance_m
-from sim.radio import RadioModel, Spot3
-from sim.world import DroneSpec, HeatSource, Spot, World
+from dronefleet.agent.config import AgentConfig
+from dronefleet.agent.link import LostLinkPolicy
+from dronefleet.compose import SimField
+from dronefleet.schemas.bundles import MAX_STEPS, parse_bundle
+from dronefleet.schemas.errors import CommandRejected, InvalidMessage
+from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.sim.heat_field import HeatSource
+from dronefleet.sim.radio import RadioModel, Spot3
+from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.helpers import advance_until
 
 BASE = (40.633490, -8.660815)
@@ -234,13 +235,13 @@ async def test_a_survey_beyond_radio_range_runs_alone_and_the_mission_catches_up
 
 async def example(script: str, world: str, seed: int, max_s: float) -> tuple[Any, list[str], list[str], dict[str, Any]]:
     """An example script on its world in fast time: record, mission log, ground log, result."""
-    import fleet_examples
-    from sim.world import load_world
+    from dronefleet import examples
+    from dronefleet.sim.world import load_world
 
-    sim = SimField(load_world(fleet_examples.WORLDS / world), seed=seed)
+    sim = SimField(load_world(examples.WORLDS / world), seed=seed)
     await sim.start()
     try:
-        record = await sim.run_mission((fleet_examples.DIR / script).read_text(), max_s=max_s)
+        record = await sim.run_mission((examples.DIR / script).read_text(), max_s=max_s)
         log = [line.message for line in sim.mission_log(record.mission_id)]
         return record, log, [line.message for _, line in sim.events.query()], sim.result(record)
     finally:
@@ -346,7 +347,7 @@ async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered
         home = first_home(sim)
         shadows.append(radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 16, 3.0))
 
-    caplog.set_level(logging.INFO, logger="agent.runtime")
+    caplog.set_level(logging.INFO, logger="dronefleet.agent.runtime")
     _, (record, log), _ = await fly("""
 d = assign("drone01")
 arm(d)
@@ -420,7 +421,7 @@ async def test_a_lost_link_hold_does_not_stop_a_drone_on_its_way_home(caplog: py
 
         radio_shadow(sim, heading_home, 6.0)
 
-    caplog.set_level(logging.WARNING, logger="agent.runtime")
+    caplog.set_level(logging.WARNING, logger="dronefleet.agent.runtime")
     sim, (record, log), _ = await fly("""
 d = assign("drone01")
 arm(d)

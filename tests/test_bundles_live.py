@@ -13,8 +13,8 @@ from typing import Any
 import httpx
 import pytest
 
-from bus.zenoh_bus import ZenohBus
-from schemas.bundles import BundleStatus
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.bundles import BundleStatus
 from tests.harness import AgentProcess, GroundFleet, Operator
 from tests.helpers import until
 

@@ -12,9 +12,9 @@ from collections.abc import AsyncIterator, Awaitable, Callable
 
 import pytest
 
-from bus.memory import MemoryBus, MemoryNetwork
-from bus.port import Bus, QueryRefused, QueryTimeout, Unreachable
-from bus.zenoh_bus import ZenohBus
+from dronefleet.bus.memory import MemoryBus, MemoryNetwork
+from dronefleet.bus.port import Bus, QueryRefused, QueryTimeout, Unreachable
+from dronefleet.bus.zenoh_bus import ZenohBus
 from tests.helpers import Collector, free_port
 
 MeshFactory = Callable[[], Awaitable[Bus]]

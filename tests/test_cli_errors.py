@@ -127,13 +127,13 @@ def test_a_user_error_is_one_line_and_an_exit_code(files: Path, argv: list[str],
 def test_verbosity_of_a_service(flags: list[str], level: str) -> None:
     """Services (agent, ground, sim, demo, sensor) log at INFO by default; -v adds
     Fleet's debug lines, -vv also the libraries'. Clients log warnings only; -v, -vv add."""
-    from fleet.cli import log_levels
+    from dronefleet.cli import log_levels
 
     assert log_levels("ground", len(flags))[0] == level
 
 
 def test_verbosity_levels_differ() -> None:
-    from fleet.cli import log_levels
+    from dronefleet.cli import log_levels
 
     assert [log_levels("drone", v) for v in (0, 1, 2)] == [
         ("WARNING", "WARNING"), ("INFO", "WARNING"), ("DEBUG", "DEBUG")]
@@ -142,7 +142,7 @@ def test_verbosity_levels_differ() -> None:
 
 
 def test_pki_dir_implies_tls_unless_the_config_says_otherwise(tmp_path: Path) -> None:
-    from fleet.cli import security_with_pki
+    from dronefleet.cli import security_with_pki
 
     assert security_with_pki(None, None) is None
     assert security_with_pki(None, "/pki") == {"pki_dir": "/pki", "tls": True}

@@ -34,7 +34,7 @@ from bench.dashboard_frames import (
     measure_frames,
     wait_for_drones,
 )
-from schemas.geo import destination, distance_m
+from dronefleet.schemas.geo import destination, distance_m
 from tests.harness import AgentProcess, GroundFleet, GroundProcess, submit, wait_state
 from tests.helpers import until
 

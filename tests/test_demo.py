@@ -39,12 +39,12 @@ def _group_alive(pgid: int) -> bool:
 
 
 def run_demo(*args: str, timeout_s: float, fleet: list[str] | None = None, cwd: Path = REPO) -> tuple[int, str, str, float]:
-    """`python -m fleet demo ARGS` (or `FLEET demo ARGS`) with stdin closed: (exit
+    """`python -m dronefleet demo ARGS` (or `FLEET demo ARGS`) with stdin closed: (exit
     code, stdout, stderr, seconds). Past the timeout it gets SIGTERM (its clean stop),
     then its whole group SIGKILL."""
     started = time.monotonic()
     proc = subprocess.Popen(
-        [*(fleet or [sys.executable, "-m", "fleet"]), "demo", *args],
+        [*(fleet or [sys.executable, "-m", "dronefleet"]), "demo", *args],
         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         cwd=cwd, start_new_session=True,
     )

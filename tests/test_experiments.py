@@ -16,9 +16,9 @@ from typing import Any
 import msgspec
 import pytest
 
-from fleet.compose import SimField, simulate
-from schemas.geo import bearing_deg, distance_m
-from sim.world import World, load_world
+from dronefleet.compose import SimField, simulate
+from dronefleet.schemas.geo import bearing_deg, distance_m
+from dronefleet.sim.world import World, load_world
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"

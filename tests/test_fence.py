@@ -5,8 +5,8 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from schemas.fence import Geofence
-from schemas.geo import destination
+from dronefleet.schemas.fence import Geofence
+from dronefleet.schemas.geo import destination
 
 BASE = (40.634125, -8.660336)
 

@@ -25,10 +25,10 @@ import httpx
 import pytest
 import yaml
 
-from fleet import relay_experiments as rx
-from schemas.geo import destination, distance_m
-from sim.fleet_sim import CHILDREN_STOP_S
-from sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
+from dronefleet import relay_experiments as rx
+from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.sim.fleet_sim import CHILDREN_STOP_S
+from dronefleet.sim.radio_net import has_net_admin, host_lock, leftovers, list_netns
 from tests.harness import ChildProcess, GroundProcess, ended, fleet_command, stop_all, submit
 from tests.helpers import RADIO_SLOTS, free_port, free_udp_base, signal_and_wait, until
 
@@ -300,8 +300,8 @@ async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildPr
 
 INJECT = """
 import asyncio, json, sys
-from bus.zenoh_bus import ZenohBus
-from fleet.cli import secured_client
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.cli import secured_client
 
 async def main(pki, name, target):
     endpoint = ["tls/127.0.0.1:7448"]
@@ -356,8 +356,8 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
     does not carry it: droneD never reaches the ground. A command droneA's certificate
     injects from droneA's namespace reaches droneB and is refused `unauthenticated`.
     A mission asking for `any_relay` gets droneA; `any_drone` another."""
-    from bus.zenoh_bus import ZenohBus
-    from fleet.cli import secured_client
+    from dronefleet.bus.zenoh_bus import ZenohBus
+    from dronefleet.cli import secured_client
     from tests.harness import make_pki
 
     pki = make_pki(tmp_path / "pki", {"ground": "ground", "droneA": "relay", "droneB": "drone", "droneC": "drone",
@@ -602,8 +602,8 @@ def test_radio_runs_started_together_get_their_own_subnets(radio_slot: None) -> 
     not pick the same /24: the pick holds a lock until the address is taken."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from sim.radio import RadioModel
-    from sim.radio_net import RadioNet
+    from dronefleet.sim.radio import RadioModel
+    from dronefleet.sim.radio_net import RadioNet
 
     nets = [RadioNet(["d1"], RadioModel(), run=pid) for pid in (os.getpid(), os.getppid())]
     try:

@@ -16,10 +16,10 @@ from typing import Any
 import httpx
 import pytest
 
-from bus.zenoh_bus import ZenohBus
-from schemas.codec import encode
-from schemas.keys import Keys
-from schemas.telemetry import SensorReading
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.codec import encode
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import SensorReading
 from tests.harness import GroundFleet, fleet_command, wait_state
 from tests.helpers import Collector, free_udp_base, signal_and_wait, until
 

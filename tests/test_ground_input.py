@@ -10,9 +10,9 @@ import logging
 
 import pytest
 
-from fleet.compose import SimField
-from ground.throttle import BURST, WINDOW_MS
-from sim.world import World
+from dronefleet.compose import SimField
+from dronefleet.ground.throttle import BURST, WINDOW_MS
+from dronefleet.sim.world import World
 
 GARBAGE = [b"", b"\x00\xff\xfe", b"not json", b"[1, 2, 3]", b'{"drone_id": "drone01"}',
            b'{"drone_id": "drone01", "timestamp": "soon"}', b"{" * 10_000]
@@ -33,7 +33,7 @@ async def test_malformed_messages_are_logged_and_change_nothing(field: SimField,
     await field.clock.advance(1.0)
     before = station.registry.telemetry("drone01")
     rogue = field._bus("drone02")
-    caplog.set_level(logging.WARNING, logger="ground.station")
+    caplog.set_level(logging.WARNING, logger="dronefleet.ground.station")
     for kind in ("telem", "status", "sensor/temperature", "link"):
         for payload in GARBAGE:
             rogue.publish(f"drone/drone01/{kind}", payload)
@@ -62,7 +62,7 @@ async def test_malformed_messages_are_logged_and_change_nothing(field: SimField,
 async def test_a_status_naming_another_drone_is_ignored(field: SimField, caplog: pytest.LogCaptureFixture) -> None:
     station = field.station
     await field.clock.advance(1.0)
-    caplog.set_level(logging.WARNING, logger="ground.station")
+    caplog.set_level(logging.WARNING, logger="dronefleet.ground.station")
     spoof = {"drone_id": "drone01", "timestamp": field.clock.time_ms(), "component": "system", "state": "failsafe",
              "reason": "spoofed"}
     field._bus("drone02").publish("drone/drone02/status", json.dumps(spoof).encode())

@@ -118,8 +118,8 @@ async def test_an_event_stream_that_registers_while_the_ground_stops_still_ends(
     """The race behind a flaky SIGTERM test: the server accepted /events, sent its
     headers, and the stream's watcher registered only after end_watches() — it waited
     for uvicorn's grace and was cut. Now it ends at once."""
-    from fleet.compose import SimField
-    from sim.world import DroneSpec, World
+    from dronefleet.compose import SimField
+    from dronefleet.sim.world import DroneSpec, World
 
     sim = SimField(World(drones=[DroneSpec(id="drone01", lat=40.63, lon=-8.66)]))
     try:
@@ -159,8 +159,8 @@ def test_http_port_in_use_is_a_clear_error(tmp_path: Path) -> None:
 
 
 def test_the_shipped_ground_config_loads() -> None:
-    from ground.config import GroundConfig
-    from schemas.config import load_config
+    from dronefleet.ground.config import GroundConfig
+    from dronefleet.schemas.config import load_config
     from tests.harness import REPO
 
     config = load_config(GroundConfig, REPO / "deploy" / "ground.yml", {})

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import msgspec
 import pytest
 
-from agent.fc_sim import SimFlightController
-from agent.handler import CommandHandler, FlightSettings
-from bus.clock import VirtualClock
-from schemas import commands as c
-from schemas.status import CommandStatus, SystemStatus
-from sim.vehicle import Vehicle
+from dronefleet.agent.fc_sim import SimFlightController
+from dronefleet.agent.handler import CommandHandler, FlightSettings
+from dronefleet.bus.clock import VirtualClock
+from dronefleet.schemas import commands as c
+from dronefleet.schemas.status import CommandStatus, SystemStatus
+from dronefleet.sim.vehicle import Vehicle
 
 
 @dataclass

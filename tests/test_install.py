@@ -1,6 +1,6 @@
 """Fleet installed like real software (issue 13): the wheel, built from this tree and
 installed into a fresh venv outside the checkout, runs there. A drone installs
-`fleet[agent]` only and gets nothing of the ground; an operator's `fleet[all]` runs the
+`dronefleet[agent]` only and gets nothing of the ground; an operator's `dronefleet[all]` runs the
 demo (`fleet demo --until-done`, as `make demo` does) from the packaged examples, checked
 as tests/test_demo.py says. Versions come from requirements.lock."""
 
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -36,7 +37,14 @@ def installed(venv: Path) -> set[str]:
 def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path) -> None:
     built = run(sys.executable, "-m", "pip", "wheel", "--no-deps", "--quiet", "-w", tmp_path / "dist", REPO, cwd=tmp_path)
     assert built.returncode == 0, built.stderr
-    (wheel,) = (tmp_path / "dist").glob("fleet-*.whl")
+    (wheel,) = (tmp_path / "dist").glob("dronefleet-*.whl")
+    # One top-level import package under a name free on PyPI (SPEC §1): nothing else
+    # lands in site-packages beside it, and every folder of the repository is inside.
+    with zipfile.ZipFile(wheel) as archive:
+        names = archive.namelist()
+    assert {n.split("/")[0] for n in names if ".dist-info/" not in n} == {"dronefleet"}, names
+    assert {n.split("/")[1] for n in names if n.count("/") > 1 and ".dist-info/" not in n} == {
+        "agent", "bus", "examples", "ground", "mission", "relay", "schemas", "sim"}, names
     venv = tmp_path / "venv"
     made = run(sys.executable, "-m", "venv", venv, cwd=tmp_path)
     assert made.returncode == 0, made.stderr
@@ -49,12 +57,12 @@ def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path
     # A drone: the agent extra, and nothing of the ground.
     agent = run(*pip, f"{wheel}[agent]", cwd=work)
     assert agent.returncode == 0, agent.stderr
-    assert not installed(venv) & set(GROUND_ONLY), f"fleet[agent] pulled {installed(venv) & set(GROUND_ONLY)}"
+    assert not installed(venv) & set(GROUND_ONLY), f"dronefleet[agent] pulled {installed(venv) & set(GROUND_ONLY)}"
     helped = run(fleet, "agent", "--help", cwd=work)
     assert helped.returncode == 0 and "--mesh-interface" in helped.stdout, helped.stderr
     ground = run(fleet, "ground", "--http-port", "0", cwd=work, timeout=60)
     assert ground.returncode == 1, ground
-    assert "pip install 'fleet[ground]'" in ground.stderr and "Traceback" not in ground.stderr, ground.stderr
+    assert "pip install 'dronefleet[ground]'" in ground.stderr and "Traceback" not in ground.stderr, ground.stderr
 
     # The operator's laptop: everything (with uv, pinned in the lock: a quarter of pip's
     # time for matplotlib, Litestar and the rest); the demo finds its world and script
@@ -64,7 +72,7 @@ def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path
                      "-c", REPO / "requirements.lock",
                      f"{wheel}[all]", cwd=work)
     assert everything.returncode == 0, everything.stderr
-    located = run(venv / "bin" / "python", "-c", "import fleet_examples; print(fleet_examples.DIR)", cwd=work)
+    located = run(venv / "bin" / "python", "-c", "from dronefleet import examples; print(examples.DIR)", cwd=work)
     assert located.stdout.strip().startswith(str(venv)), located
     out = work / "demo-out"
     zenoh_port, http_port = free_port(), free_port()

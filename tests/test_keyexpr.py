@@ -2,7 +2,7 @@
 
 import pytest
 
-from bus.keyexpr import intersects
+from dronefleet.bus.keyexpr import intersects
 
 
 @pytest.mark.parametrize(

@@ -5,8 +5,8 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from agent.link import LinkWindow, LostLink, LostLinkPolicy, quality_score
-from sim.radio import RadioModel, Spot3, link_losses
+from dronefleet.agent.link import LinkWindow, LostLink, LostLinkPolicy, quality_score
+from dronefleet.sim.radio import RadioModel, Spot3, link_losses
 
 
 def test_window_measures_loss_rtt_and_jitter_over_the_last_probes() -> None:

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from bus.loop_watch import LoopWatch
+from dronefleet.bus.loop_watch import LoopWatch
 
 
 def block_the_loop_for(seconds: float) -> None:
@@ -16,7 +16,7 @@ def block_the_loop_for(seconds: float) -> None:
 
 
 async def test_a_blocked_loop_is_reported_with_its_stack_and_how_long(caplog: pytest.LogCaptureFixture) -> None:
-    caplog.set_level(logging.WARNING, "bus.loop_watch")
+    caplog.set_level(logging.WARNING, "dronefleet.bus.loop_watch")
     watch = LoopWatch("test", threshold_s=0.5, period_s=0.1)
 
     def said(words: str) -> list[str]:

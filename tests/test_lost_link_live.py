@@ -18,12 +18,12 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from bus.port import Sample
-from bus.zenoh_bus import ZenohBus
-from schemas.geo import destination
-from schemas.keys import Keys
-from schemas.status import CommandStatus, SystemStatus
-from schemas.telemetry import GROUND_PEER, LinkQuality
+from dronefleet.bus.port import Sample
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.geo import destination
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.status import CommandStatus, SystemStatus
+from dronefleet.schemas.telemetry import GROUND_PEER, LinkQuality
 from tests.harness import AgentProcess, Operator, open_ground_router
 from tests.helpers import free_port
 

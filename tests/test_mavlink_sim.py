@@ -14,15 +14,15 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav2
 
-from agent.fc_mavsdk import MavsdkFlightController
-from agent.fc_port import FcRejected
-from agent.fc_sim import SimFlightController
-from bus.clock import VirtualClock
-from bus.zenoh_bus import ZenohBus
-from schemas.geo import destination, distance_m
-from sim.faults import send_fault
-from sim.mavlink_endpoint import MavlinkVehicle
-from sim.vehicle import Vehicle
+from dronefleet.agent.fc_mavsdk import MavsdkFlightController
+from dronefleet.agent.fc_port import FcRejected
+from dronefleet.agent.fc_sim import SimFlightController
+from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.sim.faults import send_fault
+from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
+from dronefleet.sim.vehicle import Vehicle
 from tests.harness import AgentProcess, Operator, SimProcess, at, fleet_command
 from tests.helpers import Collector, free_udp_base
 
@@ -177,15 +177,15 @@ async def test_agent_shuts_down_cleanly_on_sigterm(sim_and_agent, operator) -> N
     ],
 )
 def test_flight_controller_urls(url: str, expected: str) -> None:
-    from agent.fc_mavsdk import mavsdk_url
+    from dronefleet.agent.fc_mavsdk import mavsdk_url
 
     assert mavsdk_url(url) == expected
 
 
 @pytest.mark.parametrize("url", ["serial:///dev/ttyACM0:fast", "ftp://x", "udp://"])
 def test_bad_flight_controller_urls(url: str) -> None:
-    from agent.fc_mavsdk import mavsdk_url
-    from schemas.errors import ConfigError
+    from dronefleet.agent.fc_mavsdk import mavsdk_url
+    from dronefleet.schemas.errors import ConfigError
 
     with pytest.raises(ConfigError):
         mavsdk_url(url)

@@ -18,12 +18,12 @@ from typing import Any
 import msgspec
 import pytest
 
-from fleet.compose import SimField
-from mission.mission import MissionRecord
-from schemas.errors import CommandRejected
-from schemas.geo import distance_m
-from sim.projection import LocalFrame
-from sim.world import Fault, World
+from dronefleet.compose import SimField
+from dronefleet.mission.lifecycle.record import MissionRecord
+from dronefleet.schemas.errors import CommandRejected
+from dronefleet.schemas.geo import distance_m
+from dronefleet.sim.projection import LocalFrame
+from dronefleet.sim.world import Fault, World
 from tests.helpers import advance_until
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -83,7 +83,7 @@ def test_mapping_visits_the_thesis_waypoints_and_replays_identically(tmp_path: P
     for run in ("a", "b"):
         out = tmp_path / run
         done = subprocess.run(
-            [sys.executable, "-m", "fleet", "mission", "simulate", str(EXAMPLES / "mapping.py"),
+            [sys.executable, "-m", "dronefleet", "mission", "simulate", str(EXAMPLES / "mapping.py"),
              "--drones", "1", "--seed", "7", "--out", str(out)],
             capture_output=True, text=True, timeout=120, cwd=ROOT,
         )
@@ -299,7 +299,7 @@ async def test_wait_for_telemetry_and_the_drone_wrapper() -> None:
 
 
 async def test_replacement_mapping_swaps_drones_half_way() -> None:
-    from sim.world import load_world
+    from dronefleet.sim.world import load_world
 
     world = load_world(EXAMPLES / "worlds" / "replacement.yml")
     record, field, lines = await fly((EXAMPLES / "replacement_mapping.py").read_text(), world)

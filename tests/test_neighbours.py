@@ -16,10 +16,10 @@ import msgspec
 import pytest
 import zenoh
 
-from agent.config import AgentConfig, own_endpoint
-from agent.neighbours import Heard, Neighbours, radio_locator
-from bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose
-from bus.zenoh_bus import ZenohBus, zenoh_config
+from dronefleet.agent.config import AgentConfig, own_endpoint
+from dronefleet.agent.neighbours import Heard, Neighbours, radio_locator
+from dronefleet.bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, NeedWatch, choose
+from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from tests.helpers import free_port
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")

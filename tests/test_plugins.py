@@ -11,10 +11,10 @@ from pathlib import Path
 import httpx
 import pytest
 
-from fleet.compose import SimField
-from mission.mission import MissionRecord
-from mission.plugins import BUNDLED_DIR, PluginLibrary
-from sim.world import World
+from dronefleet.compose import SimField
+from dronefleet.mission.lifecycle.record import MissionRecord
+from dronefleet.mission.script.plugins import BUNDLED_DIR, PluginLibrary
+from dronefleet.sim.world import World
 from tests.harness import GroundProcess, fleet_command
 
 COUNTER = '''

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from agent.priority import Active, Decision, Situation, decide, end_state
+from dronefleet.agent.priority import Active, Decision, Situation, decide, end_state
 
 TAKEOFF = Active("takeoff", "t1")
 GOTO = Active("goto", "g1")

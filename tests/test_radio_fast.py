@@ -16,15 +16,15 @@ from typing import Any
 
 import pytest
 
-from agent.config import AgentConfig
-from agent.link import LostLinkPolicy
-from bus.port import BusError
-from fleet.compose import SimField
-from schemas.errors import CommandRejected
-from schemas.geo import destination, distance_m
-from schemas.keys import Keys
-from sim.radio import GROUND, RadioModel
-from sim.world import DroneSpec, Spot, World
+from dronefleet.agent.config import AgentConfig
+from dronefleet.agent.link import LostLinkPolicy
+from dronefleet.bus.port import BusError
+from dronefleet.compose import SimField
+from dronefleet.schemas.errors import CommandRejected
+from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.schemas.keys import Keys
+from dronefleet.sim.radio import GROUND, RadioModel
+from dronefleet.sim.world import DroneSpec, Spot, World
 
 BASE = (40.633490, -8.660815)
 SEED = 7

@@ -19,14 +19,14 @@ import pytest
 from click.testing import CliRunner
 from mcap.reader import make_reader
 
-from bus.clock import VirtualClock
-from bus.memory import MemoryBus, MemoryNetwork
-from bus.recording import FLUSH_S, Liveliness, Recorder, Replay, read, recover
-from fleet.cli import main
-from fleet.compose import simulate
-from schemas.codec import encode
-from schemas.telemetry import Position, Telemetry
-from sim.world import load_world
+from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.memory import MemoryBus, MemoryNetwork
+from dronefleet.bus.recording import FLUSH_S, Liveliness, Recorder, Replay, read, recover
+from dronefleet.cli import main
+from dronefleet.compose import simulate
+from dronefleet.schemas.codec import encode
+from dronefleet.schemas.telemetry import Position, Telemetry
+from dronefleet.sim.world import load_world
 from tests.harness import ChildProcess, GroundFleet, GroundProcess, fleet_command
 from tests.helpers import until
 
@@ -273,7 +273,7 @@ async def test_record_a_sim_flight_then_replay_it_into_a_fresh_ground(tmp_path: 
 
 async def test_a_recorder_that_joins_a_running_recording_is_told_which_tokens_are_alive(tmp_path: Path) -> None:
     """The ground's second concurrent mission shares the first one's subscription."""
-    from bus.recording import BusRecording
+    from dronefleet.bus.recording import BusRecording
 
     network = MemoryNetwork()
     bus, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")
@@ -294,7 +294,7 @@ async def test_a_recorder_that_joins_a_running_recording_is_told_which_tokens_ar
 
 async def test_overlapping_key_expressions_record_each_message_once(tmp_path: Path) -> None:
     """`fleet record 'drone/**' 'drone/drone01/**'`: a message under both is one message."""
-    from bus.recording import BusRecording
+    from dronefleet.bus.recording import BusRecording
 
     network = MemoryNetwork()
     bus, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")

@@ -7,10 +7,10 @@ from typing import Any
 import msgspec
 import pytest
 
-from ground.config import GroundConfig
-from ground.registry import InfoChanged, LogLine, Registry
-from schemas.status import CommandStatus, Coords, SystemStatus
-from schemas.telemetry import Battery, Position, SensorReading, Telemetry
+from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.registry import InfoChanged, LogLine, Registry
+from dronefleet.schemas.status import CommandStatus, Coords, SystemStatus
+from dronefleet.schemas.telemetry import Battery, Position, SensorReading, Telemetry
 
 
 def telem(drone: str = "drone01", **fields: Any) -> Telemetry:
@@ -193,7 +193,7 @@ def test_a_finish_whose_start_was_not_heard_names_the_verb_alone(reg: Registry) 
 def test_a_bundle_record_catches_the_ground_up_once_and_clears_the_stale_step(reg: Registry) -> None:
     """Statuses the drone published out of reach come back with its record: logged
     then, in order, and never twice (neither from a second read nor a late status)."""
-    from schemas.bundles import BundleRecord, BundleStatus, StepEvent
+    from dronefleet.schemas.bundles import BundleRecord, BundleStatus, StepEvent
 
     def status(step: int, state: str) -> BundleStatus:
         return BundleStatus(drone_id="drone01", timestamp=step, bundle_id="b3", step=step, state=state, steps=3)  # type: ignore[arg-type]
@@ -222,7 +222,7 @@ def test_a_bundle_status_after_events_lost_out_of_reach_is_a_gap(reg: Registry) 
     """The ground reads the record first when a bundle's status shows earlier events
     never arrived, so its log keeps the bundle's order (CI saw "done" logged before the
     steps it caught up on); statuses in order, or heard before, are no gap."""
-    from schemas.bundles import BundleStatus
+    from dronefleet.schemas.bundles import BundleStatus
 
     def status(step: int, state: str, drone: str = "drone01") -> BundleStatus:
         return BundleStatus(drone_id=drone, timestamp=step, bundle_id="b3", step=step, state=state, steps=3)  # type: ignore[arg-type]

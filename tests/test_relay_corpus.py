@@ -9,9 +9,9 @@ import re
 
 import pytest
 
-from fleet import relay_corpus as rc
-from schemas.geo import distance_m
-from sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, generate, hop_m
+from dronefleet import relay_corpus as rc
+from dronefleet.schemas.geo import distance_m
+from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, generate, hop_m
 
 SEEDS = range(200)
 

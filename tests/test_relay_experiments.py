@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from fleet import relay_experiments as rx
+from dronefleet import relay_experiments as rx
 
 MIN_SEPARATION_M = 5.0  # geofence.min_separation_m unset
 

@@ -7,8 +7,8 @@ import random
 
 import pytest
 
-from relay.distance import keep_clear
-from relay.planner import Drone, Params, Relay, dist, duty_altitude, link_quality, path_quality, plan
+from dronefleet.relay.distance import keep_clear
+from dronefleet.relay.planner import Drone, Params, Relay, dist, duty_altitude, link_quality, path_quality, plan
 
 P = Params()  # the default radio: good to 60 m, lost at 100 m; min_quality 0.6 → 76 m, 64.6 m with the margin
 
@@ -122,9 +122,9 @@ def test_duty_altitudes_alternate(index: int, alt: float) -> None:
 
 def test_scripts_plan_in_metres_around_the_ground_and_get_positions_back() -> None:
     """mission/relaying.py: positions to the planner's plane and back (sim.projection)."""
-    from mission import units
-    from mission.geo import Position
-    from mission.relaying import Frame, Relays
+    from dronefleet.mission.script import units
+    from dronefleet.mission.script.geo import Position
+    from dronefleet.mission.script.relaying import Frame, Relays
 
     frame = Frame(Position(40.634125, -8.660336))
     spot = frame.world((-129.0, 9.0))

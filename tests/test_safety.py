@@ -11,13 +11,13 @@ from typing import Any
 
 import pytest
 
-from agent.config import AgentConfig
-from fleet.compose import SimField
-from ground.config import GroundConfig
-from schemas.errors import CommandRejected
-from schemas.fence import Geofence
-from schemas.geo import destination
-from sim.world import DroneSpec, Fault, Spot, World
+from dronefleet.agent.config import AgentConfig
+from dronefleet.compose import SimField
+from dronefleet.ground.config import GroundConfig
+from dronefleet.schemas.errors import CommandRejected
+from dronefleet.schemas.fence import Geofence
+from dronefleet.schemas.geo import destination
+from dronefleet.sim.world import DroneSpec, Fault, Spot, World
 
 BASE = (40.633490, -8.660815)
 
@@ -145,8 +145,8 @@ async def test_simulate_gives_the_worlds_fence_to_ground_and_agents_and_draws_it
     (its dashed red line is in the image)."""
     import matplotlib.image
 
-    from fleet.compose import simulate
-    from sim.world import load_world
+    from dronefleet.compose import simulate
+    from dronefleet.sim.world import load_world
 
     examples = Path(__file__).parent.parent / "examples"
     world = load_world(examples / "worlds" / "fenced.yml")
@@ -163,7 +163,7 @@ async def test_simulate_gives_the_worlds_fence_to_ground_and_agents_and_draws_it
 async def test_a_world_fence_reaches_the_agents_too(tmp_path: Path) -> None:
     """The same world with the ground's fence turned off by the caller: the agents'
     fence from the world still refuses a flight out (reason geofence)."""
-    from sim.world import load_world
+    from dronefleet.sim.world import load_world
 
     world = load_world(Path(__file__).parent.parent / "examples" / "worlds" / "fenced.yml")
     sim = SimField(world, ground_config=GroundConfig(data_dir=str(tmp_path), geofence=Geofence(min_separation_m=1)),

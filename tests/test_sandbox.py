@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from fleet.compose import SimField
-from mission.sandbox import ScriptError, check_mission, compile_mission
-from sim.world import World
+from dronefleet.compose import SimField
+from dronefleet.mission.script.sandbox import ScriptError, check_mission, compile_mission
+from dronefleet.sim.world import World
 
 MARK = "MARKFILE"
 

@@ -15,17 +15,17 @@ import pytest
 from click.testing import CliRunner
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
 
-from agent.config import AgentConfig
-from bus.recording import read
-from fleet.cli import main
-from fleet.compose import SimField
-from ground.config import GroundConfig
-from schemas.auth import Signer, Verifier, load_private_key, load_public_key
-from schemas.bundles import TaskBundle
-from schemas.codec import encode
-from schemas.commands import CommandReply, Goto, decode_command
-from schemas.config import Security
-from sim.world import DroneSpec, Spot, World
+from dronefleet.agent.config import AgentConfig
+from dronefleet.bus.recording import read
+from dronefleet.cli import main
+from dronefleet.compose import SimField
+from dronefleet.ground.config import GroundConfig
+from dronefleet.schemas.auth import Signer, Verifier, load_private_key, load_public_key
+from dronefleet.schemas.bundles import TaskBundle
+from dronefleet.schemas.codec import encode
+from dronefleet.schemas.commands import CommandReply, Goto, decode_command
+from dronefleet.schemas.config import Security
+from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundFleet, make_pki
 from tests.helpers import advance_until, until
 
@@ -67,7 +67,7 @@ def test_pki_keys_are_private_certificates_name_their_node_and_nothing_is_overwr
 
 
 def test_the_ground_warns_when_it_listens_or_serves_beyond_loopback_unsecured() -> None:
-    from fleet.compose import exposure_warnings
+    from dronefleet.compose import exposure_warnings
 
     assert exposure_warnings(GroundConfig(listen=["tcp/127.0.0.1:7447"], data_dir=".")) == []
     assert exposure_warnings(GroundConfig(listen=["tls/0.0.0.0:7447"], data_dir=".")) == []
@@ -175,7 +175,7 @@ async def test_missions_fly_signed_and_commands_from_anyone_else_are_refused(pki
 async def test_a_secured_ground_commands_its_drones_and_a_direct_query_is_refused(pki: Path, tmp_path: Path) -> None:
     """Real processes: ground and agent configured with the PKI directory; the API's
     commands fly; a Zenoh client that queries the drone's `cmd` itself is refused."""
-    from bus.zenoh_bus import ZenohBus
+    from dronefleet.bus.zenoh_bus import ZenohBus
 
     security = {"pki_dir": str(pki)}
     fleet = GroundFleet(tmp_path, {"drone01": "sim://?lat=40.6334&lon=-8.660815&alt=8.2"},
@@ -212,10 +212,10 @@ async def test_on_a_tls_mesh_only_fleet_certificates_join_and_a_drone_speaks_onl
     certificate or a rogue CA's cannot join; with drone02's certificate, telemetry
     published as drone01 does not reach the ground and a query on drone01's `cmd` gets
     nothing; an operator's certificate reads."""
-    from bus.port import BusError, Unreachable
-    from bus.zenoh_bus import ZenohBus
-    from fleet.cli import secured_client
-    from schemas.telemetry import Position, Telemetry
+    from dronefleet.bus.port import BusError, Unreachable
+    from dronefleet.bus.zenoh_bus import ZenohBus
+    from dronefleet.cli import secured_client
+    from dronefleet.schemas.telemetry import Position, Telemetry
 
     rogue = make_pki(tmp_path / "rogue", {"drone01": "drone"})
     security = {"pki_dir": str(pki), "tls": True}
@@ -271,10 +271,10 @@ async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path,
     certificate does not name (here 127.0.0.2; on a radio mesh, any address learnt by
     gossip) still joins, unless `security.verify_names`; a rogue CA's certificate never
     does; a client (`fleet sub`, an on-board program) always checks the name."""
-    from bus.mesh_security import mesh_security
-    from bus.port import BusError
-    from bus.zenoh_bus import ZenohBus
-    from fleet.cli import secured_client
+    from dronefleet.bus.mesh_security import mesh_security
+    from dronefleet.bus.port import BusError
+    from dronefleet.bus.zenoh_bus import ZenohBus
+    from dronefleet.cli import secured_client
     from tests.helpers import free_port
 
     rogue = make_pki(tmp_path / "rogue", {"drone01": "drone"})
@@ -304,7 +304,7 @@ async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path,
 
 @pytest.mark.parametrize("name", sorted(p.name for p in (Path(__file__).parent.parent / "deploy").glob("*.yml")))
 def test_every_deploy_config_loads(name: str) -> None:
-    from schemas.config import load_config
+    from dronefleet.schemas.config import load_config
 
     kind = GroundConfig if name.startswith("ground") else AgentConfig
     config = load_config(kind, Path(__file__).parent.parent / "deploy" / name, {})
@@ -378,8 +378,8 @@ async def test_api_tokens_401_403_and_the_audit_names_the_holder(tmp_path: Path)
 
 
 def test_bad_token_settings_are_refused_at_start(tmp_path: Path) -> None:
-    from schemas.config import load_config
-    from schemas.errors import ConfigError
+    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.errors import ConfigError
 
     short = tmp_path / "short.yml"
     short.write_text("api: {tokens: [{name: a, role: operator, token: short}]}\n")

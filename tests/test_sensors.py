@@ -16,14 +16,14 @@ from typing import Any
 import pytest
 import yaml
 
-from bus.zenoh_bus import ZenohBus
-from fleet.compose import SimField
-from schemas.codec import decode_sensor, encode
-from schemas.geo import destination
-from schemas.keys import Keys
-from schemas.telemetry import SensorReading
-from sim.sensors import temperature_at
-from sim.world import HeatSource, World
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.compose import SimField
+from dronefleet.schemas.codec import decode_sensor, encode
+from dronefleet.schemas.geo import destination
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import SensorReading
+from dronefleet.sim.heat_field import HeatSource, temperature_at
+from dronefleet.sim.world import World
 from tests.harness import Operator, fleet_command
 from tests.helpers import Collector
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mission.units import UnitError, angle, cm, deg, duration, km, length, m, ms, s, speed
+from dronefleet.mission.script.units import UnitError, angle, cm, deg, duration, km, length, m, ms, s, speed
 
 
 def test_arithmetic_builds_and_converts_units() -> None:

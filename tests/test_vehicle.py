@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from schemas.geo import destination, distance_m
-from sim.vehicle import Vehicle
+from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.sim.vehicle import Vehicle
 
 LAT, LON, GROUND = 40.633490, -8.660815, 8.2
 DT = 0.05

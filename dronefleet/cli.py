@@ -1,0 +1,229 @@
+"""`fleet`: the command line. Thin: parse, load a strict config, call into the package.
+
+Only this module configures logging output. Exit codes: 0 done, 1 runtime failure
+(e.g. flight controller unreachable), 2 bad usage or configuration. The group is the
+one boundary for user errors: a FleetError (or a file that cannot be read or written)
+that reaches it ends as one line `fleet: …` and its exit code, never a traceback.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+import click
+
+from dronefleet.cli_kit import (
+    ENDPOINT,
+    HOST_PORT,
+    LIBRARIES,
+    PKI_DIR_HELP,
+    FleetGroup,
+    checked_id,
+    drone_id_option,
+    fail,
+    log_levels,
+    run_async,
+    secured_client,
+    security_with_pki,
+    with_pki,
+)
+from dronefleet.schemas.errors import ConfigError
+
+
+@click.group(cls=FleetGroup, help="Fleets of connected drones: the on-board agent, the ground station, missions, "
+             "simulation. `fleet COMMAND --help` for each; README for the whole picture.")
+@click.option("-v", "--verbose", count=True,
+              help="More log output: -v Fleet's next level (services: debug; clients: info), -vv debug for everything.")
+@click.pass_context
+def main(ctx: click.Context, verbose: int) -> None:
+    fleet, libraries = log_levels(ctx.invoked_subcommand, verbose)
+    logging.basicConfig(level=fleet, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s", stream=sys.stderr)
+    for name in LIBRARIES:
+        logging.getLogger(name).setLevel(libraries)
+
+
+@main.command()
+@click.option("--id", "drone_id", required=True, callback=drone_id_option, help="Drone identifier, e.g. drone01.")
+@click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Agent YAML config.")
+@click.option("--fc", help="Flight controller URL: sim, udp://:14540, serial:///dev/ttyACM0[:baud], tcp://host:port.")
+@click.option("--connect", multiple=True, type=ENDPOINT, help="Zenoh endpoint of the ground router (repeatable), e.g. tcp/192.168.1.10:7447.")
+@click.option("--listen", multiple=True, type=ENDPOINT, help="Zenoh endpoint of this agent's own router (repeatable; default tcp/0.0.0.0:7448): on-board programs and neighbouring drones connect here.")
+@click.option("--mesh-interface", help="Radio interface on which to find neighbouring drones (multicast scouting), e.g. wlan0.")
+@click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
+@click.option("--state-dir", help="Where task bundle records outlive the agent; default ~/.local/state/fleet/<id>.")
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True), help=PKI_DIR_HELP)
+def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
+          mesh_interface: str | None, telemetry_rate_ms: int | None, state_dir: str | None, pki_dir: str | None) -> None:
+    """Run the on-drone agent: flight controller <-> Zenoh mesh."""
+    from dronefleet.agent.config import AgentConfig, default_state_dir
+    from dronefleet.agent.runtime import run_agent
+    from dronefleet.schemas.config import load_config
+    config = load_config(
+        AgentConfig, config_path,
+        {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
+         "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms, "state_dir": state_dir,
+         "security": security_with_pki(config_path, pki_dir)},
+    )
+    if config.state_dir is None:
+        import msgspec
+
+        config = msgspec.structs.replace(config, state_dir=default_state_dir(drone_id))
+    run_async(run_agent(drone_id, config))
+
+
+@main.command()
+@click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Ground YAML config.")
+@click.option("--listen", multiple=True, type=ENDPOINT, help="Zenoh endpoint the router listens on (repeatable); default tcp/0.0.0.0:7447.")
+@click.option("--http-port", type=click.IntRange(0, 65535), help="HTTP API port; default 8001.")
+@click.option("--data-dir", help="Where the event log and mission records live; default ~/.local/share/fleet.")
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True), help=PKI_DIR_HELP)
+def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None,
+           pki_dir: str | None) -> None:
+    """Run the ground station: Zenoh router, fleet registry, event log, HTTP API."""
+    from dronefleet.compose import run_ground
+    from dronefleet.ground.config import GroundConfig
+    from dronefleet.schemas.config import load_config
+
+    config = load_config(
+        GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir,
+                                    "security": security_with_pki(config_path, pki_dir)}
+    )
+    run_async(run_ground(config, lambda line: click.echo(line)))
+
+
+@main.command()
+@click.argument("keyexpr", default="**")
+@click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
+@click.option("--count", type=click.IntRange(1), help="Exit after this many samples.")
+@with_pki
+def sub(keyexpr: str, connect: tuple[str, ...], count: int | None, pki_dir: Path | None, cert_name: str) -> None:
+    """Print live traffic: one line per sample, key and compact JSON."""
+    from dronefleet.bus.tap import tap
+
+    extra = secured_client(pki_dir, cert_name, list(connect))
+    run_async(tap(keyexpr, list(connect), lambda line: click.echo(line), count, extra))
+
+
+@main.command()
+@click.argument("world", required=False, type=click.Path(path_type=Path, dir_okay=False, exists=True))
+@click.option("-n", "count", type=click.IntRange(1, 100), help="Number of vehicles (default: the world's, else 1).")
+@click.option("--agents", is_flag=True, help="Also start one `fleet agent` per vehicle.")
+@click.option("--connect", multiple=True, type=ENDPOINT, help="Zenoh endpoint for the agents (repeatable).")
+@click.option("--agent-config", type=click.Path(path_type=Path, dir_okay=False, exists=True), help="Config file passed to each agent.")
+@click.option("--base-port", type=click.IntRange(1025, 65000), default=14540, show_default=True, help="Vehicle i sends MAVLink to 127.0.0.1:BASE+i; fault control listens on BASE-1.")
+@click.option("--output", "outputs", multiple=True, type=HOST_PORT, help="Extra MAVLink output HOST:PORT for every vehicle (e.g. a GCS on 14550).")
+@click.option("--radio", is_flag=True, help="Emulated radio: each drone in its own network namespace, loss following the distances (needs root).")
+@click.option("--ground-port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="With --radio: the port of `fleet ground` the agents connect to at the laptop's radio address.")
+def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int,
+        outputs: tuple[tuple[str, int], ...], radio: bool, ground_port: int) -> None:
+    """Run PX4-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
+    from dronefleet.sim.fleet_sim import run_sim
+    from dronefleet.sim.world import load_world
+
+    loaded = load_world(world)
+    try:
+        run_async(run_sim(
+            loaded, count, base_port=base_port, agents=agents, connect=list(connect),
+            agent_config=agent_config, extra_outputs=list(outputs), radio=radio, ground_port=ground_port,
+            out=lambda line: click.echo(line),
+        ))
+    except OSError as exc:
+        fail(f"cannot bind the simulator's ports: {exc}")
+
+
+@main.command()
+@click.argument("drone")
+@click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "gust", "status"]))
+@click.argument("value", required=False)
+@click.option("--control", type=HOST_PORT, default="127.0.0.1:14539", show_default=True, help="Control channel: `fleet sim` (base port - 1) or an agent on `--fc sim://?control=PORT`.")
+def fault(drone: str, kind: str, value: str | None, control: tuple[str, int]) -> None:
+    """Inject a fault into a vehicle of a running `fleet sim`."""
+    from dronefleet.sim.faults import send_fault
+
+    try:
+        reply = run_async(send_fault(drone, kind, value, control))
+    except TimeoutError:
+        fail(f"no `fleet sim` answers on {control[0]}:{control[1]}")
+    if not reply or not reply.get("ok"):
+        fail(str(reply.get("error") if reply else "no reply"))
+    for line in (reply.get("status") or {}).values():
+        click.echo(line)
+
+
+@main.group()
+def sensor() -> None:
+    """Simulated sensors that publish next to a drone's agent."""
+
+
+@sensor.command("temperature")
+@click.option("--drone", "drone_id", callback=drone_id_option, help="The drone whose telemetry gives the position (or drone_id in the config).")
+@click.option("--config", "config_path", type=click.Path(path_type=Path, dir_okay=False), help="Heat field YAML: rate_ms, environment_temp, heat_sources [{lat, lon, radius, temp}].")
+@click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True, help="Zenoh endpoint (repeatable).")
+@click.option("--rate-ms", type=int, help="Publish period in milliseconds (default 200).")
+@click.option("--count", type=click.IntRange(1), help="Exit after publishing this many readings.")
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="On a secured mesh (SPEC §9): the directory with ca.pem and the drone's NAME.pem/NAME.key; endpoints tls/…")
+@click.option("--name", "cert_name", help="The certificate to show, with --pki-dir (default: the drone id).")
+def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: tuple[str, ...], rate_ms: int | None,
+                       count: int | None, pki_dir: Path | None, cert_name: str | None) -> None:
+    """Thesis example 21: the temperature where DRONE is, from a heat field, on drone/<id>/sensor/temperature."""
+    from dronefleet.schemas.config import load_config
+    from dronefleet.sim.heat_field import HeatConfig
+    from dronefleet.sim.sensors import run_temperature_sensor
+
+    config = load_config(HeatConfig, config_path, {"drone_id": drone_id, "rate_ms": rate_ms})
+    if config.drone_id is None:
+        raise ConfigError("give --drone ID (or drone_id in the config)")
+    checked_id(config.drone_id, f"{config_path}: drone_id")
+    extra = secured_client(pki_dir, cert_name or config.drone_id, list(connect))
+    run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count, extra))
+
+
+@main.command()
+@click.option("--port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="Port of the demo ground's Zenoh router.")
+@click.option("--http-port", type=click.IntRange(1, 65535), default=8001, show_default=True, help="Port of the demo ground's HTTP API.")
+@click.option("--world", type=click.Path(path_type=Path, dir_okay=False, exists=True),
+              help="World file (drones, sensors, heat sources); default examples/worlds/fire.yml.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path, file_okay=False), default=Path("demo-out"), show_default=True,
+              help="Where result.json, the plots, the ground's log and the agents' logs go.")
+@click.option("--until-done", is_flag=True, help="Exit when the mission ends: 0 if it finished with success, else 1.")
+@click.option("--max-time", "max_time_s", type=click.FloatRange(1, 86_400), default=600, show_default=True,
+              help="Cancel the mission and exit 1 if it runs longer than this (s).")
+@click.option("--radio", is_flag=True,
+              help="Drones on the emulated radio: each agent and its sensors in its own network namespace, "
+                   "loss following the distances (needs root; SPEC §8).")
+def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float,
+         radio: bool) -> None:
+    """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
+    from dronefleet.demo import DEFAULT_WORLD, Demo, DemoOptions
+
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the demo prints its own progress; -v shows the rest
+        for name in ("dronefleet.ground", "dronefleet.mission", "dronefleet.agent", "dronefleet.bus", "dronefleet.sim", "matplotlib"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    options = DemoOptions(
+        port=port, http_port=http_port, world=world or DEFAULT_WORLD, out_dir=out_dir,
+        until_done=until_done, max_time_s=max_time_s, radio=radio,
+    )
+    run = Demo(options, lambda line: click.echo(line))
+    code = run_async(run.run())
+    if code is None:  # Ctrl-C or SIGTERM: fine once the mission has succeeded
+        code = 0 if run.mission_ok else 130
+    sys.exit(code)
+
+
+def _add_http_clients() -> None:
+    from dronefleet.ground.cli import drone, logs
+    from dronefleet.mission_cli import mission
+    from dronefleet.pki import pki
+    from dronefleet.recording_cli import plot, record, replay
+
+    main.add_command(drone)
+    main.add_command(logs)
+    main.add_command(mission)
+    for command in (record, replay, plot, pki):
+        main.add_command(command)
+
+
+_add_http_clients()

@@ -1,0 +1,420 @@
+"""The composition root: the one place where concrete parts are wired together.
+
+- `run_ground` is the `fleet ground` process: data directory → event log and mission
+  store (SQLite) → Zenoh router → station and mission manager → HTTP server. The HTTP
+  port is bound before anything listens for drones, so a port in use is a clear error
+  at start, not a half-started ground. Cancellation (SIGTERM, Ctrl-C) ends the event
+  streams, stops the HTTP server, closes the router and the log.
+- `SimField` / `simulate` is fast-time simulation (`fleet mission simulate`, SPEC §5):
+  the same GroundStation, mission runtime and agent command handler as in the field,
+  with the simulated vehicles of `sim/` behind the agents' `sim` adapter, all joined by
+  the in-process memory bus and driven by a VirtualClock: ten minutes of flight take
+  seconds, and a run is a function of the script, the world and the seed.
+- `fleet.demo` wires processes (ground, sims, agents) the same way for `fleet demo`.
+
+Missions see the ground only through `mission.port.FleetPort`; the GroundStation given
+to them here is what implements it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import random
+import shutil
+import socket
+import tempfile
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import uvicorn
+
+from dronefleet.agent.config import AgentConfig
+from dronefleet.agent.fc_sim import SimFlightController
+from dronefleet.agent.runtime import Agent
+from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.memory import MemoryBus, MemoryNetwork
+from dronefleet.bus.mesh_security import mesh_security
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.ground.api import create_app
+from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.eventlog import EventLog
+from dronefleet.ground.station import GroundStation
+from dronefleet.mission.hosting.manager import MissionManager, MissionStore
+from dronefleet.mission.hosting.simulate import telemetry_sample, write_result
+from dronefleet.mission.lifecycle.record import MissionRecord
+from dronefleet.mission.script.plugins import PluginLibrary, plugin_summary
+from dronefleet.schemas.endpoints import split_host_port
+from dronefleet.schemas.errors import ConfigError
+from dronefleet.schemas.fence import Geofence
+from dronefleet.schemas.fleet import WatchEvent
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import Telemetry
+from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
+from dronefleet.sim.radio_air import RadioAir
+from dronefleet.sim.sensors import simulated_sensor
+from dronefleet.sim.vehicle import Vehicle
+from dronefleet.sim.world import World
+
+log = logging.getLogger(__name__)
+SHUTDOWN_GRACE_S = 3
+
+
+class _EmbeddedServer(uvicorn.Server):
+    """uvicorn inside our loop: the process's signal handling stays ours."""
+
+    @contextlib.contextmanager
+    def capture_signals(self) -> Iterator[None]:
+        yield
+
+
+def _bind(host: str, port: int) -> socket.socket:
+    # proto=IPPROTO_TCP matters: asyncio sets TCP_NODELAY only on sockets that say so,
+    # and without it every keep-alive response waits ~40 ms for a delayed ACK.
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM, socket.IPPROTO_TCP)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ConfigError(f"cannot serve HTTP on {host}:{port}: {exc.strerror} (choose another with --http-port)") from None
+    sock.listen(128)
+    sock.setblocking(False)
+    return sock
+
+
+def _prepare_data_dir(config: GroundConfig) -> Path:
+    path = Path(config.data_dir).expanduser()
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        config.plugins_path.expanduser().mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"data_dir {str(path)!r}: cannot create: {exc.strerror}") from None
+    return path
+
+
+def _loopback(host: str) -> bool:
+    return host in ("localhost", "::1") or host.startswith("127.")
+
+
+def exposure_warnings(config: GroundConfig) -> list[str]:
+    """What an operator must know before the field sees this ground (SPEC §9)."""
+    warnings = []
+    open_links = [e for e in config.listen if e.partition("/")[0] in ("tcp", "udp", "quic", "ws")
+                  and not _loopback(split_host_port(e.partition("/")[2].partition("#")[0])[0])]
+    if open_links:
+        warnings.append(f"the Zenoh router listens on {', '.join(open_links)} without TLS: any machine that reaches it "
+                        "can join the mesh and publish as any drone (security.tls, `fleet pki`; deploy/ground-secure.yml)")
+    if not _loopback(config.http_host):
+        warnings.append(f"the HTTP API is served on {config.http_host} without authentication: anyone who reaches port "
+                        f"{config.http_port} can command the drones (keep http_host 127.0.0.1, or put it behind a proxy)")
+    return warnings
+
+
+async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda line: None) -> None:
+    data_dir = _prepare_data_dir(config)
+    sock = _bind(config.http_host, config.http_port)
+    events = EventLog(data_dir / "events.db")
+    store = MissionStore(data_dir / "missions.db")
+    plugins = PluginLibrary.default(config.plugins_path.expanduser())
+    out(plugin_summary(plugins))
+    for warning in exposure_warnings(config):
+        out(f"fleet ground: WARNING: {warning}")
+    try:
+        bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
+            config.security, "ground", config.listen, router=True, namespace=config.namespace))
+        try:
+            station = GroundStation(config, bus, events)
+            station.record_missions(data_dir / "missions")
+            missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True)
+            server = _EmbeddedServer(uvicorn.Config(
+                create_app(station, missions), log_level="warning", lifespan="on",
+                timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
+            ))
+            host, port = sock.getsockname()[:2]
+            out(f"fleet ground: Zenoh router on {', '.join(config.listen)}; data in {data_dir}")
+            out(f"fleet ground: API on http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/ (OpenAPI at /openapi.json)")
+            async with asyncio.TaskGroup() as tg:
+                station_task = tg.create_task(station.run(), name="ground station")
+                http_task = tg.create_task(server.serve(sockets=[sock]), name="ground http")
+                try:
+                    await asyncio.Event().wait()
+                finally:
+                    await missions.close()  # while the mesh is up: drones are told to hold
+                    station.end_watches()
+                    server.should_exit = True
+                    await asyncio.wait([http_task])
+                    station_task.cancel()
+        finally:
+            await bus.close()
+    finally:
+        store.close()
+        events.close()
+        sock.close()
+
+
+# ---- fast-time simulation --------------------------------------------------
+
+STEP_S = 1.0  # how far virtual time moves between checks for the mission's end
+DEFAULT_MAX_S = 3600.0
+
+
+@dataclass
+class Track:
+    samples: list[dict[str, Any]] = field(default_factory=list)  # what the ground heard
+    flown: list[dict[str, Any]] = field(default_factory=list)  # on the radio: where the drone was, heard or not
+
+
+class SimField:
+    """A ground and simulated drones on one memory bus under one virtual clock."""
+
+    def __init__(
+        self,
+        world: World,
+        n: int | None = None,
+        *,
+        seed: int = 0,
+        telemetry_rate_ms: int = 1000,
+        ground_config: GroundConfig | None = None,
+        data_dir: Path | None = None,
+        plugins: PluginLibrary | None = None,
+        radio: RadioModel | None = None,
+        agent_config: AgentConfig | None = None,
+    ) -> None:
+        self.world = world
+        self.specs = world.spawn(n)
+        self.seed = seed
+        self.clock = VirtualClock()
+        self.vehicles: dict[str, Vehicle] = {}
+        # The radio (world `radio:` or the argument): links follow the vehicles.
+        radio = radio or world.radio
+        self.air = RadioAir(radio, self._where, self.clock, seed) if radio is not None else None
+        self.network = MemoryNetwork(medium=self.air)
+        self._tmp = tempfile.TemporaryDirectory(prefix="fleet-sim-") if data_dir is None else None
+        self.data_dir = data_dir or Path(self._tmp.name)  # type: ignore[union-attr]
+        self.config = ground_config or GroundConfig(data_dir=str(self.data_dir))
+        self.agent_config = agent_config or AgentConfig(telemetry_rate_ms=telemetry_rate_ms)
+        if world.geofence is not None:  # the world's fence, unless the caller set one
+            if self.config.geofence == Geofence():
+                self.config = msgspec.structs.replace(self.config, geofence=world.geofence)
+            if self.agent_config.geofence == Geofence():
+                self.agent_config = msgspec.structs.replace(self.agent_config, geofence=world.geofence)
+        self.tracks: dict[str, Track] = {}
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._agents: dict[str, asyncio.Task[Any]] = {}
+        self._buses: list[MemoryBus] = []
+        self._fcs: list[SimFlightController] = []
+        self.events = EventLog(self.data_dir / "events.db")
+        self.station = GroundStation(self.config, self._bus(GROUND), self.events, self.clock)
+        ids = random.Random(f"ids {seed}")
+        self.station.new_command_id = lambda: str(uuid.UUID(int=ids.getrandbits(128), version=4))
+        self.station.new_bundle_id = lambda: f"b-{ids.getrandbits(48):012x}"
+        self.manager: MissionManager | None = None
+        self.plugins = plugins if plugins is not None else PluginLibrary.default(None)
+
+    def _bus(self, node: str = GROUND) -> MemoryBus:
+        """A session on `node` of the mesh: the ground, or a drone (its agent and on-board programs)."""
+        bus = MemoryBus(self.network, node)
+        self._buses.append(bus)
+        return bus
+
+    def _where(self) -> dict[str, Spot3]:
+        return {GROUND: self.world.ground_spot3(), **{k: spot_of(v.position()) for k, v in self.vehicles.items()}}
+
+    async def start(self, echo: Callable[[float, str], None] | None = None) -> None:
+        loop = asyncio.get_running_loop()
+        if self.air is not None:
+            self._tasks.append(loop.create_task(self.air.run(), name="radio"))
+        self._tasks.append(loop.create_task(self.station.run(), name="ground"))
+        self.station.listen(self._record)
+        gs = self.world.ground_station or self.world.origin
+        self.station.record_missions(self.data_dir / "missions", ground_station=(gs.lat, gs.lon))
+        for spec in self.specs:
+            assert spec.lat is not None and spec.lon is not None and spec.alt is not None
+            vehicle = Vehicle(spec.lat, spec.lon, spec.alt, self.world.params())
+            self.vehicles[spec.id] = vehicle
+            self.tracks[spec.id] = Track()
+            fc = SimFlightController(vehicle, self.clock)
+            await fc.start()
+            self._fcs.append(fc)
+            if self.air is not None:
+                self.air.tick()  # the new drone's links
+            agent = Agent(spec.id, self.agent_config, fc, self._bus(spec.id), self.clock)
+            self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
+            self._tasks.append(self._agents[spec.id])
+            for fault in spec.faults:
+                self._tasks.append(loop.create_task(self._fault_at(vehicle, fault.at_s, fault.fault, fault.value)))
+            if spec.sensors:
+                self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensors)))
+        store = MissionStore(self.data_dir / "missions.db")
+        self.manager = MissionManager(
+            self.station, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins,
+        )
+        if echo is not None:
+            self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
+        # Let every drone register (first telemetry) with its sensors before the mission
+        # starts; on the radio, every drone the ground can reach.
+        await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000 + 0.1)
+        for _ in range(100):
+            if all(set(spec.sensors) <= set(self._sensors_of(spec.id)) for spec in self.specs
+                   if self.air is None or self.air.reachable(spec.id, GROUND)):
+                break
+            await self.clock.advance(0.1)
+        else:
+            raise RuntimeError("simulated drones did not register with their sensors within 10 s")
+
+    def _sensors_of(self, drone_id: str) -> list[str]:
+        registry = self.station.registry
+        return registry.info(drone_id).sensors if drone_id in registry else []
+
+    def kill_agent(self, drone_id: str) -> None:
+        """The agent process dies: its liveliness token and telemetry vanish."""
+        self._agents[drone_id].cancel()
+
+    async def _fault_at(self, vehicle: Vehicle, at_s: float, fault: str, value: Any) -> None:
+        from dronefleet.sim.faults import apply_fault
+
+        await self.clock.sleep(at_s)
+        apply_fault(vehicle, fault, value)
+
+    async def _sensors(self, drone_id: str, kinds: list[str]) -> None:
+        """Simulated on-board sensors (sim/sensors.py), following the drone's telemetry."""
+        bus = self._bus(drone_id)  # on board: connected to its own agent
+        keys = Keys(self.config.namespace)
+        tasks = [asyncio.ensure_future(simulated_sensor(bus, drone_id, kind, self.world, clock=self.clock, keys=keys))
+                 for kind in kinds]
+        try:
+            await asyncio.gather(*tasks)
+        finally:
+            for task in tasks:
+                task.cancel()
+
+    def _record(self, event: WatchEvent) -> None:
+        if event.kind == "telemetry":
+            t: Telemetry = event.data
+            track = self.tracks.get(t.drone_id)
+            if track is None or t.position is None:
+                return
+            registry = self.station.registry
+            info = registry.info(t.drone_id)
+            sensors = {r.type: r.value for r in registry.sensor_readings(t.drone_id)}
+            track.samples.append(telemetry_sample(t, self.clock.monotonic(), info.state, sensors, info.link))
+
+    def _fly_log(self) -> None:
+        """On the radio the ground may not hear a drone: keep its true path beside."""
+        if self.air is None:
+            return
+        for drone_id, track in self.tracks.items():
+            p = self.vehicles[drone_id].position()
+            track.flown.append({"t_s": round(self.clock.monotonic(), 3), "lat": p.lat, "lon": p.lon, "rel_alt": p.rel_alt})
+
+    async def run_mission(self, source: str, *, name: str = "", max_s: float = DEFAULT_MAX_S,
+                          enable: dict[str, dict[str, Any]] | None = None) -> MissionRecord:
+        assert self.manager is not None
+        record = self.manager.submit(source, name, enable)
+        return await self.run_mission_started(record.mission_id, max_s=max_s)
+
+    async def run_mission_started(self, mission_id: str, *, max_s: float = DEFAULT_MAX_S) -> MissionRecord:
+        """Advance virtual time until the mission ends (cancelled after `max_s`)."""
+        assert self.manager is not None
+        task = asyncio.ensure_future(self.manager.wait(mission_id))
+        start = self.clock.monotonic()
+        limited = False
+        while not task.done():
+            if self.clock.monotonic() - start >= max_s and not limited:
+                limited = True
+                message = f"simulation time limit of {max_s:g} s reached"
+                self.station.log_ground("warn", message)
+                self.manager.cancel(mission_id, "time_limit", message)
+            self._fly_log()
+            await self.clock.advance(STEP_S)
+        # One more telemetry period so the series shows the state the mission left.
+        await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000)
+        return task.result()
+
+    async def until(self, predicate: Callable[[], bool], max_s: float = 600.0) -> None:
+        """Let virtual time pass (in small steps) until `predicate` holds."""
+        start = self.clock.monotonic()
+        while not predicate():
+            if self.clock.monotonic() - start > max_s:
+                raise TimeoutError(f"not within {max_s:g} simulated seconds")
+            await asyncio.sleep(0)
+
+    def mission_log(self, mission_id: str) -> list[Any]:
+        assert self.manager is not None
+        return self.manager.store.log(mission_id)
+
+    def result(self, record: MissionRecord) -> dict[str, Any]:
+        assert self.manager is not None
+        mission = self.manager.store.log(record.mission_id)
+        gs = self.world.ground_station or self.world.origin
+        return {
+            "mission": msgspec.to_builtins(record),
+            "log": [msgspec.to_builtins(line) for line in mission],
+            "seed": self.seed,
+            "t0_ms": self.clock.time_ms() - round(self.clock.monotonic() * 1000),  # wall time of t_s = 0
+            "ground_station": {"lat": gs.lat, "lon": gs.lon},
+            **({"geofence": msgspec.to_builtins(self.config.geofence)} if self.config.geofence.limits else {}),
+            "drones": {
+                drone_id: {
+                    "samples": track.samples,
+                    **({"flown": track.flown} if track.flown else {}),
+                    "commands": [msgspec.to_builtins(c) for c in self.manager.commands if c.drone_id == drone_id],
+                }
+                for drone_id, track in sorted(self.tracks.items())
+            },
+        }
+
+    async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        for fc in self._fcs:
+            await fc.close()
+        for bus in self._buses:
+            await bus.close()
+        if self.manager is not None:
+            self.manager.store.close()
+        self.events.close()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+
+def _copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dst)
+
+
+async def simulate(
+    source: str,
+    world: World,
+    *,
+    n: int | None = None,
+    seed: int = 0,
+    out_dir: Path | None = None,
+    name: str = "",
+    max_s: float = DEFAULT_MAX_S,
+    echo: Callable[[float, str], None] | None = None,
+    plots: bool = True,
+    plugins: PluginLibrary | None = None,
+    enable: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Run one script to its end under virtual time; write result.json and plots to out_dir."""
+    sim = SimField(world, n, seed=seed, plugins=plugins)
+    try:
+        await sim.start(echo)
+        record = await sim.run_mission(source, name=name, max_s=max_s, enable=enable)
+        result = sim.result(record)
+        if out_dir is not None:  # the mission's recording (SPEC §12), before its data dir goes
+            await asyncio.to_thread(_copy, sim.data_dir / "missions" / f"{record.mission_id}.mcap",
+                                    out_dir / "recording.mcap")
+    finally:
+        await sim.close()
+    if out_dir is not None:
+        await asyncio.to_thread(write_result, result, out_dir, plots)
+    return result

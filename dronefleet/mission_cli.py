@@ -1,0 +1,236 @@
+"""`fleet mission submit|list|show|cancel|check|simulate`.
+
+`submit`, `list`, `show` and `cancel` talk to a ground over HTTP (`--url`/FLEET_URL);
+`check` and `simulate` run locally. `submit --watch` and `simulate` exit with the
+mission's outcome: 0 finished, 1 failed, 3 cancelled (2 stays click's usage error).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+import msgspec
+
+from dronefleet.ground.cli import _cell, _fail, _request, aligned, auth_headers, url_option
+
+EXIT_CODES = {"finished": 0, "failed": 1, "cancelled": 3}
+ENDED = frozenset(EXIT_CODES)
+
+
+@click.group()
+def mission() -> None:
+    """Submit, follow, cancel, check and simulate missions."""
+
+
+def _read_script(path: Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        _fail(f"{path}: cannot read: {exc}")
+
+
+def _stamp(ms: int | None) -> str:
+    if ms is None:
+        return "-"
+    return time.strftime("%H:%M:%S", time.localtime(ms / 1000)) + f".{ms % 1000:03d}"
+
+
+def outcome(record: dict[str, Any]) -> str:
+    text = f"mission {record['mission_id']} {record['status']}"
+    if record.get("cause"):
+        text += f": {record['cause']}"
+    if record.get("message") and record.get("message") not in (record.get("cause"), "success"):
+        text += f" - {record['message']}"
+    return text
+
+
+@mission.command()
+@url_option
+@click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--name", default="", help="A label for `fleet mission list` (default: the file name).")
+@click.option("--watch", "-w", is_flag=True, help="Print the mission's log until it ends; exit with its outcome.")
+def submit(url: str, script: Path, name: str, watch: bool) -> None:
+    """Send SCRIPT to the ground; prints the mission id."""
+    source = _read_script(script)
+    params = {"name": name or script.name}
+    if not watch:
+        created = _request("POST", url, "/mission", content=source.encode(), params=params).json()
+        click.echo(created["mission_id"])
+        return
+    import httpx  # the ground extra
+
+    # Listen first, then submit: no line of the new mission can slip by.
+    try:
+        with httpx.stream(
+            "GET", url.rstrip("/") + "/events", params=[("types", "mission"), ("types", "mission_log")],
+            timeout=httpx.Timeout(10.0, read=None), headers=auth_headers(),
+        ) as stream:
+            created = _request("POST", url, "/mission", content=source.encode(), params=params).json()
+            mission_id = created["mission_id"]
+            click.echo(f"mission {mission_id} submitted")
+            for kind, data in _sse(stream.iter_lines()):
+                if data.get("mission_id") != mission_id:
+                    continue
+                if kind == "mission_log":
+                    click.echo(f"{_stamp(data['timestamp'])} {data['level'].upper():5} {data['message']}")
+                elif kind == "mission" and data.get("status") in ENDED and data.get("end") is not None:
+                    click.echo(outcome(data))
+                    raise SystemExit(EXIT_CODES[data["status"]])
+    except httpx.TransportError as exc:
+        _fail(f"lost the ground at {url}: {exc}")
+    except KeyboardInterrupt:
+        click.echo(f"stopped watching; the mission goes on (cancel: fleet mission cancel {mission_id})", err=True)
+        raise SystemExit(130) from None
+    _fail("the ground closed the event stream before the mission ended")
+
+
+def _sse(lines: Any) -> Any:
+    kind, data = "message", list[str]()
+    for line in lines:
+        if not line:
+            if data:
+                yield kind, json.loads("\n".join(data))
+            kind, data = "message", []
+        elif line.startswith("event:"):
+            kind = line[6:].strip()
+        elif line.startswith("data:"):
+            data.append(line[5:].strip())
+
+
+@mission.command("list")
+@url_option
+@click.option("--json", "as_json", is_flag=True, help="Print the API's JSON.")
+def list_missions(url: str, as_json: bool) -> None:
+    """Every mission the ground knows, oldest first."""
+    records = _request("GET", url, "/mission").json()
+    if as_json:
+        click.echo(json.dumps(records, indent=2))
+        return
+    rows = [("MISSION", "NAME", "STATUS", "CAUSE", "START", "END", "DRONES")]
+    for r in records:
+        rows.append((r["mission_id"], _cell(r.get("name")), r["status"], _cell(r.get("cause")),
+                     _stamp(r.get("start")), _stamp(r.get("end")), _cell(",".join(r.get("used_drones") or []))))
+    for line in aligned(rows):
+        click.echo(line)
+
+
+@mission.command()
+@url_option
+@click.argument("mission_id")
+@click.option("--json", "as_json", is_flag=True, help="Print the API's JSON.")
+def show(url: str, mission_id: str, as_json: bool) -> None:
+    """One mission's record and log."""
+    view = _request("GET", url, f"/mission/{mission_id}").json()
+    if as_json:
+        click.echo(json.dumps(view, indent=2))
+        return
+    click.echo(outcome(view) if view["status"] in ENDED else f"mission {mission_id} {view['status']}")
+    click.echo(f"  start {_stamp(view.get('start'))}  end {_stamp(view.get('end'))}")
+    click.echo(f"  active {', '.join(view['active_drones']) or '-'}  used {', '.join(view['used_drones']) or '-'}")
+    for line in view.get("log", []):
+        click.echo(f"{_stamp(line['timestamp'])} {line['level'].upper():5} {line['message']}")
+
+
+@mission.command()
+@url_option
+@click.argument("mission_id")
+def cancel(url: str, mission_id: str) -> None:
+    """Cancel a running mission (cause user); its drones hold and are released."""
+    record = _request("DELETE", url, f"/mission/{mission_id}").json()
+    click.echo(f"mission {record['mission_id']} cancelling")
+
+
+@mission.command()
+@click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+def check(script: Path) -> None:
+    """Check SCRIPT statically (syntax and sandbox rules) without running it."""
+    from dronefleet.mission.script.sandbox import check_mission
+
+    problems = check_mission(_read_script(script), filename=str(script))
+    for p in problems:
+        click.echo(f"{script}:{p.line}:{p.column}: {p.kind} error: {p.message}", err=True)
+    if problems:
+        raise SystemExit(1)
+    click.echo(f"{script}: ok")
+
+
+@mission.command()
+@click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("inputs", nargs=-1, metavar="[key=value…]")
+@click.option("--world", type=click.Path(exists=True, dir_okay=False, path_type=Path), help="World file (SPEC §7).")
+@click.option("--drones", "n", type=click.IntRange(1, 100), help="Number of drones (default: the world's, or 1).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the script's `random`.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), help="Write result.json, recording.mcap and plots here.")
+@click.option("--max-time", "max_s", type=click.FloatRange(1, 86_400), default=3600, show_default=True,
+              help="Cancel the mission after this much simulated time (s).")
+@click.option("--enable", "plugins", multiple=True, metavar="'PLUGIN key=value…'",
+              help="Enable a plugin before the script's first line, e.g. --enable 'replacement drainage=0.0015' (repeatable).")
+@click.option("--plugins-dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Also load the plugin scripts in this directory (besides the bundled ones).")
+@click.option("--radio/--no-radio", default=None,
+              help="Fly on the radio model (SPEC §8: links lost with distance, relayed by drones). "
+                   "Default: on if the world file has `radio:`.")
+def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int | None, seed: int, out_dir: Path | None,
+             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, radio: bool | None) -> None:
+    """Run SCRIPT against simulated drones in fast time; exit with its outcome.
+
+    Plugin inputs go with --enable in one word (--enable 'replacement drainage=0.0015')
+    or, with a single --enable, as key=value words after it (SPEC §5)."""
+    import logging
+
+    from dronefleet.compose import simulate as run
+    from dronefleet.mission.script.plugins import PluginLibrary, parse_enable, plugin_summary
+    from dronefleet.mission.script.sandbox import ScriptError, compile_mission
+    from dronefleet.schemas.config import writable_dir
+    from dronefleet.sim.world import load_world
+
+    library = PluginLibrary.default(plugins_dir)
+    if library.failures:
+        click.echo(plugin_summary(library).replace("fleet ground: ", ""), err=True)
+    enable: dict[str, dict[str, object]] = {}
+    if inputs:
+        if len(plugins) != 1:
+            _fail(f"unexpected arguments {' '.join(inputs)}: key=value inputs after SCRIPT need exactly one --enable", 2)
+        plugins = (" ".join((plugins[0], *inputs)),)
+    for text in plugins:
+        try:
+            plugin_id, plugin_inputs = parse_enable(text)
+        except ValueError as exc:
+            _fail(str(exc), 2)
+        if library.get(plugin_id) is None:
+            _fail(f"--enable: no plugin {plugin_id!r} (loaded: {', '.join(sorted(library.plugins)) or 'none'})", 2)
+        enable[plugin_id] = plugin_inputs
+    source = _read_script(script)
+    try:
+        compile_mission(source, filename=str(script))
+    except ScriptError as exc:
+        _fail(f"{script}:{exc.line}:{exc.column}: {exc.message}")
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the mission's own lines are echoed
+        for name in ("dronefleet.ground", "dronefleet.mission", "dronefleet.agent", "matplotlib"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    field = load_world(world)
+    if out_dir is not None:
+        writable_dir(out_dir, "--out")  # before the run, not after it
+    if radio is not None:
+        field = msgspec.structs.replace(field, radio=field.radio_model if radio else None)
+    started = time.perf_counter()
+    try:
+        result = asyncio.run(run(
+            source, field, n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,
+            echo=lambda t, message: click.echo(f"[{t:8.1f} s] {message}"), plugins=library, enable=enable,
+        ))
+    except ScriptError as exc:
+        _fail(f"{script}:{exc.line}:{exc.column}: {exc.message}")
+    record = result["mission"]
+    duration = ((record.get("end") or 0) - (record.get("start") or 0)) / 1000
+    wall = time.perf_counter() - started
+    click.echo(outcome(record))
+    click.echo(f"simulated {duration:.1f} s in {wall:.2f} s of wall time ({duration / max(wall, 1e-9):.0f}x)")
+    if out_dir is not None:
+        click.echo(f"wrote result.json, recording.mcap and plots in {out_dir}")
+    raise SystemExit(EXIT_CODES[record["status"]])

@@ -1,0 +1,257 @@
+"""The mission manager: submit, run, cancel and remember missions (thesis §5.2.2).
+
+Records (SPEC §4 / table 5.1) and their log lines live in SQLite (`missions.db` in the
+data directory, WAL, one commit per change), so a ground that restarts still lists
+every mission; ones that were running when it died are marked failed with cause
+`ground_restart`. Every change is also broadcast to the station's watchers as a
+`mission` event (the dashboard and `fleet mission submit --watch`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import builtins
+import itertools
+import json
+import logging
+import sqlite3
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from dronefleet.bus.clock import Clock
+from dronefleet.mission.hosting.isolation import IsolatedMission
+from dronefleet.mission.lifecycle.mission import Mission
+from dronefleet.mission.lifecycle.port import FleetPort
+from dronefleet.mission.lifecycle.record import CommandResult, MissionLogLine, MissionRecord
+from dronefleet.mission.script.plugins import PluginLibrary
+from dronefleet.mission.script.sandbox import compile_mission
+from dronefleet.mission.script.script import ScriptMission
+from dronefleet.schemas.errors import FleetError
+from dronefleet.schemas.fleet import WatchEvent
+
+log = logging.getLogger(__name__)
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS missions (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    mission_id TEXT UNIQUE NOT NULL,
+    record TEXT NOT NULL,
+    source TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS mission_log (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    mission_id TEXT NOT NULL,
+    timestamp_ms INTEGER NOT NULL,
+    level TEXT NOT NULL,
+    message TEXT NOT NULL
+);
+CREATE INDEX IF NOT EXISTS mission_log_mission ON mission_log (mission_id, id);
+"""
+_record_decoder = msgspec.json.Decoder(MissionRecord)
+Running = Mission | IsolatedMission
+
+
+class UnknownMission(FleetError, KeyError):
+    """No mission with that id (HTTP 404)."""
+
+
+class MissionEnded(FleetError):
+    """Cancelling a mission that already ended (HTTP 409)."""
+
+
+class MissionStore:
+    """SQLite persistence of records and log lines; ':memory:' for simulations."""
+
+    def __init__(self, path: Path | str) -> None:
+        self._db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
+        if str(path) != ":memory:":
+            self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.executescript(_SCHEMA)
+
+    def close(self) -> None:
+        self._db.close()
+
+    def next_id(self) -> str:
+        row = self._db.execute("SELECT COALESCE(MAX(seq), 0) + 1 FROM missions").fetchone()
+        return f"m{row[0]}"
+
+    def create(self, record: MissionRecord, source: str) -> None:
+        self._db.execute(
+            "INSERT INTO missions (mission_id, record, source) VALUES (?, ?, ?)",
+            (record.mission_id, msgspec.json.encode(record).decode(), source),
+        )
+
+    def save(self, record: MissionRecord) -> None:
+        self._db.execute(
+            "UPDATE missions SET record = ? WHERE mission_id = ?",
+            (msgspec.json.encode(record).decode(), record.mission_id),
+        )
+
+    def append(self, mission_id: str, line: MissionLogLine) -> None:
+        self._db.execute(
+            "INSERT INTO mission_log (mission_id, timestamp_ms, level, message) VALUES (?, ?, ?, ?)",
+            (mission_id, line.timestamp, line.level, line.message),
+        )
+
+    def get(self, mission_id: str) -> MissionRecord | None:
+        row = self._db.execute("SELECT record FROM missions WHERE mission_id = ?", (mission_id,)).fetchone()
+        return _record_decoder.decode(row[0]) if row else None
+
+    def source(self, mission_id: str) -> str | None:
+        row = self._db.execute("SELECT source FROM missions WHERE mission_id = ?", (mission_id,)).fetchone()
+        return row[0] if row else None
+
+    def all(self) -> list[MissionRecord]:
+        rows = self._db.execute("SELECT record FROM missions ORDER BY seq").fetchall()
+        return [_record_decoder.decode(r[0]) for r in rows]
+
+    def log(self, mission_id: str) -> list[MissionLogLine]:
+        rows = self._db.execute(
+            "SELECT timestamp_ms, level, message FROM mission_log WHERE mission_id = ? ORDER BY id", (mission_id,)
+        ).fetchall()
+        return [MissionLogLine(timestamp=t, level=lvl, message=msg) for t, lvl, msg in rows]
+
+
+class MissionManager:
+    def __init__(
+        self,
+        station: FleetPort,
+        store: MissionStore,
+        clock: Clock,
+        *,
+        deterministic: bool = False,
+        seed: int | None = None,
+        plugins: PluginLibrary | None = None,
+        isolate: bool = False,
+    ) -> None:
+        """With `isolate`, every mission runs in a process of its own under the limits
+        `mission.max_memory_mb` and `mission.max_cpu_s` (the ground; ADR 0009);
+        without, on this loop (fast-time simulation, where the clock is virtual)."""
+        self.station = station
+        self.isolate = isolate
+        self.plugins = plugins
+        self.store = store
+        self.clock = clock
+        self.deterministic = deterministic
+        self.seed = seed
+        self._running: dict[str, tuple[Running, asyncio.Task[MissionRecord]]] = {}
+        self._seeds = itertools.count(seed or 0)
+        self.commands: list[CommandResult] = []  # every mission's verbs, for simulation results
+        self.echo: Callable[[str, MissionLogLine], None] | None = None  # progress printing
+        self._recover()
+
+    def _recover(self) -> None:
+        for record in self.store.all():
+            if record.status in ("pending", "running"):
+                record.status, record.cause = "failed", "ground_restart"
+                record.message = "the ground station stopped while the mission ran"
+                record.end = record.end or self.clock.time_ms()
+                record.active_drones = []
+                self.store.save(record)
+                self.store.append(record.mission_id, MissionLogLine(
+                    timestamp=self.clock.time_ms(), level="error", message="Mission failed: ground_restart",
+                ))
+
+    # ---- operations ----------------------------------------------------------------
+
+    def submit(self, source: str, name: str = "", enable: dict[str, dict[str, Any]] | None = None,
+               submitted_by: str | None = None) -> MissionRecord:
+        """Compile (ScriptError → 400 with line/column), record as pending, start.
+
+        `enable` maps plugin ids to inputs, enabled before the script's first line
+        (`fleet mission simulate --enable`)."""
+        mission_id = self.store.next_id()
+        code = compile_mission(source, filename=f"<mission {mission_id}>")
+        record = MissionRecord(mission_id=mission_id, name=name, submitted_by=submitted_by)
+        self.store.create(record, source)
+        if submitted_by is not None:  # the audit trail (SPEC §9)
+            self.station.log_ground("info", f"Mission {mission_id} submitted by {submitted_by}")
+        mission: Running
+        if self.isolate:
+            mission = IsolatedMission(record, source, self.station, self.clock, on_change=self._on_change,
+                                      on_log=self._on_log, plugins=self.plugins, enable=enable)
+        else:
+            mission = ScriptMission(
+                record, code, self.station, self.clock,
+                deterministic=self.deterministic, seed=next(self._seeds) if self.seed is not None else None,
+                on_change=self._on_change, on_log=self._on_log, plugins=self.plugins, enable=enable,
+            )
+            mission.commands = self.commands
+        self.station.log_ground("info", f"Mission {mission_id} submitted" + (f" ({name})" if name else ""))
+        task = asyncio.get_running_loop().create_task(self._run(mission), name=f"mission {mission_id}")
+        self._running[mission_id] = (mission, task)
+        self._broadcast(record)
+        return msgspec.structs.replace(record)
+
+    async def _run(self, mission: Running) -> MissionRecord:
+        try:
+            return await mission.run()
+        finally:
+            self._running.pop(mission.id, None)
+            r = mission.record
+            self.station.log_ground(
+                "info" if r.status == "finished" else "warn", f"Mission {r.mission_id} {r.status}: {r.cause}"
+            )
+
+    def cancel(self, mission_id: str, cause: str = "user", message: str | None = None) -> MissionRecord:
+        entry = self._running.get(mission_id)
+        # A record with its end has ended, even while its task finishes (a mission's own
+        # process reports the end before it exits).
+        if entry is None or entry[0].record.end is not None:
+            if self.store.get(mission_id) is None:
+                raise UnknownMission(mission_id)
+            raise MissionEnded(f"mission {mission_id} already ended")
+        entry[0].end(cause, message)
+        return msgspec.structs.replace(entry[0].record)
+
+    def get(self, mission_id: str) -> MissionRecord:
+        entry = self._running.get(mission_id)
+        if entry is not None:
+            return msgspec.structs.replace(entry[0].record)
+        record = self.store.get(mission_id)
+        if record is None:
+            raise UnknownMission(mission_id)
+        return record
+
+    def list(self) -> builtins.list[MissionRecord]:
+        return [self.get(r.mission_id) if r.mission_id in self._running else r for r in self.store.all()]
+
+    def log(self, mission_id: str) -> builtins.list[MissionLogLine]:
+        self.get(mission_id)
+        return self.store.log(mission_id)
+
+    async def wait(self, mission_id: str) -> MissionRecord:
+        entry = self._running.get(mission_id)
+        if entry is not None:
+            return await asyncio.shield(entry[1])
+        return self.get(mission_id)
+
+    async def close(self) -> None:
+        """Stop every running mission (cause ground_restart) and wait for its clean-up."""
+        for mission, _ in list(self._running.values()):
+            mission.end("ground_restart")
+        tasks = [task for _, task in self._running.values()]
+        if tasks:
+            await asyncio.gather(*tasks, return_exceptions=True)
+
+    # ---- persistence and events ----------------------------------------------------
+
+    def _on_change(self, mission: Running) -> None:
+        self.store.save(mission.record)
+        self._broadcast(mission.record)
+
+    def _on_log(self, mission: Running, line: MissionLogLine) -> None:
+        self.store.append(mission.id, line)
+        if self.echo is not None:
+            self.echo(mission.id, line)
+        log.log(
+            {"info": logging.INFO, "warn": logging.WARNING, "error": logging.ERROR}[line.level],
+            "mission %s - %s", mission.id, line.message,
+        )
+        self.station.broadcast(WatchEvent("mission_log", {"mission_id": mission.id, **msgspec.to_builtins(line)}))
+
+    def _broadcast(self, record: MissionRecord) -> None:
+        self.station.broadcast(WatchEvent("mission", json.loads(msgspec.json.encode(record))))

@@ -1,0 +1,408 @@
+"""A mission in a process of its own: the worker's side (SPEC §9, ADR 0009).
+
+The ground forks one worker per mission (`mission.isolation`). The worker limits
+itself before it reads the script — `RLIMIT_AS` at its own size plus
+`mission.max_memory_mb`, `RLIMIT_CPU` at `mission.max_cpu_s` — then runs the very
+same `Mission` as the ground would, with `WorkerPort` for the ground's `FleetPort`:
+
+- what the ground knows (`registry`) is a copy, `Mirror`, kept from the events the
+  ground forwards in order (a snapshot first, then every telemetry, status, sensor
+  reading and drone change), so reading it costs nothing and never waits;
+- what changes the fleet (claiming a drone, sending a command or a bundle) is a call
+  the ground answers, and the ground makes it as this mission and no other.
+
+One socket carries everything, in both directions, as length-prefixed msgpack
+frames. Because the ground writes events and answers on the same ordered stream, a
+refusal to claim a drone arrives after the event that showed another mission took it.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import logging
+import math
+import os
+import resource
+import signal
+import socket
+from collections.abc import Callable
+from typing import Any, Literal
+
+import msgspec
+
+from dronefleet.bus.clock import SystemClock
+from dronefleet.bus.port import QueryTimeout, Unreachable
+from dronefleet.mission.lifecycle.mission import Mission
+from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
+from dronefleet.mission.script.plugins import PluginLibrary
+from dronefleet.mission.script.sandbox import compile_mission
+from dronefleet.mission.script.script import ScriptMission
+from dronefleet.schemas.bundles import BundleRecord, BundleReply
+from dronefleet.schemas.codec import decode_sensor, decode_status, decode_telemetry
+from dronefleet.schemas.commands import CommandReply, new_command_id
+from dronefleet.schemas.config import MissionSettings
+from dronefleet.schemas.errors import CommandRejected, FleetError, InvalidMessage
+from dronefleet.schemas.fleet import DroneInfo, WatchEvent
+from dronefleet.schemas.telemetry import SensorReading, Telemetry
+
+log = logging.getLogger(__name__)
+
+MAX_FRAME = 16 * 2**20  # bytes; a record, a log line or a reply is far smaller
+CLOSE_WAIT_S = 5.0  # after Done: how long the worker waits for the ground to close
+MEMORY_EXIT = 3  # the worker's exit status when it ran out of memory outside the script
+EVENT_KINDS = ("telemetry", "status", "drone", "sensor")
+Op = Literal["assign", "command", "push", "bundle_record"]
+
+
+# ---- the frames ----------------------------------------------------------------------
+
+
+class Event(msgspec.Struct, tag=True, frozen=True):
+    """Ground → worker: one event the ground's listeners heard (data: its JSON)."""
+
+    kind: str
+    data: bytes
+
+
+class Failure(msgspec.Struct, frozen=True, kw_only=True):
+    kind: Literal["rejected", "invalid", "unreachable", "timeout", "error"]
+    reason: str
+    status: int = 0
+    code: str | None = None
+    other: str | None = None
+    field: str | None = None
+
+
+class Reply(msgspec.Struct, tag=True, frozen=True, kw_only=True):
+    """Ground → worker: the answer to a Call (result: the reply's JSON)."""
+
+    call: int
+    result: bytes = b""
+    failure: Failure | None = None
+
+
+class End(msgspec.Struct, tag=True, frozen=True):
+    """Ground → worker: end the mission (a DELETE, the ground stopping)."""
+
+    cause: str
+    message: str | None = None
+
+
+class Call(msgspec.Struct, tag=True, frozen=True, kw_only=True):
+    """Worker → ground: something only the ground may do; `arg` is the command or
+    bundle JSON, or the bundle id."""
+
+    call: int
+    op: Op
+    drone_id: str
+    arg: bytes = b""
+
+
+class Release(msgspec.Struct, tag=True, frozen=True):
+    drone_id: str
+
+
+class Changed(msgspec.Struct, tag=True, frozen=True):
+    record: MissionRecord
+
+
+class Logged(msgspec.Struct, tag=True, frozen=True):
+    line: MissionLogLine
+
+
+class GroundLog(msgspec.Struct, tag=True, frozen=True):
+    level: Literal["info", "warn", "error"]
+    message: str
+
+
+class Ack(msgspec.Struct, tag=True, frozen=True):
+    """Worker → ground: an End was heard (so the worker is not stuck in one long call)."""
+
+
+class Done(msgspec.Struct, tag=True, frozen=True):
+    record: MissionRecord
+
+
+ToWorker = Event | Reply | End
+ToGround = Call | Release | Changed | Logged | GroundLog | Ack | Done
+
+
+class Start(msgspec.Struct, frozen=True, kw_only=True):
+    """What the worker is started with."""
+
+    record: MissionRecord
+    source: str
+    settings: MissionSettings
+    plugins: list[tuple[str, str]]  # (path, source) of every plugin the ground loaded
+    enable: dict[str, dict[str, Any]] | None
+    snapshot: list[Event]  # the registry as the ground knew it at the start
+    relays: list[str] | None  # the drones that may relay (Registry.relays)
+
+
+_encoder = msgspec.msgpack.Encoder()
+
+
+def frame(message: Any) -> bytes:
+    body = _encoder.encode(message)
+    return len(body).to_bytes(4, "big") + body
+
+
+async def read_frame(reader: asyncio.StreamReader) -> bytes | None:
+    """One frame's body, or None at the end of the stream. Raises ValueError for a
+    frame over MAX_FRAME."""
+    try:
+        size = int.from_bytes(await reader.readexactly(4), "big")
+        if size > MAX_FRAME:
+            raise ValueError(f"a frame of {size} bytes (the limit is {MAX_FRAME})")
+        return await reader.readexactly(size)
+    except (asyncio.IncompleteReadError, ConnectionError):  # the other side is gone (killed, say)
+        return None
+
+
+def failure_of(exc: BaseException) -> Failure:
+    if isinstance(exc, CommandRejected):
+        return Failure(kind="rejected", reason=exc.reason, status=exc.status, code=exc.code, other=exc.other)
+    if isinstance(exc, InvalidMessage):
+        return Failure(kind="invalid", reason=exc.reason, field=exc.field)
+    if isinstance(exc, QueryTimeout):
+        return Failure(kind="timeout", reason=str(exc))
+    if isinstance(exc, Unreachable):
+        return Failure(kind="unreachable", reason=str(exc))
+    return Failure(kind="error", reason=f"{type(exc).__name__}: {exc}")
+
+
+def exception_of(failure: Failure) -> Exception:
+    if failure.kind == "rejected":
+        return CommandRejected(failure.status, failure.reason, failure.code, failure.other)
+    if failure.kind == "invalid":
+        return InvalidMessage(failure.reason, failure.field)
+    if failure.kind == "timeout":
+        return QueryTimeout(failure.reason)
+    if failure.kind == "unreachable":
+        return Unreachable(failure.reason)
+    return FleetError(failure.reason)
+
+
+# ---- the worker's view of the fleet ----------------------------------------------------
+
+
+_decode_info = msgspec.json.Decoder(DroneInfo).decode
+
+
+class Mirror:
+    """The ground's registry as the events so far tell it (FleetView)."""
+
+    def __init__(self, relays: list[str] | None = None) -> None:
+        self.relays = None if relays is None else frozenset(relays)
+        self._infos: dict[str, DroneInfo] = {}
+        self._telemetry: dict[str, Telemetry] = {}
+        self._readings: dict[str, dict[str, SensorReading]] = {}
+
+    def apply(self, kind: str, data: bytes) -> Any:
+        """Take one event in; returns its decoded data."""
+        if kind == "telemetry":
+            telem = decode_telemetry(data)
+            self._telemetry[telem.drone_id] = telem
+            return telem
+        if kind == "drone":
+            info = _decode_info(data)
+            self._infos[info.drone_id] = info
+            return info
+        if kind == "sensor":
+            reading = decode_sensor(data)
+            self._readings.setdefault(reading.drone_id, {})[reading.type] = reading
+            return reading
+        return decode_status(data)
+
+    def __contains__(self, drone_id: str) -> bool:
+        return drone_id in self._infos and drone_id in self._telemetry
+
+    def ids(self) -> list[str]:
+        return sorted(d for d in self._infos if d in self._telemetry)
+
+    def info(self, drone_id: str) -> DroneInfo:
+        return self._infos[drone_id]
+
+    def telemetry(self, drone_id: str) -> Telemetry:
+        return self._telemetry[drone_id]
+
+    def sensor_readings(self, drone_id: str) -> list[SensorReading]:
+        present = set(self._infos[drone_id].sensors)  # the ground drops a sensor that timed out
+        readings = self._readings.get(drone_id, {})
+        return [readings[t] for t in sorted(readings) if t in present]
+
+
+class _Settings:
+    def __init__(self, settings: MissionSettings) -> None:
+        self.mission = settings
+
+
+class WorkerPort:
+    """The FleetPort of a mission in its own process."""
+
+    def __init__(self, settings: MissionSettings, send: Callable[[Any], None], relays: list[str] | None = None) -> None:
+        self.config = _Settings(settings)
+        self.registry = Mirror(relays)
+        self._send = send
+        self._listeners: list[Callable[[WatchEvent], None]] = []
+        self._calls: dict[int, asyncio.Future[bytes]] = {}
+        self._ids = itertools.count(1)
+        self._gone: str | None = None
+
+    # ---- from the ground ----
+
+    def on_event(self, event: Event) -> None:
+        data = self.registry.apply(event.kind, event.data)
+        watch = WatchEvent(event.kind, data)
+        for listener in list(self._listeners):
+            listener(watch)
+
+    def on_reply(self, reply: Reply) -> None:
+        fut = self._calls.pop(reply.call, None)
+        if fut is None or fut.done():
+            return
+        if reply.failure is not None:
+            fut.set_exception(exception_of(reply.failure))
+        else:
+            fut.set_result(reply.result)
+
+    def ground_gone(self) -> None:
+        self._gone = "the ground station closed the mission's connection"
+        for fut in self._calls.values():
+            if not fut.done():
+                fut.set_exception(Unreachable(self._gone))
+        self._calls.clear()
+
+    # ---- FleetPort ----
+
+    def listen(self, listener: Callable[[WatchEvent], None]) -> Callable[[], None]:
+        self._listeners.append(listener)
+        return lambda: self._listeners.remove(listener) if listener in self._listeners else None
+
+    async def _call(self, op: Op, drone_id: str, arg: bytes = b"") -> bytes:
+        if self._gone is not None:
+            raise Unreachable(self._gone)
+        call = next(self._ids)
+        fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
+        self._calls[call] = fut
+        self._send(Call(call=call, op=op, drone_id=drone_id, arg=arg))
+        return await fut
+
+    async def assign(self, drone_id: str, mission_id: str) -> None:
+        await self._call("assign", drone_id)
+
+    def release(self, drone_id: str) -> None:
+        if self._gone is None:
+            self._send(Release(drone_id))
+
+    async def command(self, drone_id: str, body: bytes, mission_id: str | None = None) -> CommandReply:
+        return msgspec.json.decode(await self._call("command", drone_id, body), type=CommandReply)
+
+    async def push(self, drone_id: str, body: bytes, mission_id: str | None = None) -> BundleReply:
+        return msgspec.json.decode(await self._call("push", drone_id, body), type=BundleReply)
+
+    async def bundle_record(self, drone_id: str, bundle_id: str) -> BundleRecord:
+        return msgspec.json.decode(await self._call("bundle_record", drone_id, bundle_id.encode()), type=BundleRecord)
+
+    def log_ground(self, level: str, message: str) -> None:
+        if self._gone is None and level in ("info", "warn", "error"):
+            self._send(GroundLog(level, message))  # type: ignore[arg-type]
+
+    def new_command_id(self) -> str:
+        return new_command_id()
+
+    def broadcast(self, event: WatchEvent) -> None:
+        raise NotImplementedError("a mission's process has no watchers; its manager broadcasts on the ground")
+
+
+# ---- the process ---------------------------------------------------------------------
+
+
+def limit_self(max_memory_mb: int, max_cpu_s: float) -> None:
+    """Address space: what the process has now plus `max_memory_mb`; CPU: `max_cpu_s`
+    in all (SIGXCPU at the soft limit, SIGKILL a second later); no core files."""
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    with open("/proc/self/statm") as statm:
+        size = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    limit = size + max_memory_mb * 2**20
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = math.ceil(usage.ru_utime + usage.ru_stime + max_cpu_s)
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
+
+
+def main(sock: socket.socket, start: bytes, max_memory_mb: int, max_cpu_s: float) -> None:
+    """The worker process's entry (multiprocessing target)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the ground's to handle; it ends us
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    limit_self(max_memory_mb, max_cpu_s)
+    try:
+        asyncio.run(_serve(sock, msgspec.msgpack.decode(start, type=Start)))
+    except MemoryError:
+        _exit_out_of_memory()
+
+
+def _exit_out_of_memory() -> None:
+    """Out of memory outside the script (an event, a frame): the ground tells the
+    mission's end from this exit status."""
+    os.write(2, b"fleet mission worker: out of memory (mission.max_memory_mb)\n")
+    os._exit(MEMORY_EXIT)
+
+
+def _out_of_memory(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+    if isinstance(context.get("exception"), MemoryError):
+        _exit_out_of_memory()
+    loop.default_exception_handler(context)
+
+
+async def _serve(sock: socket.socket, start: Start) -> None:
+    asyncio.get_running_loop().set_exception_handler(_out_of_memory)
+    reader, writer = await asyncio.open_unix_connection(sock=sock)
+    port = WorkerPort(start.settings, lambda message: writer.write(frame(message)), start.relays)
+    for event in start.snapshot:
+        port.registry.apply(event.kind, event.data)
+    mission_id = start.record.mission_id
+    mission = ScriptMission(
+        start.record, compile_mission(start.source, filename=f"<mission {mission_id}>"), port, SystemClock(),
+        on_change=lambda m: writer.write(frame(Changed(m.record))),
+        on_log=lambda m, line: writer.write(frame(Logged(line))),
+        plugins=PluginLibrary.from_sources(start.plugins), enable=start.enable,
+    )
+    run = asyncio.ensure_future(mission.run())
+    listen = asyncio.ensure_future(_listen(reader, port, mission, writer))
+    await asyncio.wait([run, listen], return_when=asyncio.FIRST_COMPLETED)
+    if listen.done() and isinstance(listen.exception(), MemoryError):
+        raise MemoryError
+    if run.done():
+        writer.write(frame(Done(run.result())))
+        # Closing now would make the ground's next event fail (EPIPE), and its reader
+        # drop the Done still buffered: wait for the ground to close first.
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(listen), CLOSE_WAIT_S)
+        listen.cancel()
+    else:  # the ground is gone: nobody to tell, nothing to send commands through
+        run.cancel()
+    await asyncio.gather(run, listen, return_exceptions=True)
+    try:
+        await writer.drain()
+        writer.close()
+    except OSError:
+        pass
+
+
+_decode_to_worker = msgspec.msgpack.Decoder(ToWorker).decode
+
+
+async def _listen(reader: asyncio.StreamReader, port: WorkerPort, mission: Mission, writer: asyncio.StreamWriter) -> None:
+    while (body := await read_frame(reader)) is not None:
+        message = _decode_to_worker(body)
+        if isinstance(message, Event):
+            port.on_event(message)
+        elif isinstance(message, Reply):
+            port.on_reply(message)
+        else:
+            mission.end(message.cause, message.message)
+            writer.write(frame(Ack()))
+    port.ground_gone()

@@ -1,0 +1,164 @@
+"""Which free drone serves which assignment request (thesis §5.2.4), as pure logic.
+
+Requests come by id, by sensors, near a position, by type, or for any drone. Several
+at once are served in the thesis's priority order — ids first, then sensor requests
+(more sensors first), then proximity, then drones that may relay, then any — so the
+constrained requests pick before the easy ones take their drones. Among fitting
+drones: the closest for a proximity request; otherwise the one with the fewest sensors
+(keep rare sensors free for whoever needs them), then one that may not relay; ties go
+to the most battery. If any request cannot be met, none is: the mission fails with
+cause `requirements`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from dronefleet.schemas.errors import FleetError
+from dronefleet.schemas.geo import distance_m
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A free drone as the assigner sees it."""
+
+    drone_id: str
+    sensors: frozenset[str] = frozenset()
+    battery: float = 0.0  # 0..1
+    lat: float | None = None
+    lon: float | None = None
+    kind: str | None = None  # drone type (thesis future work 7), when the operator declares one
+    relay: bool = True  # may carry other drones' traffic (on a secured mesh: issued `--role relay`)
+
+
+@dataclass(frozen=True)
+class ById:
+    drone_id: str
+
+
+@dataclass(frozen=True)
+class BySensors:
+    sensors: frozenset[str]
+
+
+@dataclass(frozen=True)
+class Near:
+    lat: float
+    lon: float
+
+
+@dataclass(frozen=True)
+class ByKind:
+    kind: str
+
+
+@dataclass(frozen=True)
+class AnyDrone:
+    pass
+
+
+@dataclass(frozen=True)
+class AnyRelay:
+    """A drone that may relay for others: any drone, except on a secured mesh (SPEC §9),
+    where only those issued `--role relay` carry their neighbours' traffic."""
+
+    def __repr__(self) -> str:
+        return "any_relay"
+
+
+Request = ById | BySensors | Near | ByKind | AnyRelay | AnyDrone
+
+
+class Unfulfilled(FleetError):
+    """No free drone meets a request (mission cause `requirements`)."""
+
+    def __init__(self, request: Request, reason: str) -> None:
+        super().__init__(f"cannot assign {describe(request)}: {reason}")
+        self.request = request
+
+
+def describe(request: Request) -> str:
+    match request:
+        case ById(drone_id):
+            return f"drone {drone_id!r}"
+        case BySensors(sensors):
+            return f"a drone with {', '.join(sorted(sensors))}"
+        case Near(lat, lon):
+            return f"the drone nearest {lat:.6f}, {lon:.6f}"
+        case ByKind(kind):
+            return f"a drone of type {kind!r}"
+        case AnyRelay():
+            return "a drone that may relay (on a secured mesh: issued --role relay)"
+    return "any drone"
+
+
+def replaceable(request: Request) -> bool:
+    """Drones assigned by id or sensor are irreplaceable (another drone would lack what
+    the mission asked for); those assigned near a place, by type or as any are not."""
+    return not isinstance(request, (ById, BySensors))
+
+
+def _rank(request: Request) -> tuple[int, int]:
+    match request:
+        case ById():
+            return (0, 0)
+        case BySensors(sensors):
+            return (1, -len(sensors))
+        case ByKind():
+            return (2, 0)
+        case Near():
+            return (3, 0)
+        case AnyRelay():
+            return (4, 0)
+    return (5, 0)
+
+
+def _distance(c: Candidate, lat: float, lon: float) -> float:
+    return distance_m(c.lat, c.lon, lat, lon) if c.lat is not None and c.lon is not None else float("inf")
+
+
+def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
+    """The best free drone for one request, or Unfulfilled."""
+    match request:
+        case ById(drone_id):
+            fitting = [c for c in free if c.drone_id == drone_id]
+        case BySensors(sensors):
+            fitting = [c for c in free if sensors <= c.sensors]
+        case ByKind(kind):
+            fitting = [c for c in free if c.kind == kind]
+        case AnyRelay():
+            fitting = [c for c in free if c.relay]
+        case Near() | AnyDrone():
+            fitting = list(free)
+    if not fitting:
+        reason = "no free drone" if not free else "no free drone fits"
+        if isinstance(request, ById):
+            reason = "it is not registered, not ready, or in another mission"
+        raise Unfulfilled(request, reason)
+    if isinstance(request, Near):
+        located = [c for c in fitting if c.lat is not None]
+        if not located:
+            raise Unfulfilled(request, "no free drone reports a position")
+        return min(located, key=lambda c: (_distance(c, request.lat, request.lon), -c.battery, c.drone_id))
+    # Keep rare sensors, and the right to relay, free for whoever needs them.
+    return min(fitting, key=lambda c: (len(c.sensors), c.relay, -c.battery, c.drone_id))
+
+
+def assign_many(requests: Sequence[Request], free: Sequence[Candidate]) -> list[str]:
+    """Drone ids for `requests`, in the order asked, all or nothing."""
+    chosen: dict[int, str] = {}
+    pool = list(free)
+    for index in sorted(range(len(requests)), key=lambda i: (_rank(requests[i]), i)):
+        pick = choose(requests[index], pool)
+        chosen[index] = pick.drone_id
+        pool = [c for c in pool if c.drone_id != pick.drone_id]
+    return [chosen[i] for i in range(len(requests))]
+
+
+def replacement(lat: float, lon: float, free: Sequence[Candidate]) -> str | None:
+    """The free drone closest to where the replaced one stopped (thesis §5.2.4)."""
+    try:
+        return choose(Near(lat, lon), free).drone_id
+    except Unfulfilled:
+        return None

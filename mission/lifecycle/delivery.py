@@ -1,0 +1,244 @@
+"""Command delivery, the part of a mission's life cycle that talks to its drones:
+send a command or a task bundle as the mission, send it again when no answer comes
+(or once the drone is back in reach), learn how it ended, and what each failure
+means for the mission (SPEC §5). And what a mission's end does to each drone."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal, TypeVar
+
+from dronefleet.bus.clock import Clock
+from dronefleet.bus.port import Unreachable
+from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
+from dronefleet.mission.lifecycle.record import CommandResult, MissionOver, MissionRecord
+from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
+from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected, InvalidMessage
+from dronefleet.schemas.fence import CONFLICT
+from dronefleet.schemas.fence import REASON as FENCE
+from dronefleet.schemas.status import CommandStatus, ended_by_failsafe
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
+
+
+@dataclass
+class PendingBundle:
+    drone_id: str
+    bundle_id: str
+    deadline: float  # clock.monotonic() by which the bundle should have ended
+    done: asyncio.Future[BundleRecord]
+
+
+DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
+# Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
+# them (relative ones — move by offsets, turn, offboard — would not mean the same again).
+RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
+RESUME_TRIES = 3
+HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
+
+
+class CommandDelivery:
+    """Mission's sending half (a base class of lifecycle.mission.Mission, whose state
+    and verbs it uses: declared here for the type checker)."""
+
+    station: FleetPort
+    config: MissionConfig
+    clock: Clock
+    record: MissionRecord
+    deterministic: bool
+    commands: list[CommandResult]
+    _pending: dict[str, asyncio.Future[CommandStatus]]
+    _bundles: dict[str, PendingBundle]
+    _pushed: int
+    _link_back_at: dict[str, asyncio.Future[None]]
+
+    if TYPE_CHECKING:
+        @property
+        def id(self) -> str: ...
+        @property
+        def ending(self) -> bool: ...
+        def log(self, level: Literal["info", "warn", "error"], message: str) -> None: ...
+        def fail(self, cause: str, message: str) -> MissionOver: ...
+        def setback(self, cause: str, message: str) -> MissionOver: ...
+        def check_assigned(self, drone_id: str) -> None: ...
+        async def next_telemetry(self, drone_id: str) -> None: ...
+
+    async def execute(self, drone_id: str, body: dict[str, Any], *, wait: bool = True,
+                      wait_clear: bool = False) -> CommandStatus | None:
+        """Send one command as this mission; with `wait`, return its terminal status.
+
+        Failures end the mission: the ground's 400 → cmd_parse, a refusal, a failure
+        status or no answer → cmd_exec, anything else → unexpected.
+        """
+        name = str(body["cmd"])
+        for interrupted in range(RESUME_TRIES + 1):
+            status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
+            if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
+                break
+            if interrupted == RESUME_TRIES:
+                self.log("warn", f"{drone_id}: {name} interrupted by its lost-link failsafe {RESUME_TRIES + 1} times; "
+                                 "going on without it")
+                break
+            # The drone held (or turned home) on its own while out of reach; the script
+            # still wants this done, so it is sent again once the drone can hear it.
+            self.log("warn", f"{drone_id}: {name} was interrupted by the drone's lost-link failsafe; sending it again")
+        return status
+
+    async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
+                            wait_clear: bool) -> CommandStatus | None:
+        self.check_assigned(drone_id)
+        if self._out_of_reach(drone_id):  # the ground would refuse it (unknown)
+            await self._heard_again(drone_id, name)
+        command_id = self.station.new_command_id()
+        fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
+        if wait:
+            self._pending[command_id] = fut
+        sent = self.clock.time_ms()
+        try:
+            with self._sending(name, drone_id):
+                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode(), wait_clear)
+                if not wait:
+                    return None
+                status = await self._outcome(fut, drone_id)
+        except (asyncio.CancelledError, MissionOver):
+            raise
+        except Exception as exc:  # noqa: BLE001
+            log.exception("mission %s: %s %s", self.id, name, drone_id)
+            raise self.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
+        finally:
+            self._pending.pop(command_id, None)
+        target: dict[str, float] | None = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
+        self.commands.append(CommandResult(
+            drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
+        ))
+        if status.state == "failure":
+            raise self.setback("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
+        return status
+
+    async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False) -> None:
+        """Send a command; with no answer, send it again (same command id: the agent
+        runs it once) before the mission gives up on the drone. With `wait_clear`, a
+        target another drone holds (409 conflict) is tried again each time that drone
+        reports, for up to mission.clear_wait_s."""
+        attempt, waited_for = 1, None
+        give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
+        while True:
+            try:
+                await self.station.command(drone_id, payload, self.id)
+                if waited_for is not None:
+                    self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
+                return
+            except Unreachable:
+                if self._out_of_reach(drone_id):  # the link dropped as it went: not the drone's fault
+                    await self._heard_again(drone_id, name)
+                    continue
+                if attempt == DELIVERY_TRIES:
+                    raise
+                attempt += 1
+                self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt}/{DELIVERY_TRIES})")
+            except CommandRejected as exc:
+                if exc.code == STATE_UNKNOWN:  # the ground stopped hearing it before the mission heard so
+                    await self._heard_again(drone_id, name)
+                    continue
+                if not (wait_clear and exc.code == CONFLICT and exc.other) or self.clock.monotonic() > give_up:
+                    raise
+                if waited_for != exc.other:
+                    waited_for = exc.other
+                    self.log("info", f"{drone_id}: {name} waits for {exc.other} to clear the spot ({exc.reason})")
+                await self.next_telemetry(exc.other)
+
+    def _out_of_reach(self, drone_id: str) -> bool:
+        back = self._link_back_at.get(drone_id)
+        return back is not None and not back.done()
+
+    async def _heard_again(self, drone_id: str, name: str) -> None:
+        """Wait until the drone is back in reach: until the ground reports it back when
+        the mission knows it lost it, else until its next telemetry. Never longer than
+        mission.link_grace_s: the mission ends then (link_lost) and this is cancelled."""
+        self.log("info", f"{drone_id}: {name} waits for the link to come back")
+        if self._out_of_reach(drone_id):
+            await asyncio.shield(self._link_back_at[drone_id])
+        else:
+            await self.next_telemetry(drone_id)
+
+    async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
+        """Send a task bundle as this mission and wait until it has ended (SPEC §6);
+        the agent's record is the outcome. Refusals end the mission as `execute`'s do."""
+        self.check_assigned(drone_id)
+        self._pushed += 1  # fast time replays exactly: its ids come from the mission
+        bundle_id = f"b-{self.id}-{self._pushed}" if self.deterministic else new_bundle_id()
+        timeout_s = body.get("timeout_s")
+        deadline = self.clock.monotonic() + (timeout_s if timeout_s is not None else BUNDLE_NO_TIMEOUT_S)
+        pending = PendingBundle(drone_id, bundle_id, deadline, asyncio.get_running_loop().create_future())
+        self._bundles[bundle_id] = pending
+        try:
+            with self._sending("push", drone_id):
+                await self.station.push(drone_id, json.dumps({**body, "bundle_id": bundle_id}).encode(), self.id)
+                return await self._outcome(pending.done, drone_id)
+        finally:
+            self._bundles.pop(bundle_id, None)
+
+    @contextlib.contextmanager
+    def _sending(self, name: str, drone_id: str) -> Iterator[None]:
+        """What a failed send means for the mission: the ground's 400 → cmd_parse, a
+        refusal or no answer from the drone → cmd_exec."""
+        try:
+            yield
+        except InvalidMessage as exc:
+            raise self.setback("cmd_parse", f"{name} {drone_id}: {exc}") from None
+        except CommandRejected as exc:
+            cause = "geofence" if exc.code == FENCE else "cmd_exec"
+            raise self.setback(cause, f"{name} {drone_id} refused: {exc.reason}") from None
+        except Unreachable as exc:
+            raise self.setback("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
+
+    async def _outcome(self, fut: asyncio.Future[T], drone_id: str) -> T:
+        """Wait for a command's or bundle's end. A stopped subroutine stops what it
+        sent too, before whoever waits on the subroutine sends the next thing."""
+        try:
+            return await fut
+        except asyncio.CancelledError:
+            if not self.ending:
+                await asyncio.shield(self._cancel_quietly(drone_id))
+            raise
+
+    async def _cancel_quietly(self, drone_id: str) -> None:
+        try:
+            await self.station.command(drone_id, b'{"cmd": "cancel"}', self.id)
+        except Exception as exc:  # noqa: BLE001 - best effort; the mission goes on
+            self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
+
+
+async def leave(station: FleetPort, mission_id: str, drone_id: str, *, critical: bool,
+                log: Callable[[Literal["info", "warn", "error"], str], None]) -> None:
+    """What a mission's end does to one of its drones: hold it if flying (or send it
+    home, by config or at critical battery), then release it."""
+    registry = station.registry
+    settings = station.config.mission
+    if drone_id in registry:
+        info = registry.info(drone_id)
+        telem = registry.telemetry(drone_id)
+        flying = telem.armed and telem.landed_state != "on_ground"
+        action = None
+        if (critical and settings.return_on_critical_battery) or (flying and settings.end_action == "return"):
+            action = "return"
+        elif info.state == "active" and info.current_command is not None \
+                and not (flying and info.current_command.command in HOMEWARD):
+            # Never hold a drone on its way home (outside a fence, say). On the ground a
+            # cancel is harmless and clears a return whose end the ground never heard.
+            action = "cancel"
+        if action is not None:
+            try:
+                await station.command(drone_id, json.dumps({"cmd": action}).encode(), mission_id)
+                log("info", f"{drone_id}: {'return to launch' if action == 'return' else 'hold'} at mission end")
+            except Exception as exc:  # noqa: BLE001 - the drone is released anyway
+                log("warn", f"{drone_id}: could not {action} at mission end: {exc}")
+    station.release(drone_id)

@@ -1,0 +1,245 @@
+"""The drone as a mission script sees it (SPEC §5): its live state read from the
+ground's registry, positions relative to it, and where the next relative move is
+planned from; `any_drone`; and how a verb runs a mission coroutine (`call`) and
+unwinds its caller when the mission ends (`guarded`)."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from typing import Any
+
+from greenlet import getcurrent
+
+from dronefleet.mission.lifecycle.mission import Mission
+from dronefleet.mission.lifecycle.record import MissionOver
+from dronefleet.mission.lifecycle.runtime import Stopped, await_
+from dronefleet.mission.script.geo import Position
+from dronefleet.schemas.telemetry import LinkQuality
+
+COMPLETED = frozenset({"success", "finish"})
+MIN_HANDOVER_HEIGHT_M = 2.0
+# An idle drone this close to its last target (by telemetry up to a period old, at
+# cruise speed) plans from that target.
+ANCHOR_RADIUS_M = 10.0
+
+
+class _AnyDrone:
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return "any_drone"
+
+
+any_drone = _AnyDrone()
+
+
+def guarded(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """A verb as scripts see it: a mission that ends unwinds the caller (uncatchably)."""
+
+    def verb(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except MissionOver:
+            raise Stopped() from None
+
+    verb.__name__ = fn.__name__
+    verb.__doc__ = fn.__doc__
+    return verb
+
+
+def call(mission: Mission, awaitable: Any) -> Any:
+    """Run a mission coroutine from a script; a mission that ends unwinds the caller."""
+    try:
+        return await_(awaitable)
+    except MissionOver:
+        raise Stopped() from None
+
+
+class CommandView:
+    """`drone.cmd`: the drone's current command, with `.target` for takeoff/goto/move."""
+
+    __slots__ = ("description", "name", "target")
+
+    def __init__(self, name: str, description: str, target: Position | float | None) -> None:
+        self.name = name
+        self.description = description
+        self.target = target
+
+    def as_position(self) -> Position:
+        if not isinstance(self.target, Position):
+            raise ValueError(f"the current command ({self.description}) has no target position")
+        return self.target
+
+    def distance(self, other: Any) -> float:
+        return self.as_position().distance(other)
+
+    def bearing(self, other: Any) -> float:
+        return self.as_position().bearing(other)
+
+    def __repr__(self) -> str:
+        return f"<cmd {self.description}>"
+
+
+class SensorView:
+    """`drone.sensor.temperature`: the latest reading of that type, or None."""
+
+    __slots__ = ("_drone",)
+
+    def __init__(self, drone: Drone) -> None:
+        self._drone = drone
+
+    def __getattr__(self, kind: str) -> Any:
+        if kind.startswith("_"):
+            raise AttributeError(kind)
+        for reading in self._drone._m.station.registry.sensor_readings(self._drone._live()):
+            if reading.type == kind:
+                return reading.value
+        return None
+
+
+class Drone:
+    """The drone wrapper (thesis table 5.4). It keeps its identity across `replace`."""
+
+    __slots__ = ("_anchor", "_gen", "_handover", "_handover_owner", "_id", "_m", "sensor")
+
+    def __init__(self, mission: Mission, drone_id: str) -> None:
+        self._m = mission
+        self._id = drone_id
+        self._anchor: Position | None = None
+        self._gen = 0  # bumped by every replacement: a verb that spans one redoes its command
+        self._handover: asyncio.Future[None] | None = None  # set while `replace` brings the new drone in
+        self._handover_owner: Any = None
+        self.sensor = SensorView(self)
+
+    def _live(self) -> str:
+        """The drone behind the wrapper now; waits while a replacement is handing over."""
+        handover = self._handover
+        if handover is not None and getcurrent() is not self._handover_owner:
+            call(self._m, asyncio.shield(handover))
+        try:
+            self._m.check_assigned(self._id)
+        except MissionOver:
+            raise Stopped() from None
+        return self._id
+
+    def _telem(self) -> Any:
+        return self._m.station.registry.telemetry(self._live())
+
+    def __repr__(self) -> str:
+        return f"<drone {self._id}>"
+
+    @property
+    def id(self) -> str:
+        return self._id
+
+    @property
+    def state(self) -> str:
+        return self._m.station.registry.info(self._live()).state
+
+    @property
+    def armed(self) -> bool:
+        return bool(self._telem().armed)
+
+    @property
+    def battery(self) -> float:
+        t = self._telem()
+        return t.battery.remaining_percent if t.battery else 0.0
+
+    @property
+    def heading(self) -> float:
+        return float(self._telem().heading)
+
+    @property
+    def speed(self) -> float:
+        return float(self._telem().speed)
+
+    @property
+    def position(self) -> Position:
+        t = self._telem()
+        if t.position is None:
+            raise ValueError(f"{self._id} reports no position")
+        return Position(t.position.lat, t.position.lon, t.position.alt, t.heading)
+
+    @property
+    def rel_alt(self) -> float:
+        t = self._telem()
+        return t.position.rel_alt if t.position else 0.0
+
+    @property
+    def home(self) -> Position | None:
+        h = self._telem().home
+        return Position(h.lat, h.lon, h.alt) if h else None
+
+    @property
+    def cmd(self) -> CommandView | None:
+        current = self._m.station.registry.info(self._live()).current_command
+        if current is None:
+            return None
+        c = current.command
+        target: Position | float | None = None
+        if current.coords is not None:
+            target = Position(current.coords.lat, current.coords.lon, current.coords.alt)
+        elif c in ("takeoff", "return") and current.altitude is not None:
+            target = current.altitude
+        return CommandView(c, current.description, target)
+
+    @property
+    def link(self) -> LinkQuality | None:
+        """The drone's measured link to the ground (`.quality`, `.rtt_ms`, `.jitter_ms`,
+        `.loss`), or None before its first probe report."""
+        return self._m.station.registry.info(self._live()).link
+
+    def as_position(self) -> Position:
+        return self.position
+
+    # geo shortcuts on the drone itself
+    def distance(self, other: Any) -> float:
+        return self.position.distance(other)
+
+    def bearing(self, other: Any) -> float:
+        return self.position.bearing(other)
+
+    def target(self, dist: Any, bearing: Any) -> Position:
+        return self.position.target(dist, bearing)
+
+    def forward(self, d: Any) -> Position:
+        return self._plan_base().forward(d)
+
+    def backward(self, d: Any) -> Position:
+        return self._plan_base().backward(d)
+
+    def left(self, d: Any) -> Position:
+        return self._plan_base().left(d)
+
+    def right(self, d: Any) -> Position:
+        return self._plan_base().right(d)
+
+    def up(self, d: Any) -> Position:
+        return self._plan_base().up(d)
+
+    def down(self, d: Any) -> Position:
+        return self._plan_base().down(d)
+
+    def _plan_base(self) -> Position:
+        """Where the next relative move or turn starts.
+
+        While the drone idles where its last verb left it, that verb's target (and
+        heading) — exact, unlike telemetry up to one period old. Otherwise the next
+        fresh telemetry sample, so a heading caught mid-turn is never used.
+        """
+        anchored = self._anchored()
+        if anchored is not None:
+            return anchored
+        call(self._m, self._m.next_telemetry(self._live()))
+        return self.position
+
+    def _anchored(self) -> Position | None:
+        """The last verb's target, if the drone idles there."""
+        anchor = self._anchor
+        if anchor is not None and self._m.station.registry.info(self._live()).current_command is None:
+            here = self.position
+            if here.distance(anchor) <= ANCHOR_RADIUS_M:
+                alt = anchor.alt if anchor.alt is not None else here.alt
+                return Position(anchor.lat, anchor.lon, alt, anchor.heading)
+        return None

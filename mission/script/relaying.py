@@ -1,0 +1,162 @@
+"""`relays`, what the bundled `relay` plugin (and any script) uses to ask the pure
+planner of `relay/` where relay drones go: the drone wrappers become points in metres
+around the ground station, the plan's points become positions again.
+
+    plan = relays.plan(served_drones, on_duty, relay_drones, ground, min_quality=0.6, …)
+    plan.moves     # [(relay_id, position, duty altitude above home)]
+    plan.dispatch  # [(position, duty altitude)]: new relays needed
+    plan.home      # [relay_id]: no longer needed
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from dronefleet.mission.script import units
+from dronefleet.mission.script.geo import Position, as_position
+from dronefleet.relay import distance as baseline
+from dronefleet.relay import planner
+from dronefleet.sim.projection import LocalFrame
+
+if TYPE_CHECKING:
+    from dronefleet.mission.lifecycle.mission import Mission
+
+AIRBORNE_M = 1.0  # above home: flying
+
+
+class Frame:
+    """Metres north/east of the ground station (sim.projection's local plane)."""
+
+    def __init__(self, ground: Any) -> None:
+        g = as_position(ground)
+        self.plane = LocalFrame(g.lat, g.lon)
+
+    def local(self, p: Any) -> planner.Point:
+        p = as_position(p)
+        return self.plane.to_local(p.lat, p.lon)
+
+    def world(self, pt: planner.Point) -> Position:
+        return Position(*self.plane.to_global(*pt))
+
+
+@dataclass(frozen=True)
+class RelayPlan:
+    moves: list[tuple[str, Position, float]]
+    dispatch: list[tuple[Position, float]]
+    home: list[str]
+    scale: float
+    steady: int
+    notes: list[str]
+
+
+def _goal(drone: Any) -> Position | None:
+    cmd = drone.cmd
+    return cmd.target if cmd is not None and cmd.name in ("goto", "move") and isinstance(cmd.target, Position) else None
+
+
+def flight_altitude(drone: Any) -> float | None:
+    """Metres above its home a mission drone flies at: where its takeoff or goto takes
+    it (a return: its altitude), else where it is (not while it climbs or lands: a
+    level passed through is not one flown at); None on the ground or landing."""
+    cmd, home = drone.cmd, drone.home
+    if cmd is not None and cmd.name in ("takeoff", "return") and isinstance(cmd.target, (int, float)):
+        return float(cmd.target)  # the return's altitude: it flies home there
+    if cmd is not None and cmd.name == "land":
+        return None
+    goal = _goal(drone)
+    if goal is not None and goal.alt is not None and home is not None and home.alt is not None:
+        return goal.alt - home.alt
+    t = drone._telem()
+    return t.position.rel_alt if t.position is not None and t.position.rel_alt > AIRBORNE_M else None
+
+
+class Relays:
+    """The `relays` name in scripts; `mission` (None where no mission runs: a plugin's
+    load check) gives it the free drones and the clock."""
+
+    def __init__(self, mission: Mission | None = None) -> None:
+        self._mission = mission
+
+    def now(self) -> float:
+        """Seconds on the mission's clock (monotonic; virtual in fast time)."""
+        return self._mission.clock.monotonic() if self._mission is not None else 0.0
+
+    def metres(self, value: Any, what: str = "distance") -> float:
+        """A length input (`5*m` or a plain number of metres) as metres."""
+        return units.length(value, what)
+
+    def spare(self) -> int:
+        """How many drones of the fleet are free to be dispatched as relays now."""
+        return len(self._mission.free_candidates()) if self._mission is not None else 0
+
+    def duty_altitude(self, index: int, served: Sequence[Any], **inputs: Any) -> float:
+        """Script 5.9's alternating duty altitudes (index 0: base_alt + alt_diff, 1:
+        base_alt, …), lifted clear of the altitudes the `served` drones fly at."""
+        flying = [a for a in map(flight_altitude, served) if a is not None]
+        return planner.duty_altitude(index, self.params(**inputs), flying)
+
+    def params(self, **inputs: Any) -> planner.Params:
+        lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
+        return planner.Params(**{**inputs, **lengths})
+
+    def plan(self, served: Sequence[Any], on_duty: Mapping[str, Mapping[str, Any]], drones: Mapping[str, Any], ground: Any,
+             scale: float = 1.0, spare: int | None = None, steady: int = 0, **inputs: Any) -> RelayPlan:
+        """`served`: the mission's drones to keep connected; `on_duty`: relay id →
+        {"target": position or None, "alt": duty altitude, "serving": bool};
+        `drones`: relay id → its wrapper (for where it is now); `spare`: how many new
+        relays may be dispatched (default: the free drones of the fleet)."""
+        frame = Frame(ground)
+        params = self.params(**inputs)
+        mine = []
+        for d in served:
+            t = d._telem()
+            goal = _goal(d)
+            link = d.link
+            mine.append(planner.Drone(
+                d.id, frame.local(d.position), (t.velocity.north, t.velocity.east),
+                frame.local(goal) if goal is not None else None, link.quality if link is not None else None,
+                flight_altitude(d),
+            ))
+        relays = [planner.Relay(rid, frame.local(drones[rid].position),
+                                frame.local(duty["target"]) if duty.get("target") is not None else None,
+                                float(duty.get("alt", 0.0)), bool(duty.get("serving", True)))
+                  for rid, duty in on_duty.items()]
+        returning = sum(1 for r in relays if not r.serving)
+        result = planner.plan(mine, relays, params, scale, spare=(self.spare() if spare is None else spare) + returning,
+                              steady=steady)
+        return RelayPlan(
+            moves=[(m.relay, frame.world(m.to), m.alt) for m in result.moves],
+            dispatch=[(frame.world(pt), alt) for pt, alt in result.dispatch],
+            home=result.home, scale=result.scale, steady=result.steady, notes=result.notes,
+        )
+
+    # ---- the thesis's baseline (mode="distance") ------------------------------------
+
+    def needs_follower(self, drone: Any, ground: Any, n_relays: int, target_dist: Any) -> bool:
+        frame = Frame(ground)
+        goal = _goal(drone)
+        return baseline.requires_relay(frame.local(drone.position), frame.local(goal) if goal else None, drone.speed,
+                                       n_relays, units.length(target_dist, "target_dist"))
+
+    def follow_step(self, other: Any, me: Any, ground: Any, target_dist: Any, alt: float | None = None,
+                    others: Sequence[Any] = (), min_separation: Any = 5.0) -> tuple[Position, float, float, bool]:
+        """Where the follower `me` goes now: (target, speed, bearing, other returning).
+        With `alt` (its duty altitude AMSL) the target keeps `min_separation` (3-D) from
+        the drones `others`, where they are and where their goto takes them."""
+        frame = Frame(ground)
+        goal = _goal(other)
+        o, g, m = frame.local(other.position), (frame.local(goal) if goal else None), frame.local(me.position)
+        td = units.length(target_dist, "target_dist")
+        to = baseline.new_target(o, g, m, td)
+        if alt is not None:
+            near: list[tuple[planner.Point, float]] = []
+            for d in others:
+                here = d.position
+                near.append((frame.local(here), here.alt if here.alt is not None else alt))
+                there = _goal(d)
+                if there is not None:
+                    near.append((frame.local(there), there.alt if there.alt is not None else near[-1][1]))
+            to = baseline.keep_clear(to, alt, near, units.length(min_separation, "min_separation"))
+        return frame.world(to), baseline.new_speed(other.speed), baseline.new_bearing(o, g, m), baseline.returning(o, g, td)
