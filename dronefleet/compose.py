@@ -10,9 +10,9 @@
   with the simulated vehicles of `sim/` behind the agents' `sim` adapter, all joined by
   the in-process memory bus and driven by a VirtualClock: ten minutes of flight take
   seconds, and a run is a function of the script, the world and the seed.
-- `fleet.demo` wires processes (ground, sims, agents) the same way for `fleet demo`.
+- `dronefleet.demo` wires processes (ground, sims, agents) the same way for `fleet demo`.
 
-Missions see the ground only through `mission.port.FleetPort`; the GroundStation given
+Missions see the ground only through `mission.lifecycle.port.FleetPort`; the GroundStation given
 to them here is what implements it.
 """
 

@@ -2,7 +2,7 @@
 
 The run itself — the same GroundStation, mission runtime and agents as in the field on
 a memory bus under a VirtualClock — is wired in the composition root
-(`fleet.compose.SimField`); this module says what a run writes.
+(`dronefleet.compose.SimField`); this module says what a run writes.
 """
 
 from __future__ import annotations

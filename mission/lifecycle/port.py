@@ -2,7 +2,7 @@
 
 Missions read what the ground knows (`registry`), hear what happens (`listen`), claim
 and free drones, send commands and write ground log lines — nothing else. The ground's
-`GroundStation` implements this protocol; the composition root (`fleet.compose`) hands
+`GroundStation` implements this protocol; the composition root (`dronefleet.compose`) hands
 it to the mission manager. Mission code therefore never imports `ground/`, and a test
 or another runtime can stand in for the ground with anything of this shape.
 """

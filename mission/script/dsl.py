@@ -257,7 +257,7 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
                 raise TypeError(f"stop: expected a subroutine (from run), got {sub!r}")
             m.scheduler.stop(sub)
 
-    # ---- plugins (mission/plugins.py) ----------------------------------------------
+    # ---- plugins (mission/script/plugins.py) -------------------------------------------
 
     def enable(plugin_id: str, **inputs: Any) -> None:
         """Enable a loaded plugin for this mission with its inputs (typed, defaults apply)."""
