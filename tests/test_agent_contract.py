@@ -42,19 +42,22 @@ async def test_flight_contract(
 
     # Telemetry carries every SPEC field, at the configured 100 ms, once the flight
     # controller has sent each (until then that field is null: MAVSDK's home, say, can
-    # come a second after the first position on a loaded machine).
+    # come a second after the first position on a loaded machine). The period is the
+    # median interval: a process stalled by a loaded machine skips the periods it missed
+    # (never a burst of stale samples: no interval much under half a period), and one
+    # long interval does not move the median.
     await op.next_telemetry(lambda t: all(getattr(t, key) is not None for key in NESTED), timeout_s=30,
                             what="telemetry with every field known")
-    for _ in range(11):
+    for _ in range(21):
         await op.next_telemetry(timeout_s=5)
     raw = json.loads(op.raw_telem[-1])
     assert set(raw) == SPEC_TELEMETRY_FIELDS
     for key, fields in NESTED.items():
         assert set(raw[key]) == fields, key
-    stamps = [t.timestamp for t in op.telem.items[-11:]]
+    stamps = [t.timestamp for t in op.telem.items[-21:]]
     intervals = [b - a for a, b in zip(stamps, stamps[1:], strict=False)]
-    assert 80 <= statistics.mean(intervals) <= 130, intervals
-    assert [t.seq for t in op.telem.items[-11:]] == list(range(op.telem.items[-11].seq, op.telem.items[-11].seq + 11))
+    assert 80 <= statistics.median(intervals) <= 130 and min(intervals) >= 40, intervals
+    assert [t.seq for t in op.telem.items[-21:]] == list(range(op.telem.items[-21].seq, op.telem.items[-21].seq + 21))
     home = at(op.last)
 
     # Takeoff is refused while disarmed, with the reason.
