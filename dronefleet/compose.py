@@ -47,6 +47,7 @@ from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
 from dronefleet.mission.hosting.simulate import telemetry_sample, write_result
+from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary, plugin_summary
 from dronefleet.schemas.endpoints import split_host_port
@@ -185,7 +186,11 @@ class SimField:
         plugins: PluginLibrary | None = None,
         radio: RadioModel | None = None,
         agent_config: AgentConfig | None = None,
+        fleet_port: Callable[[GroundStation], FleetPort] | None = None,
     ) -> None:
+        """`fleet_port` is a fault-injection point: what the missions reach the ground
+        through, made from the station (by default the station itself); a test wraps
+        it to make one of its calls fail."""
         self.world = world
         self.specs = world.spawn(n)
         self.seed = seed
@@ -216,6 +221,7 @@ class SimField:
         self.station.new_bundle_id = lambda: f"b-{ids.getrandbits(48):012x}"
         self.manager: MissionManager | None = None
         self.plugins = plugins if plugins is not None else PluginLibrary.default(None)
+        self._fleet_port = fleet_port
 
     def _bus(self, node: str = GROUND) -> MemoryBus:
         """A session on `node` of the mesh: the ground, or a drone (its agent and on-board programs)."""
@@ -252,9 +258,8 @@ class SimField:
             if spec.sensors:
                 self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensors)))
         store = MissionStore(self.data_dir / "missions.db")
-        self.manager = MissionManager(
-            self.station, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins,
-        )
+        port = self.station if self._fleet_port is None else self._fleet_port(self.station)
+        self.manager = MissionManager(port, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins)
         if echo is not None:
             self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
         # Let every drone register (first telemetry) with its sensors before the mission

@@ -27,7 +27,6 @@ import contextlib
 import logging
 import math
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Coroutine
@@ -49,6 +48,7 @@ from dronefleet.schemas.config import writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry
+from dronefleet.sim.agent_command import agent_command
 from dronefleet.sim.projection import LocalFrame
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.world import DroneSpec, World, load_world
@@ -230,10 +230,9 @@ class Demo:
         log_file = open(log_path, "wb")  # noqa: SIM115 - closed in _stop, after the process ends
         fc = f"sim://?lat={spec.lat!r}&lon={spec.lon!r}&alt={spec.alt!r}"
         proc = subprocess.Popen(
-            [sys.executable, "-m", "dronefleet", "agent", "--id", spec.id, "--fc", fc, "--connect", self.endpoint,
-             # three agents share this host: each router on its own ephemeral loopback port
-             "--listen", "tcp/127.0.0.1:0", "--telemetry-rate-ms", str(TELEMETRY_RATE_MS),
-             "--state-dir", str(self.options.out_dir / "state" / spec.id)],
+            # three agents share this host: each router on its own ephemeral loopback port
+            agent_command(spec.id, fc, connect=[self.endpoint], listen=["tcp/127.0.0.1:0"],
+                          telemetry_rate_ms=TELEMETRY_RATE_MS, state_dir=self.options.out_dir / "state" / spec.id),
             stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
         )
         self.agents.append(_Agent(spec, proc, log_path, log_file))

@@ -18,7 +18,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -29,6 +28,7 @@ import msgspec
 
 from dronefleet.schemas.config import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
+from dronefleet.sim.agent_command import agent_command
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.radio import Spot3, spot_of
@@ -142,12 +142,8 @@ async def run_sim(
                 if field is not None:
                     args = field.agent_args(v.spec.id, fc, agent_config)
                 else:
-                    args = [sys.executable, "-m", "dronefleet", "agent", "--id", v.spec.id, "--fc", fc,
-                            "--listen", "tcp/127.0.0.1:0"]
-                    for ep in connect or []:
-                        args += ["--connect", ep]
-                    if agent_config is not None:
-                        args += ["--config", str(agent_config)]
+                    args = agent_command(v.spec.id, fc, connect=connect or [], listen=["tcp/127.0.0.1:0"],
+                                         config=agent_config)
                 children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
                 for kind in v.spec.sensors if field is not None else []:

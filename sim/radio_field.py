@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -23,6 +22,7 @@ import yaml
 
 from dronefleet.schemas.config import Security
 from dronefleet.schemas.endpoints import AGENT_PORT
+from dronefleet.sim.agent_command import agent_command, fleet_command
 from dronefleet.sim.radio import GROUND, Spot3, distance_3d, link_losses
 from dronefleet.sim.radio_net import RadioNet
 from dronefleet.sim.world import World
@@ -67,10 +67,9 @@ class RadioField:
             await asyncio.sleep(period)
 
     def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None) -> list[str]:
-        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "dronefleet", "agent", "--id", drone_id,
-                "--fc", fc, "--connect", self.ground_endpoint, "--listen", f"{self.scheme}/0.0.0.0:{AGENT_PORT}",
-                "--mesh-interface", RADIO_INTERFACE]
-        return args + (["--config", str(agent_config)] if agent_config is not None else [])
+        return [*self.net.exec_args(drone_id), *agent_command(
+            drone_id, fc, connect=[self.ground_endpoint], listen=[f"{self.scheme}/0.0.0.0:{AGENT_PORT}"],
+            mesh_interface=RADIO_INTERFACE, config=agent_config)]
 
     def sensor_args(self, drone_id: str, kind: str, config_dir: Path) -> list[str] | None:
         """A simulated sensor program beside the drone's agent (temperature only)."""
@@ -78,7 +77,7 @@ class RadioField:
             return None
         heat = config_dir / f"{drone_id}-heat.yml"
         heat.write_text(yaml.safe_dump(msgspec.to_builtins(self.world.heat_config())))
-        args = [*self.net.exec_args(drone_id), sys.executable, "-m", "dronefleet", "sensor", "temperature",
+        args = [*self.net.exec_args(drone_id), *fleet_command("sensor", "temperature"),
                 "--drone", drone_id, "--config", str(heat), "--connect", f"{self.scheme}/127.0.0.1:{AGENT_PORT}"]
         if self.security.tls:
             assert self.security.pki_dir is not None

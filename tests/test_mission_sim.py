@@ -8,17 +8,20 @@ the world file, as an operator would script them.
 from __future__ import annotations
 
 import asyncio
+import functools
 import json
 import subprocess
 import sys
 from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import msgspec
 import pytest
 
 from dronefleet.compose import SimField
+from dronefleet.ground.station import GroundStation
+from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import distance_m
@@ -44,9 +47,10 @@ async def fly(
     *,
     during: Callable[[SimField, str], Awaitable[None]] | None = None,
     max_s: float = 600,
+    fleet_port: Callable[[GroundStation], FleetPort] | None = None,
 ) -> tuple[MissionRecord, SimField, list[str]]:
     """Run `script` to its end; the record, the (closed) field and the mission's log."""
-    field = SimField(world or World(), None if world else 2)
+    field = SimField(world or World(), None if world else 2, fleet_port=fleet_port)
     await field.start()
     try:
         if during is None:
@@ -200,38 +204,47 @@ async def test_link_lost_after_the_grace_when_the_agent_dies() -> None:
     assert record.end is not None and record.end - killed_at[0] >= 30_000
 
 
-async def test_unexpected(monkeypatch: pytest.MonkeyPatch) -> None:
-    async def broken_station(field: SimField, mission_id: str) -> None:
-        async def boom(*args: Any, **kwargs: Any) -> None:
-            raise RuntimeError("station bug")
+class FaultInjection:
+    """The ground as missions reach it (SimField's `fleet_port`), with some of its calls
+    replaced: each override gets the station's own method and the call's arguments."""
 
-        monkeypatch.setattr(field.station, "command", boom)
+    def __init__(self, station: GroundStation, **overrides: Callable[..., Awaitable[Any]]) -> None:
+        self._station = station
+        for name, fault in overrides.items():
+            setattr(self, name, functools.partial(fault, getattr(station, name)))
 
-    record, _, _ = await fly("sleep(5)\nd = assign()\narm(d)\n", world_with(), during=broken_station)
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._station, name)
+
+
+def inject(**overrides: Callable[..., Awaitable[Any]]) -> Callable[[GroundStation], FleetPort]:
+    return lambda station: cast(FleetPort, FaultInjection(station, **overrides))
+
+
+async def test_unexpected() -> None:
+    async def boom(original: Any, *args: Any, **kwargs: Any) -> None:
+        raise RuntimeError("station bug")
+
+    record, _, _ = await fly("sleep(5)\nd = assign()\narm(d)\n", world_with(), fleet_port=inject(command=boom))
     assert cause(record) == ("failed", "unexpected")
     assert "station bug" in (record.message or "")
 
 
 @pytest.mark.parametrize("refusals", [1, 3])
-async def test_a_claim_another_mission_won_is_tried_again(monkeypatch: pytest.MonkeyPatch, refusals: int) -> None:
+async def test_a_claim_another_mission_won_is_tried_again(refusals: int) -> None:
     """Missions in their own processes pick drones from a copy of the registry: the
     ground refuses a drone another mission claimed meanwhile (409), and the mission
     picks again, up to three times, releasing what it had claimed in that pick."""
     claims: list[str] = []
 
-    async def contested(field: SimField, mission_id: str) -> None:
-        original = field.station.assign
-
-        async def assign(drone_id: str, mission: str) -> None:
-            claims.append(drone_id)
-            if len(claims) % 2 == 0 and len(claims) <= 2 * refusals:  # the second drone of each pick is taken
-                raise CommandRejected(409, f"{drone_id} is assigned to mission m99")
-            await original(drone_id, mission)
-
-        monkeypatch.setattr(field.station, "assign", assign)
+    async def contested(original: Callable[[str, str], Awaitable[None]], drone_id: str, mission: str) -> None:
+        claims.append(drone_id)
+        if len(claims) % 2 == 0 and len(claims) <= 2 * refusals:  # the second drone of each pick is taken
+            raise CommandRejected(409, f"{drone_id} is assigned to mission m99")
+        await original(drone_id, mission)
 
     record, field, log = await fly("sleep(1)\na, b = assign(any_drone, any_drone)\nprint(a.id, b.id)\n",
-                                   world_with(), during=contested)
+                                   world_with(), fleet_port=inject(assign=contested))
     if refusals == 1:
         assert cause(record) == ("finished", "success"), record
         assert "is assigned to mission m99; choosing again" in "\n".join(log), log

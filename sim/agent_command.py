@@ -1,0 +1,33 @@
+"""The command lines of the `fleet` processes the simulators start (`fleet sim --agents`,
+the emulated radio, `fleet demo`): one place that spells `fleet agent`'s options."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+
+
+def fleet_command(*args: str) -> list[str]:
+    """`fleet ARGS…` run by this interpreter (the package, not a console script on PATH)."""
+    return [sys.executable, "-m", "dronefleet", *args]
+
+
+def agent_command(drone_id: str, fc: str, *, connect: Iterable[str] = (), listen: Iterable[str] = (),
+                  mesh_interface: str | None = None, telemetry_rate_ms: int | None = None,
+                  state_dir: Path | None = None, config: Path | None = None) -> list[str]:
+    """`fleet agent --id ID --fc FC …` (SPEC §3)."""
+    args = ["agent", "--id", drone_id, "--fc", fc]
+    for endpoint in connect:
+        args += ["--connect", endpoint]
+    for endpoint in listen:
+        args += ["--listen", endpoint]
+    if mesh_interface is not None:
+        args += ["--mesh-interface", mesh_interface]
+    if telemetry_rate_ms is not None:
+        args += ["--telemetry-rate-ms", str(telemetry_rate_ms)]
+    if state_dir is not None:
+        args += ["--state-dir", str(state_dir)]
+    if config is not None:
+        args += ["--config", str(config)]
+    return fleet_command(*args)
