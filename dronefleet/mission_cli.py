@@ -145,6 +145,37 @@ def cancel(url: str, mission_id: str) -> None:
     click.echo(f"mission {record['mission_id']} cancelling")
 
 
+@mission.command("import")
+@click.argument("plan", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--drone", "drone_id", help="Fly it on this drone (default: any free drone).")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), help="Write the script here (default: stdout).")
+@click.option("--fence-out", type=click.Path(dir_okay=False, path_type=Path),
+              help="Write the plan's inclusion polygon here, in the ground's `geofence:` form.")
+def import_(plan: Path, drone_id: str | None, out: Path | None, fence_out: Path | None) -> None:
+    """Turn a QGroundControl PLAN (.plan, mission version 2) into a mission script
+    (SPEC §13). What cannot be carried over is named on stderr with its item number."""
+    import yaml
+
+    from dronefleet.mission.script.qgc_plan import import_plan
+    from dronefleet.schemas.keys import check_id
+
+    if drone_id is not None:
+        check_id(drone_id)
+    imported = import_plan(_read_script(plan), drone_id, source=plan.name)
+    for line in imported.left_out:
+        click.echo(f"{plan}: {line}", err=True)
+    if out is None:
+        click.echo(imported.script, nl=False)
+    else:
+        out.write_text(imported.script, encoding="utf-8")
+        click.echo(f"{out}: {imported.script.count(chr(10))} lines", err=True)
+    if fence_out is not None:
+        if imported.geofence is None:
+            click.echo(f"{plan}: no inclusion polygon: {fence_out} not written", err=True)
+        else:
+            fence_out.write_text(yaml.safe_dump({"geofence": imported.geofence}, default_flow_style=None), encoding="utf-8")
+
+
 @mission.command()
 @click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 def check(script: Path) -> None:
