@@ -19,6 +19,7 @@ from typing import Any, cast
 import msgspec
 import pytest
 
+from dronefleet.bus.port import Unreachable
 from dronefleet.compose import SimField
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.lifecycle.port import FleetPort
@@ -321,3 +322,24 @@ async def test_replacement_mapping_swaps_drones_half_way() -> None:
     assert any(line.startswith("Replaced drone01 with drone02: drone02 takes over at") for line in lines), lines
     first = field.vehicles["drone01"]
     assert first.rel_alt < 0.5 and first.position().lat == pytest.approx(first.home.lat, abs=1e-5)
+
+
+@pytest.mark.parametrize(("failures", "history"), [(3, ["start", "finish", "start", "finish", "done"]), (12, [])])
+async def test_a_bundle_record_the_ground_cannot_read_yet_is_asked_again(failures: int, history: list[str]) -> None:
+    """Run 46 of issue 31: right after a drone came back in range, its statuses arrived
+    while queries found no route for seconds; the mission read no record and made do
+    with the end it heard, without the history. It now asks again, a second apart, ten
+    times (RECORD_TRIES) before it does."""
+    calls: list[str] = []
+
+    async def unreachable_at_first(original: Callable[[str, str], Awaitable[Any]], drone_id: str, bundle_id: str) -> Any:
+        calls.append(bundle_id)
+        if len(calls) <= failures:
+            raise Unreachable(f"no queryable answers drone/{drone_id}/bundle (test)")
+        return await original(drone_id, bundle_id)
+
+    script = ("d = assign()\narm(d)\nr = push(d, [step.takeoff(5*m), step.move(forward=10*m)])\n"
+              f"assert [e.state for e in r.history] == {history!r}, r.history\n")
+    record, _, lines = await fly(script, world_with(), fleet_port=inject(bundle_record=unreachable_at_first))
+    assert record.status == "finished", (record, lines)
+    assert len(calls) == min(failures + 1, 10)

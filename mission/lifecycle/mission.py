@@ -41,6 +41,10 @@ from dronefleet.schemas.telemetry import Telemetry
 log = logging.getLogger(__name__)
 
 CLAIM_TRIES = 3  # picks of free drones when another mission claims one first
+# A bundle's record is asked again this often, a second apart, before the mission makes
+# do with the status it heard (run 46 of issue 31: right after a drone came back in
+# range its statuses arrived while queries still found no route for 6 s).
+RECORD_TRIES, RECORD_RETRY_S = 10, 1.0
 STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
 
@@ -78,6 +82,7 @@ class Mission(CommandDelivery):
         self._critical: set[str] = set()
         self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
         self._link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
+        self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (_catch_up)
 
     @property
     def id(self) -> str:
@@ -177,6 +182,8 @@ class Mission(CommandDelivery):
         for pending in self._bundles.values():
             if not pending.done.done():
                 pending.done.cancel()
+        for ask in list(self._asks):
+            ask.cancel()
         for drone_id in sorted(self.requests):
             await self._leave(drone_id)
         self.requests.clear()
@@ -241,21 +248,30 @@ class Mission(CommandDelivery):
         """Ask the agent for the bundle's record (its whole history); resolve the push
         if the bundle has ended. Statuses sent while the link was down never arrived."""
         async def ask() -> None:
-            try:
-                record = await self.station.bundle_record(pending.drone_id, pending.bundle_id)
-            except (CommandRejected, Unreachable) as exc:
-                if status is None:
-                    self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
-                    return
-                record = BundleRecord(  # the end was heard; only its history is missing
-                    bundle_id=status.bundle_id, state=BUNDLE_ENDS[status.state], step=status.step,
-                    steps=status.steps or 0, ended_by=status.reason if status.state == "guard" else None,
-                    reason=status.reason if status.state in ("failure", "cancel") else None,
-                )
+            for attempt in range(1, RECORD_TRIES + 1):
+                try:
+                    record = await self.station.bundle_record(pending.drone_id, pending.bundle_id)
+                    break
+                except (CommandRejected, Unreachable) as exc:
+                    if pending.done.done():
+                        return
+                    if attempt < RECORD_TRIES:  # a route just back may carry statuses before queries
+                        await self.clock.sleep(RECORD_RETRY_S)
+                        continue
+                    if status is None:
+                        self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
+                        return
+                    record = BundleRecord(  # the end was heard; only its history is missing
+                        bundle_id=status.bundle_id, state=BUNDLE_ENDS[status.state], step=status.step,
+                        steps=status.steps or 0, ended_by=status.reason if status.state == "guard" else None,
+                        reason=status.reason if status.state in ("failure", "cancel") else None,
+                    )
             if record.finished and not pending.done.done():
                 pending.done.set_result(record)
 
-        asyncio.get_running_loop().create_task(ask(), name=f"mission {self.id} bundle {pending.bundle_id}")
+        task = asyncio.get_running_loop().create_task(ask(), name=f"mission {self.id} bundle {pending.bundle_id}")
+        self._asks.add(task)
+        task.add_done_callback(self._asks.discard)
 
     def _on_system_status(self, status: SystemStatus) -> None:
         reason = status.reason or ""
