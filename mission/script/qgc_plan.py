@@ -88,15 +88,18 @@ class _Script:
         if metres is None:
             self.skip(number, f"{what} without an altitude (terrain-relative altitudes need terrain data)")
             return False
-        alt = f"launch.alt + {metres:g}*m" if frame == FRAME_RELATIVE else f"{metres:g}*m"
-        speed = ", speed=speed" if self.speed else ""
-        self.lines.append(f"move(d, lat={where[0]!r}, lon={where[1]!r}, alt={alt}{speed})  # item {number}")
+        self.move(number, where, f"launch.alt + {metres:g}*m" if frame == FRAME_RELATIVE else f"{metres:g}*m")
         return True
+
+    def move(self, number: int, where: tuple[float, float], alt: str | None) -> None:
+        """A `move` to a position, at `alt` (the script's expression) or the altitude it has."""
+        extra = (f", alt={alt}" if alt is not None else "") + (", speed=speed" if self.speed else "")
+        self.lines.append(f"move(d, lat={where[0]!r}, lon={where[1]!r}{extra})  # item {number}")
 
     def take_off_first(self, number: int) -> None:
         if not self.took_off:
             self.lines += ["arm(d)", "takeoff(d)  # the agent's takeoff altitude"]
-            self.left_out.append(f"item {number}: the plan does not start with a takeoff; the script takes off first")
+            self.skip(number, "the plan does not start with a takeoff; the script takes off first")
             self.took_off = True
 
     def item(self, number: int, command: int, frame: int, params: list[Any]) -> None:
@@ -133,8 +136,7 @@ class _Script:
             elif command == LAND:
                 where = _coords(params)
                 if where is not None:  # PX4 flies there at the altitude it has, then lands
-                    speed = ", speed=speed" if self.speed else ""
-                    self.lines.append(f"move(d, lat={where[0]!r}, lon={where[1]!r}{speed})  # item {number}")
+                    self.move(number, where, None)
                 self.lines.append(f"land(d)  # item {number}")
             elif self.goto(number, name, frame, params):
                 hold = _number(params[0]) or 0.0
