@@ -14,6 +14,7 @@ import pytest
 from dronefleet.compose import SimField
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import BUNDLED_DIR, PluginLibrary
+from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.world import World
 from tests.harness import GroundProcess, fleet_command
 
@@ -93,9 +94,9 @@ def test_listing_describes_inputs_and_a_user_plugin_overrides_a_bundled_one(tmp_
 # ---- in missions (fast time) ---------------------------------------------------------
 
 
-async def run(lib: PluginLibrary, *scripts: str, n: int = 3) -> list[tuple[MissionRecord, list[str]]]:
+async def run(lib: PluginLibrary, *scripts: str, n: int = 3, world: World | None = None) -> list[tuple[MissionRecord, list[str]]]:
     """Run the scripts as concurrent missions; each record with its log."""
-    field = SimField(World(), n, plugins=lib)
+    field = SimField(world or World(), n, plugins=lib)
     await field.start()
     try:
         assert field.manager is not None
@@ -251,3 +252,42 @@ async def test_a_monitoring_plugins_refused_command_is_its_own_problem_not_the_m
     assert "script done" in log
     [(record, _)] = await run(library(tmp_path), 'd = assign()\nmove(d, forward=5 * m)\n')
     assert (record.status, record.cause) == ("failed", "cmd_exec"), record.message
+
+
+WANDERER = '''
+def scout(drone):
+    helper = assign(any_relay)
+    arm(helper)
+    takeoff(helper, 10 * m)
+    move(helper, forward=300 * m, speed=10 * m / s)  # past the radio's 100 m: the ground loses it
+
+def main(drone):
+    global started
+    if not started:
+        started = True
+        run(scout, drone)
+
+plugin(id="wanderer", type=monitoring, vars={"started": False}, callback=main)
+'''
+
+
+async def test_a_drone_a_plugin_assigned_out_of_reach_past_the_grace_is_the_plugins_problem(tmp_path: Path) -> None:
+    """Issue 32 item 2: a relay (any drone a monitoring plugin assigned) the ground has
+    not heard for mission.link_grace_s is logged as the plugin's problem and the mission
+    goes on (the plugin plans without it); a drone of the script's own still ends the
+    mission `link_lost`."""
+    script = '''
+        enable("wanderer")
+        d = assign("drone01")
+        sleep(90 * s)
+        print("script done")
+    '''
+    world = World(radio=RadioModel(good_m=60.0, lost_m=100.0))
+    [(record, log)] = await run(library(tmp_path, wanderer=WANDERER), script, world=world)
+    assert (record.status, record.cause) == ("finished", "success"), (record.message, log)
+    gone = [line for line in log if line.startswith("plugin wanderer: drone0") and "unreachable for 30 s" in line]
+    assert gone and gone[0].endswith("the plugin goes on"), log
+    assert "script done" in log
+    own = 'd = assign("drone01")\narm(d)\ntakeoff(d, 10 * m)\nmove(d, forward=300 * m, speed=10 * m / s)\n'
+    [(record, _)] = await run(library(tmp_path), own, world=world)
+    assert (record.status, record.cause) == ("failed", "link_lost"), record.message

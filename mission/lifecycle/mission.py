@@ -72,6 +72,7 @@ class Mission(CommandDelivery):
         self._on_log = on_log
         self.scheduler: Scheduler | None = None
         self.requests: dict[str, a.Request] = {}  # drone id → how it was assigned
+        self.plugin_drones: dict[str, str] = {}  # drone id → the plugin that assigned it (its relays, its replacements)
         self.commands: list[CommandResult] = []
         self._pending: dict[str, asyncio.Future[CommandStatus]] = {}  # command id → its terminal status
         self._bundles: dict[str, PendingBundle] = {}  # bundle id → the push waiting for it
@@ -322,7 +323,12 @@ class Mission(CommandDelivery):
     async def _link_grace(self, drone_id: str, grace_s: float) -> None:
         await self.clock.sleep(grace_s)
         self._link_waits.pop(drone_id, None)
-        self.end("link_lost", f"{drone_id} unreachable for {grace_s:g} s (mission.link_grace_s)")
+        message = f"{drone_id} unreachable for {grace_s:g} s (mission.link_grace_s)"
+        plugin = self.plugin_drones.get(drone_id)
+        if plugin is not None:  # a relay, a replacement: the plugin's problem (SPEC §5), it plans without the drone
+            self.log("warn", f"plugin {plugin}: {message}; the plugin goes on")
+            return
+        self.end("link_lost", message)
 
     def _link_back(self, drone_id: str) -> None:
         back = self._link_back_at.pop(drone_id, None)
@@ -392,6 +398,9 @@ class Mission(CommandDelivery):
         """Claim one drone; raises CommandRejected if another mission holds it."""
         await self.station.assign(drone_id, self.id)
         self.requests[drone_id] = request
+        sub = current_subroutine()
+        if sub is not None and sub.plugin is not None:
+            self.plugin_drones[drone_id] = sub.plugin
         if drone_id not in self.record.used_drones:
             self.record.used_drones.append(drone_id)
         self.log("info", f"Assigned {drone_id} ({a.describe(request)})")
@@ -400,6 +409,7 @@ class Mission(CommandDelivery):
     def revoke(self, drone_id: str) -> None:
         self.check_assigned(drone_id)
         del self.requests[drone_id]
+        self.plugin_drones.pop(drone_id, None)
         self.station.release(drone_id)
         self.log("info", f"Revoked {drone_id}")
         self.changed()
