@@ -10,6 +10,7 @@ QGroundControl writes one (its 4-space JSON, `SimpleItem`s, a survey `ComplexIte
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ import pytest
 
 from dronefleet.compose import SimField
 from dronefleet.ground.config import GroundConfig
-from dronefleet.mission.script.qgc_plan import NotAPlan, import_plan
+from dronefleet.mission.script.qgc_plan import NotAPlan, Waypoint, export_plan, import_plan
 from dronefleet.mission.script.sandbox import check_mission
 from dronefleet.schemas.config import load_config
 from dronefleet.schemas.geo import destination, distance_m
@@ -158,3 +159,29 @@ def test_junk_inside_a_plan_is_named_never_a_crash() -> None:
         "geofence polygon 1: not applied (not 3 or more [lat, lon] vertices)",
     ]
     assert imported.geofence is None and check_mission(imported.script) == []
+
+
+def test_an_exported_waypoint_plan_has_the_shape_qgroundcontrol_writes_and_imports_back_to_the_same_waypoints() -> None:
+    """SPEC §13: the dashboard exports a waypoint plan as a `.plan` QGroundControl opens.
+    Its keys are those of a plan QGroundControl wrote (tests/plans/), and importing it
+    gives the same waypoints, holds, speeds and end, with nothing left out."""
+    written = json.loads((PLANS / "PX4SITL-PX4-MultiRotor.plan").read_text())
+    home = (40.634125, -8.660336, 8.2)
+    points = [Waypoint(40.6345, -8.6600, 20.0), Waypoint(40.6349, -8.6596, 25.0, hold_s=5.0, speed=4.0),
+              Waypoint(40.6352, -8.6601, 25.0, speed=4.0)]
+    fence = [[40.633, -8.662], [40.637, -8.662], [40.637, -8.657], [40.633, -8.657]]
+    plan = export_plan(points, home, takeoff_alt=15.0, end="land", fence=fence)
+    assert sorted(plan) == sorted(written) and sorted(plan["mission"]) == sorted(written["mission"])
+    their_keys = {tuple(sorted(i)) for i in written["mission"]["items"] if i.get("type") == "SimpleItem"}
+    assert {tuple(sorted(i)) for i in plan["mission"]["items"]} <= their_keys
+    assert plan["mission"]["plannedHomePosition"] == list(home)
+    back = import_plan(json.dumps(plan), "drone01", "export.plan")
+    assert back.left_out == [] and back.geofence == {"polygon": fence}
+    moves = re.findall(r"move\(d, lat=([-\d.]+), lon=([-\d.]+), alt=launch\.alt \+ ([\d.]+)\*m(, speed=speed)?\)", back.script)
+    assert [(float(a), float(b), float(c)) for a, b, c, _ in moves] == [(w.lat, w.lon, w.alt) for w in points]
+    assert [bool(s) for *_, s in moves] == [False, True, True]
+    assert "takeoff(d, 15*m)" in back.script and "speed = 4*m/s" in back.script
+    assert "sleep(5*s)  # item 4: hold" in back.script and back.script.rstrip().endswith("land(d)  # item 6")
+    assert "home(d)" in import_plan(json.dumps(export_plan(points, home, 15.0, end="return"))).script
+    with pytest.raises(ValueError, match="end must be one of"):
+        export_plan(points, home, 15.0, end="orbit")

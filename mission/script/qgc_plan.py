@@ -207,3 +207,62 @@ def _fence(plan: dict[str, Any]) -> tuple[dict[str, Any] | None, list[str]]:
     for i, _ in enumerate(_section(plan, "rallyPoints", "points"), start=1):
         notes.append(f"rally point {i}: not applied (returns go home)")
     return chosen, notes
+
+
+# ---- waypoints out to a plan (the dashboard's export, SPEC §13) ---------------------------
+
+ENDS = ("land", "return", "hold")
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    lat: float
+    lon: float
+    alt: float  # m above home
+    hold_s: float = 0.0
+    speed: float | None = None  # m/s on the way to it (None: the vehicle's own)
+
+
+def export_plan(waypoints: list[Waypoint], home: tuple[float, float, float], takeoff_alt: float, end: str = "land",
+                fence: list[list[float]] | None = None) -> dict[str, Any]:
+    """A waypoint plan as QGroundControl writes one (a plan of its own opened and saved
+    again has the same shape: `fileType` Plan, mission `version` 2, `SimpleItem`s in
+    frame 3 with `Altitude`/`AltitudeMode`/`AMSLAltAboveTerrain` where they have a
+    position, `plannedHomePosition` [lat, lon, AMSL]): takeoff from `home` to
+    `takeoff_alt`, a change-speed item where a waypoint's speed differs from the last,
+    each waypoint with its hold time, then land where the last one is, return, or hold
+    there. `fence`: an inclusion polygon of [lat, lon]. `import_plan` reads it back to
+    the same waypoints."""
+    if end not in ENDS:
+        raise ValueError(f"end must be one of {', '.join(ENDS)}, got {end!r}")
+    if not waypoints:
+        raise ValueError("a plan needs at least one waypoint")
+    items: list[dict[str, Any]] = []
+
+    def add(command: int, frame: int, params: list[Any], alt: float | None = None) -> None:
+        item: dict[str, Any] = {"autoContinue": True, "command": command, "doJumpId": len(items) + 1, "frame": frame,
+                                "params": params, "type": "SimpleItem"}
+        if alt is not None:
+            item.update({"AMSLAltAboveTerrain": None, "Altitude": alt, "AltitudeMode": 1})
+        items.append(item)
+
+    add(TAKEOFF, FRAME_RELATIVE, [0, 0, 0, None, home[0], home[1], takeoff_alt], takeoff_alt)
+    speed: float | None = None
+    for w in waypoints:
+        if w.speed is not None and w.speed != speed:
+            add(CHANGE_SPEED, FRAME_MISSION, [1, w.speed, -1, 0, 0, 0, 0])
+            speed = w.speed
+        add(WAYPOINT, FRAME_RELATIVE, [w.hold_s, 0, 0, None, w.lat, w.lon, w.alt], w.alt)
+    last = waypoints[-1]
+    if end == "land":
+        add(LAND, FRAME_RELATIVE, [0, 0, 0, None, last.lat, last.lon, 0], 0)
+    elif end == "return":
+        add(RETURN, FRAME_MISSION, [0, 0, 0, 0, 0, 0, 0])
+    return {
+        "fileType": "Plan", "version": 1, "groundStation": "Fleet",
+        "mission": {"version": 2, "firmwareType": 12, "vehicleType": 2, "globalPlanAltitudeMode": 1,
+                    "cruiseSpeed": 15, "hoverSpeed": speed or 5, "plannedHomePosition": list(home), "items": items},
+        "geoFence": {"version": 2, "circles": [],
+                     "polygons": [{"inclusion": True, "polygon": fence, "version": 1}] if fence else []},
+        "rallyPoints": {"version": 2, "points": []},
+    }
