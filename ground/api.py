@@ -37,6 +37,7 @@ from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
 from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
 from dronefleet.mission.script.plugins import PluginListing
+from dronefleet.mission.script.qgc_plan import NotAPlan, import_plan
 from dronefleet.mission.script.sandbox import ScriptError
 from dronefleet.schemas.bundles import BundleRecord, BundleReply, TaskBundle
 from dronefleet.schemas.commands import Command, CommandReply
@@ -63,6 +64,14 @@ class DroneView(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
 
 class MissionCreated(msgspec.Struct, frozen=True, kw_only=True):
     mission_id: str
+
+
+class PlanImported(msgspec.Struct, frozen=True, kw_only=True):
+    """A QGroundControl plan as a mission script (SPEC §13), as `fleet mission import` makes it."""
+
+    script: str
+    left_out: list[str]  # "item N: why", one per item (or fence part) not carried over
+    geofence: dict[str, Any] | None  # the plan's inclusion polygon in the ground's `geofence:` form
 
 
 class MissionView(MissionRecord, kw_only=True):
@@ -272,6 +281,36 @@ async def submit_mission(
     return Response(MissionCreated(mission_id=record.mission_id), status_code=201)
 
 
+@dataclass
+class _PlanOperation(Operation):
+    def __post_init__(self) -> None:
+        self.request_body = RequestBody(
+            content={"text/plain": OpenAPIMediaType(schema={"type": "string"})},  # type: ignore[arg-type]
+            required=True,
+            description="A QGroundControl plan (JSON, `fileType: Plan`, mission version 2), as text.",
+        )
+
+
+@post(
+    "/mission/plan", status_code=200, operation_class=_PlanOperation, responses=_errors(400, 413),
+    summary="A QGroundControl plan as a mission script (nothing is submitted); 400 when it is not such a plan",
+)
+async def import_mission_plan(
+    request: Request[Any, Any, Any],
+    drone: Annotated[str, Parameter(max_length=200, description="the drone the script assigns (default: any free one)")] = "",
+) -> Response[PlanImported]:
+    body = await request.body()
+    if len(body) > MAX_SCRIPT_BYTES:
+        return _error(413, f"the plan is {len(body)} bytes; the limit is {MAX_SCRIPT_BYTES}")  # type: ignore[return-value]
+    try:
+        imported = import_plan(body.decode("utf-8"), drone or None, "the uploaded plan")
+    except UnicodeDecodeError as exc:
+        return _error(400, f"the plan is not UTF-8 text: {exc}")  # type: ignore[return-value]
+    except NotAPlan as exc:
+        return _error(400, str(exc))  # type: ignore[return-value]
+    return Response(PlanImported(script=imported.script, left_out=imported.left_out, geofence=imported.geofence))
+
+
 @get("/mission", sync_to_thread=False, summary="Every mission record, oldest first")
 def list_missions(missions: MissionManager) -> list[MissionRecord]:
     return missions.list()
@@ -428,6 +467,7 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     return Litestar(
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
+            import_mission_plan,
             cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file,
         ],
         dependencies={

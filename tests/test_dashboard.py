@@ -42,6 +42,7 @@ from tests.helpers import until
 # beside it the real-packet radio tests missed their deadlines.
 pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
 
+PLANS = Path(__file__).parent / "plans"
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 PHONE = ViewportSize(width=390, height=844)
 SCALE_JS = ("(parseFloat(document.querySelector('#scale-label').textContent) * "
@@ -289,6 +290,18 @@ async def test_missions_show_errors_at_their_line_run_live_to_the_end_and_cancel
     await expect(error).to_be_visible()
     await expect(error).to_contain_text("line 2, column 5: expected ':'")
     await expect(error.locator("pre")).to_contain_text("2 | if d")
+
+    # A QGroundControl plan (SPEC §13) becomes a script to edit, with what it could not carry over named.
+    await page.locator("#mission-file").set_input_files(PLANS / "PX4SITL-PX4-MultiRotor.plan")
+    notes = page.locator("#mission-import")
+    await expect(notes).to_contain_text("PX4SITL-PX4-MultiRotor.plan: imported as a script")
+    await expect(page.locator("#mission-source")).to_have_value(re.compile(r"takeoff\(d, 30\*m\)  # item 1\n.*move\(d, lat=", re.S))
+    await expect(page.locator("#mission-name")).to_have_value("PX4SITL-PX4-MultiRotor")
+    junk = tmp_path / "notes.plan"
+    junk.write_text("waypoints: north, then east")
+    await page.locator("#mission-file").set_input_files(junk)
+    await expect(error).to_contain_text("notes.plan: 400 invalid: not a QGroundControl plan: not JSON")
+    await expect(notes).to_be_hidden()
 
     await page.locator("#mission-file").set_input_files(EXAMPLES / "two_drones.py")
     await expect(page.locator("#mission-name")).to_have_value("two_drones.py")

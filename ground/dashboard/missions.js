@@ -23,9 +23,14 @@ export class MissionPanel {
     $("mission-file").addEventListener("change", async (e) => {
       const file = e.target.files[0];
       if (!file) return;
+      e.target.value = "";
+      if (file.name.toLowerCase().endsWith(".plan")) {
+        await this.importPlan(file);
+        return;
+      }
+      $("mission-import").hidden = true;
       $("mission-source").value = await file.text();
       $("mission-name").value = file.name;
-      e.target.value = "";
     });
     $("mission-list").addEventListener("click", (e) => {
       const tr = e.target.closest("tr[data-mission]");
@@ -65,6 +70,28 @@ export class MissionPanel {
     this.fleet.setMissionLog(id, log, sentAt);
     this.fleet.onMission(record);
     if (this.selected === id) this.logShown = { id: null, count: 0 };
+  }
+
+  /** A QGroundControl plan (SPEC §13): the ground turns it into a script, shown here to
+   *  edit and submit, with every item it could not carry over named. */
+  async importPlan(file) {
+    const box = $("mission-error");
+    const notes = $("mission-import");
+    box.hidden = true;
+    notes.hidden = true;
+    const r = await call("POST", "/mission/plan", { text: await file.text() });
+    if (!r.ok) {
+      box.textContent = `${file.name}: ${r.message}`;
+      box.hidden = false;
+      return;
+    }
+    $("mission-source").value = r.data.script;
+    $("mission-name").value = file.name.replace(/\.plan$/i, "");
+    const lines = [`${file.name}: imported as a script`];
+    if (r.data.geofence) lines.push("its inclusion fence is not applied here: add it to the ground's geofence");
+    for (const line of r.data.left_out) lines.push(`not carried over: ${line}`);
+    notes.replaceChildren(...lines.map((text) => Object.assign(document.createElement("div"), { textContent: text })));
+    notes.hidden = false;
   }
 
   async submit() {
