@@ -248,32 +248,42 @@ async def show_bundle(station: GroundStation, drone_id: str, bundle_id: str) -> 
 # ---- missions ---------------------------------------------------------------------
 
 
-@dataclass
-class _ScriptOperation(Operation):
-    def __post_init__(self) -> None:
-        self.request_body = RequestBody(
-            content={"text/plain": OpenAPIMediaType(schema={"type": "string"})},  # type: ignore[arg-type]
-            required=True,
-            description="The mission script (Python DSL, SPEC §5), as text.",
-        )
+def _text_operation(description: str) -> type[Operation]:
+    """An operation whose body is text (not JSON), as the schema should say."""
+
+    @dataclass
+    class _TextOperation(Operation):
+        def __post_init__(self) -> None:
+            self.request_body = RequestBody(
+                content={"text/plain": OpenAPIMediaType(schema={"type": "string"})},  # type: ignore[arg-type]
+                required=True, description=description,
+            )
+    return _TextOperation
+
+
+async def _text(request: Request[Any, Any, Any], what: str, detail: dict[str, Any] | None = None) -> str | Response[Any]:
+    """The body as text, or the 413/400 saying why not."""
+    body = await request.body()
+    if len(body) > MAX_SCRIPT_BYTES:
+        return _error(413, f"the {what} is {len(body)} bytes; the limit is {MAX_SCRIPT_BYTES}")
+    try:
+        return body.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return _error(400, f"the {what} is not UTF-8 text: {exc}", detail)
 
 
 @post(
-    "/mission", status_code=201, operation_class=_ScriptOperation, responses=_errors(400, 413),
-    summary="Submit a mission script; 201 with its id, 400 with line/column when it does not compile",
+    "/mission", status_code=201, operation_class=_text_operation("The mission script (Python DSL, SPEC §5), as text."),
+    responses=_errors(400, 413), summary="Submit a mission script; 201 with its id, 400 with line/column when it does not compile",
 )
 async def submit_mission(
     missions: MissionManager,
     request: Request[Any, Any, Any],
     name: Annotated[str, Parameter(max_length=200, description="a label for lists")] = "",
 ) -> Response[MissionCreated]:
-    body = await request.body()
-    if len(body) > MAX_SCRIPT_BYTES:
-        return _error(413, f"the script is {len(body)} bytes; the limit is {MAX_SCRIPT_BYTES}")  # type: ignore[return-value]
-    try:
-        source = body.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        return _error(400, f"the script is not UTF-8 text: {exc}", {"line": None, "column": None})  # type: ignore[return-value]
+    source = await _text(request, "script", {"line": None, "column": None})
+    if not isinstance(source, str):
+        return source
     try:
         record = missions.submit(source, name, submitted_by=_who(request))
     except ScriptError as exc:
@@ -281,31 +291,21 @@ async def submit_mission(
     return Response(MissionCreated(mission_id=record.mission_id), status_code=201)
 
 
-@dataclass
-class _PlanOperation(Operation):
-    def __post_init__(self) -> None:
-        self.request_body = RequestBody(
-            content={"text/plain": OpenAPIMediaType(schema={"type": "string"})},  # type: ignore[arg-type]
-            required=True,
-            description="A QGroundControl plan (JSON, `fileType: Plan`, mission version 2), as text.",
-        )
-
-
 @post(
-    "/mission/plan", status_code=200, operation_class=_PlanOperation, responses=_errors(400, 413),
+    "/mission/plan", status_code=200,
+    operation_class=_text_operation("A QGroundControl plan (JSON, `fileType: Plan`, mission version 2), as text."),
+    responses=_errors(400, 413),
     summary="A QGroundControl plan as a mission script (nothing is submitted); 400 when it is not such a plan",
 )
 async def import_mission_plan(
     request: Request[Any, Any, Any],
     drone: Annotated[str, Parameter(max_length=200, description="the drone the script assigns (default: any free one)")] = "",
 ) -> Response[PlanImported]:
-    body = await request.body()
-    if len(body) > MAX_SCRIPT_BYTES:
-        return _error(413, f"the plan is {len(body)} bytes; the limit is {MAX_SCRIPT_BYTES}")  # type: ignore[return-value]
+    text = await _text(request, "plan")
+    if not isinstance(text, str):
+        return text
     try:
-        imported = import_plan(body.decode("utf-8"), drone or None, "the uploaded plan")
-    except UnicodeDecodeError as exc:
-        return _error(400, f"the plan is not UTF-8 text: {exc}")  # type: ignore[return-value]
+        imported = import_plan(text, drone or None, "the uploaded plan")
     except NotAPlan as exc:
         return _error(400, str(exc))  # type: ignore[return-value]
     return Response(PlanImported(script=imported.script, left_out=imported.left_out, geofence=imported.geofence))
