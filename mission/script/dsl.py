@@ -26,7 +26,7 @@ from dronefleet.mission.script.geo import Position
 from dronefleet.mission.script.names import VERBS, common_names, near_place
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
-from dronefleet.mission.script.steps import Steps, When, as_guard, move_goal
+from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
 
@@ -144,10 +144,7 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         send(d, {"cmd": "disarm"})
 
     def takeoff(d: Drone, alt: Any = None) -> None:
-        body: dict[str, Any] = {"cmd": "takeoff"}
-        if alt is not None:
-            body["alt"] = units.length(alt, "takeoff altitude")
-        send(d, body)
+        send(d, altitude_body("takeoff", alt))
         d._anchor = None
 
     def land(d: Drone) -> None:
@@ -155,10 +152,7 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         d._anchor = None
 
     def home(d: Drone, alt: Any = None) -> None:
-        body: dict[str, Any] = {"cmd": "return"}
-        if alt is not None:
-            body["alt"] = units.length(alt, "return altitude")
-        send(d, body)
+        send(d, altitude_body("return", alt))
         d._anchor = None
 
     def cancel(d: Drone) -> None:

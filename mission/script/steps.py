@@ -77,6 +77,18 @@ class When:
     __hash__ = None  # type: ignore[assignment]
 
 
+ALTITUDE_OF = {"takeoff": "takeoff altitude", "return": "return altitude"}
+
+
+def altitude_body(cmd: str, alt: Any) -> dict[str, Any]:
+    """The body of a takeoff or a return, with its altitude (a length) when one is given:
+    the mission verbs and the bundle steps send the same."""
+    body: dict[str, Any] = {"cmd": cmd}
+    if alt is not None:
+        body["alt"] = units.length(alt, ALTITUDE_OF[cmd])
+    return body
+
+
 def move_goal(verb: str, forward: Any, backward: Any, right: Any, left: Any, up: Any, down: Any,
               to: Any, lat: Any, lon: Any) -> Position | tuple[float, float, float]:
     """What `move` / `step.move` was asked: a destination (a Position), or offsets in
@@ -114,19 +126,13 @@ class Steps:
         return self._step({"cmd": "disarm"}, until)
 
     def takeoff(self, alt: Any = None, until: Any = None) -> dict[str, Any]:
-        body: dict[str, Any] = {"cmd": "takeoff"}
-        if alt is not None:
-            body["alt"] = units.length(alt, "takeoff altitude")
-        return self._step(body, until)
+        return self._step(altitude_body("takeoff", alt), until)
 
     def land(self, until: Any = None) -> dict[str, Any]:
         return self._step({"cmd": "land"}, until)
 
     def home(self, alt: Any = None, until: Any = None) -> dict[str, Any]:
-        body: dict[str, Any] = {"cmd": "return"}
-        if alt is not None:
-            body["alt"] = units.length(alt, "return altitude")
-        return self._step(body, until)
+        return self._step(altitude_body("return", alt), until)
 
     def hold(self, until: Any = None) -> dict[str, Any]:
         return self._step({"cmd": "cancel"}, until)
