@@ -180,8 +180,12 @@ class BundleRunner:
         sensors = dict(self.sensors)
 
         def value(field: str) -> Any:
-            if field.startswith("sensor."):
-                return sensors.get(field.removeprefix("sensor."))
+            if field.startswith("sensor."):  # sensor.<type> or, declared with fields, sensor.<type>.<field>
+                kind, _, name = field.removeprefix("sensor.").partition(".")
+                reading = sensors.get(kind)
+                if name:
+                    return reading.get(name) if isinstance(reading, dict) else None
+                return None if isinstance(reading, dict) else reading
             found: Any = telemetry
             for part in field.split("."):
                 found = getattr(found, part, None)

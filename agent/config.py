@@ -15,6 +15,7 @@ import msgspec
 from msgspec import Meta
 
 from dronefleet.agent.link import LostLinkPolicy
+from dronefleet.schemas.about import DEFAULT_KIND, DEFAULT_ROLES, Role, SensorDeclaration
 from dronefleet.schemas.config import Security
 from dronefleet.schemas.endpoints import AGENT_PORT, check_endpoints, ip_endpoint, plain_endpoint
 from dronefleet.schemas.fence import Geofence
@@ -38,12 +39,20 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = 15.0
     max_speed: Annotated[float, Meta(gt=0.0, le=50.0)] = 5.0
     namespace: str = ""
+    # What the drone is (SPEC §2 About): published on drone/<id>/about for the ground and missions.
+    kind: Annotated[str, Meta(min_length=1, max_length=64)] = DEFAULT_KIND
+    roles: Annotated[list[Role], Meta(min_length=1)] = msgspec.field(default_factory=lambda: list(DEFAULT_ROLES))
+    sensors: list[SensorDeclaration] = msgspec.field(default_factory=list)  # what its readings are held to
     # Where the agent keeps what must outlive it (task bundle records, SPEC §6);
     # `fleet agent` defaults to $XDG_STATE_HOME/fleet/<drone id>. None: memory only.
     state_dir: str | None = None
 
     def __post_init__(self) -> None:
         check_endpoints(connect=self.connect, listen=self.listen)
+        for what, names in (("roles", [str(r) for r in self.roles]), ("sensors", [d.type for d in self.sensors])):
+            twice = sorted({n for n in names if names.count(n) > 1})
+            if twice:
+                raise ValueError(f"{what}: {', '.join(twice)} listed twice")
         if self.mesh_interface is not None and own_endpoint(self.listen) is None:
             # Links through a neighbour reach this agent's router on its own port (agent/neighbours.py).
             raise ValueError("mesh_interface needs a `listen` TCP or TLS endpoint with a fixed port "

@@ -32,6 +32,7 @@ from dronefleet.agent.prober import LinkProber
 from dronefleet.agent.telemetry import to_telemetry
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.port import Bus, Sample, echo
+from dronefleet.schemas.about import About
 from dronefleet.schemas.auth import verifier_of
 from dronefleet.schemas.bundles import BundleReply, BundleStatus, parse_bundle
 from dronefleet.schemas.codec import decode_sensor, encode
@@ -111,6 +112,7 @@ class Agent:
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)
         if self._before_contact is not None:
+            self._publish_about()  # a ground that started after this agent hears what it is
             # The first answer since start: what was published before the ground's
             # subscriptions reached this router (a bundle the restarted agent reports
             # failed, at once after start) may have gone nowhere. Sent again.
@@ -207,6 +209,17 @@ class Agent:
             self._recent_statuses.append(status)
             self.bundles.on_status(status)
 
+    def about(self) -> About:
+        c = self.config
+        return About(drone_id=self.drone_id, timestamp=self.clock.time_ms(), kind=c.kind, roles=list(c.roles),
+                     sensors=list(c.sensors))
+
+    def _publish_about(self) -> None:
+        self.bus.publish(self.keys.about(self.drone_id), encode(self.about()), reliable=True)
+
+    async def _on_about(self, selector: str, payload: bytes) -> bytes:
+        return encode(self.about())
+
     def _telemetry_now(self) -> Telemetry | None:
         state = self.fc.state()
         return to_telemetry(self.drone_id, self._seq, self.clock.time_ms(), state) if state.position is not None else None
@@ -217,7 +230,7 @@ class Agent:
             reading = decode_sensor(sample.payload)
         except InvalidMessage:
             return
-        self.bundles.sensors[sample.key.rsplit("/", 1)[-1]] = reading.value
+        self.bundles.sensors[sample.key.rsplit("/", 1)[-1]] = reading.fields if reading.fields else reading.value
 
     def _not_mine(self, drone_id: str) -> str | None:
         """Why a request naming another drone is refused (no name: it is for us)."""
@@ -292,7 +305,9 @@ class Agent:
         bundles = self.bus.serve(self.keys.bundle(self.drone_id), self._on_bundle)
         sensors = self.bus.subscribe(self.keys.sensor(self.drone_id), self._on_sensor, latest_only=True)
         ping = self.bus.serve(self.keys.ping(self.drone_id), echo)
+        about = self.bus.serve(self.keys.about(self.drone_id), self._on_about)
         token = self.bus.announce(self.keys.alive(self.drone_id))
+        self._publish_about()
         log.info("%s: serving commands on %s", self.drone_id, self.keys.cmd(self.drone_id))
         self.bundles.recover()
         try:
@@ -308,6 +323,7 @@ class Agent:
         finally:
             await self.bundles.close()
             token.close()
+            about.close()
             ping.close()
             sensors.close()
             bundles.close()

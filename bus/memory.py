@@ -40,8 +40,9 @@ class Medium(Protocol):
 
     def reachable(self, src: str, dst: str) -> bool: ...
 
-    def transit(self, src: str, dst: str) -> float | None:
-        """Seconds one message from src takes to reach dst now; None: it never arrives."""
+    def transit(self, src: str, dst: str, stream: str = "") -> float | None:
+        """Seconds one message from src takes to reach dst now; None: it never arrives.
+        `stream` (the message's key) may give each key its own random draws."""
         ...
 
     def call_later(self, seconds: float, callback: Callable[[], None]) -> None: ...
@@ -85,16 +86,16 @@ class MemoryNetwork:
     def reachable(self, src: str, dst: str) -> bool:
         return self.medium is None or src == dst or self.medium.reachable(src, dst)
 
-    def carry(self, src: str, dst: str, deliver: Callable[[], None]) -> None:
-        """One message from node src to node dst: now, later, or (lost) never."""
+    def carry(self, src: str, dst: str, deliver: Callable[[], None], stream: str = "") -> None:
+        """One message (on key `stream`) from node src to node dst: now, later, or (lost) never."""
         if self.medium is None or src == dst:
             deliver()
             return
-        delay = self.medium.transit(src, dst)
+        delay = self.medium.transit(src, dst, stream)
         if delay is not None:
             self.medium.call_later(delay, deliver)
 
-    async def cross(self, src: str, dst: str) -> None:
+    async def cross(self, src: str, dst: str, stream: str = "") -> None:
         """Return once a message from src has crossed to dst (never, if it is lost:
         until the asker gives up)."""
         arrived: asyncio.Future[None] = asyncio.get_running_loop().create_future()
@@ -102,7 +103,7 @@ class MemoryNetwork:
             if not arrived.done():
                 arrived.set_result(None)
 
-        self.carry(src, dst, arrive)
+        self.carry(src, dst, arrive, stream)
         await arrived
 
     def _tell(self, watcher: tuple[_Decl, Inbox[tuple[str, bool]]], token: _Decl, alive: bool) -> None:
@@ -151,7 +152,7 @@ class MemoryBus:
                 inboxes.setdefault(decl.owner.node, []).append(inbox)
         sample = Sample(key, bytes(payload))
         for node, there in inboxes.items():
-            self._net.carry(self.node, node, functools.partial(_put_all, there, sample))
+            self._net.carry(self.node, node, functools.partial(_put_all, there, sample), key)
 
     def subscribe(
         self, keyexpr: str, handler: SampleHandler, *, latest_only: bool = False, maxsize: int = 1024
@@ -211,9 +212,9 @@ class MemoryBus:
                 return None, exc
 
         async def exchange() -> bytes:
-            await net.cross(self.node, there)
+            await net.cross(self.node, there, key)
             reply, error = await asyncio.shield(asyncio.ensure_future(answer()))
-            await net.cross(there, self.node)
+            await net.cross(there, self.node, key)
             if error is not None:
                 raise QueryRefused(f"{key}: {error}")
             assert reply is not None

@@ -11,13 +11,13 @@ sends two relays after each.
 enable("relay", ground=[40.634125, -8.660336])
 
 
-def out_and_back(drone, heading):
+def out_and_back(drone, heading, alt):
     arm(drone)
-    takeoff(drone)
+    takeoff(drone, alt)
     move(drone, to=target(drone.position, 110 * m, heading), speed=5 * m / s)
     sleep(40 * s)
-    home(drone)
+    home(drone, alt)  # their ways home cross: each keeps its own height
 
 
 south_one, south_west = assign("drone01"), assign("drone02")
-wait(run(out_and_back, south_one, south), run(out_and_back, south_west, south + 60 * deg))
+wait(run(out_and_back, south_one, south, 15 * m), run(out_and_back, south_west, south + 60 * deg, 25 * m))

@@ -33,6 +33,7 @@ from dronefleet.ground.config import ROLE_RANK, ApiToken
 from dronefleet.ground.dashboard_routes import DashboardAssets, dashboard_config, dashboard_file, index
 from dronefleet.ground.describe import Level
 from dronefleet.ground.eventlog import format_line
+from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
 from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
@@ -50,7 +51,7 @@ KEEPALIVE_S = 15.0
 LOG_CURSOR = "Fleet-Log-Cursor"
 
 DataParam = Literal["telem", "info", "sensors"]
-EventKind = Literal["telemetry", "status", "drone", "log", "mission", "mission_log"]
+EventKind = Literal["telemetry", "status", "drone", "log", "mission", "mission_log", "field_sensor"]
 MAX_SCRIPT_BYTES = 1_000_000
 
 
@@ -467,7 +468,7 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     return Litestar(
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
-            import_mission_plan,
+            import_mission_plan, list_field_sensors, show_field_sensor,
             cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file,
         ],
         dependencies={

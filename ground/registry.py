@@ -16,6 +16,8 @@ import msgspec
 
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
+from dronefleet.ground.field_sensors import FieldSensors
+from dronefleet.schemas.about import About, reading_fault, relay_disagreement
 from dronefleet.schemas.bundles import BundleRecord, BundleStatus
 from dronefleet.schemas.errors import STATE_UNKNOWN
 from dronefleet.schemas.fleet import (
@@ -55,6 +57,7 @@ class Refusal(msgspec.Struct, frozen=True, kw_only=True):
     code: str | None = None  # CommandRejected.code
 
 
+DROPPED_LOG_MS = 30_000  # a sensor whose readings keep falling outside its declaration: one line per this
 STATUSES_REMEMBERED = 128  # per drone: command statuses heard (an agent repeats those the ground may have missed)
 BUNDLES_REMEMBERED = 16  # per drone: which events of its latest bundles the ground heard
 
@@ -84,6 +87,16 @@ class _Drone:
     bundle_heard: dict[str, set[tuple[int, str]]] = field(default_factory=dict)  # bundle id → (step, state) heard
     status_heard: dict[tuple[object, ...], None] = field(default_factory=dict)  # (command id, state) or a bundle event, oldest first
     info: DroneInfo | None = None
+    dropping: dict[str, tuple[int, int]] = field(default_factory=dict)  # sensor type → (logged at ms, dropped since)
+
+
+def describe_about(about: About) -> str:
+    """`kind x500, roles survey, relay, sensors gas (co_ppm ppm 0–1000)`."""
+    sensors = []
+    for decl in about.sensors:
+        parts = [f"{name} {spec.unit}".strip() for name, spec in decl.fields.items()] or ([decl.unit] if decl.unit else [])
+        sensors.append(f"{decl.type} ({', '.join(parts)})" if parts else decl.type)
+    return f"kind {about.kind}, roles {', '.join(about.roles)}, sensors {', '.join(sensors) or 'none declared'}"
 
 
 # Telemetry heard this long after a drone's liveliness token went is a live session
@@ -95,6 +108,8 @@ class Registry:
     def __init__(self, config: GroundConfig, relays: frozenset[str] | None = None) -> None:
         self.config = config
         self._drones: dict[str, _Drone] = {}
+        self._abouts: dict[str, About] = {}  # heard per drone, also before its first telemetry
+        self.field = FieldSensors(config.sensor_timeout_ms)  # sensors that are not on a drone (SPEC §2)
         self.relays = relays  # on a secured mesh, the drones that may relay; None: every drone
 
     # ---- queries -------------------------------------------------------------------
@@ -154,6 +169,8 @@ class Registry:
         if d is None:
             d = self._drones[telem.drone_id] = _Drone(telem.drone_id, telem, now_ms)
             out.append(self._line(now_ms, "info", d, "Registered"))
+            if d.drone_id in self._abouts:
+                out += self._about_lines(d, None, now_ms)
             before_errors: list[str] = []
             before_warns: list[str] = []
             reconnected = first = True
@@ -303,6 +320,50 @@ class Registry:
         out: list[Event] = [self._line(now_ms, line[0], d, line[1])] if line is not None else []
         return [*out, *self._publish(d, self._derive(d))]
 
+    def field_readings(self) -> list[SensorReading]:
+        return self.field.readings()
+
+    def about(self, drone_id: str) -> About | None:
+        return self._abouts.get(drone_id)
+
+    def on_about(self, about: About, now_ms: int) -> list[Event]:
+        """What a drone says it is: kept, logged when new or changed, in its info."""
+        before = self._abouts.get(about.drone_id)
+        if about.same_as(before):
+            return []
+        self._abouts[about.drone_id] = about
+        d = self._drones.get(about.drone_id)
+        if d is None:  # kept for its registration
+            return []
+        return self._about_lines(d, before, now_ms) + self._publish(d, self._derive(d))
+
+    def _about_lines(self, d: _Drone, before: About | None, now_ms: int) -> list[Event]:
+        about = self._abouts[d.drone_id]
+        out: list[Event] = [self._line(now_ms, "info", d, ("Declares " if before is None else "Changed what it declares: ")
+                                       + describe_about(about))]
+        why = relay_disagreement(self.relays, d.drone_id, list(about.roles))
+        if why is not None:
+            out.append(self._line(now_ms, "warn", d, f"Relay role: {why}"))
+        return out
+
+    def drop_reading(self, reading: SensorReading, now_ms: int) -> list[Event] | None:
+        """None if `reading` fits what its drone declared; else it is dropped, and the
+        log says so (once per DROPPED_LOG_MS per sensor type, with the count)."""
+        d = self._drones.get(reading.drone_id)
+        about = self._abouts.get(reading.drone_id)
+        fault = reading_fault(reading, about.sensors) if about is not None else None
+        if d is None or fault is None:
+            if d is not None:
+                d.dropping.pop(reading.type, None)
+            return None
+        logged, count = d.dropping.get(reading.type, (None, 0))
+        if logged is not None and now_ms - logged < DROPPED_LOG_MS:
+            d.dropping[reading.type] = (logged, count + 1)
+            return []
+        d.dropping[reading.type] = (now_ms, 0)
+        more = f" ({count} more dropped since)" if count else ""
+        return [self._line(now_ms, "warn", d, f"Dropped a {reading.type} reading outside its declaration: {fault}{more}")]
+
     def on_sensor(self, reading: SensorReading, now_ms: int) -> list[Event]:
         d = self._drones.get(reading.drone_id)
         if d is None:
@@ -401,9 +462,12 @@ class Registry:
             state = "hold"
         else:
             state = "ready"
+        about = self._abouts.get(d.drone_id)
         return DroneInfo(
             drone_id=d.drone_id, state=state, current_command=d.current, sensors=sorted(d.sensors),
             mission=d.mission, errors=errors, warns=warns, link=d.link, bundle=d.bundle,
+            kind=about.kind if about else None, roles=list(about.roles) if about else None,
+            sensors_declared=list(about.sensors) if about else None,
         )
 
     def _publish(self, d: _Drone, info: DroneInfo) -> list[Event]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -25,9 +24,11 @@ from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_security import relays_of
 from dronefleet.bus.port import Bus, Declaration, QueryRefused, Sample, Unreachable, echo
 from dronefleet.bus.recording import now_ns_of
+from dronefleet.ground.airspace import Airspace
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.describe import describe_step
 from dronefleet.ground.eventlog import EventLog
+from dronefleet.ground.feeds import SensorFeeds
 from dronefleet.ground.recording import MissionRecordings
 from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
 from dronefleet.ground.throttle import WarningThrottle
@@ -50,12 +51,10 @@ from dronefleet.schemas.codec import (
 )
 from dronefleet.schemas.commands import Command, CommandReply, decode_command, new_command_id
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
-from dronefleet.schemas.fence import CONFLICT, flight_of
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
-from dronefleet.schemas.geo import distance_m
 from dronefleet.schemas.keys import Keys
-from dronefleet.schemas.status import TERMINAL_STATES, CommandStatus
+from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
@@ -92,9 +91,7 @@ class GroundStation:
         self._watches_ended = False
         self._listeners: list[Callable[[WatchEvent], None]] = []
         self._last_telem_event: dict[str, float] = {}
-        # drone → (command id, lat, lon, alt AMSL): where a command this ground sent takes
-        # it, from the moment it passed the checks until it ends (its `start` comes later)
-        self._claims: dict[str, tuple[str, float, float, float]] = {}
+        self.airspace = Airspace(config, self.registry)  # SPEC §11: the fence and the other drones' targets
         self.recordings: MissionRecordings | None = None
         self.signer = signer_of(config.security.pki_dir)  # SPEC §9: every command and bundle signed
         # Where command and bundle ids come from: random, or seeded in fast time (a
@@ -103,6 +100,7 @@ class GroundStation:
         self.new_bundle_id: Callable[[], str] = new_bundle_id
         self._held_bundle_statuses: dict[tuple[str, str], list[BundleStatus]] = {}
         self._catching_up: set[asyncio.Task[None]] = set()
+        self.feeds = SensorFeeds(self)  # About and field sensors (SPEC §2)
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -119,6 +117,7 @@ class GroundStation:
             self.bus.subscribe(k.status(), self._on_status, maxsize=65_536),
             self.bus.subscribe(k.sensor(), self._on_sensor, latest_only=True, maxsize=8192),
             self.bus.subscribe(k.link(), self._on_link, latest_only=True, maxsize=8192),
+            *self.feeds.declare(),
             self.bus.watch_liveliness(k.alive(), self._on_liveliness),
             self.bus.serve(k.ground_ping(), echo),
             self.bus.announce(k.ground_alive()),
@@ -126,7 +125,8 @@ class GroundStation:
         self.log_ground("info", "Ground station started")
         try:
             while True:
-                self._emit(self.registry.tick(self.clock.time_ms()))
+                self.emit(self.registry.tick(self.clock.time_ms()))
+                self.feeds.tick()
                 if self.recordings is not None:
                     self.recordings.tick()
                 await self.clock.sleep(TICK_S)
@@ -139,7 +139,7 @@ class GroundStation:
 
     def log_ground(self, level: str, message: str) -> None:
         """A line about the ground itself (no drone)."""
-        self._emit([LogLine(timestamp=self.clock.time_ms(), level=level, drone_id=None, message=message)])  # type: ignore[arg-type]
+        self.emit([LogLine(timestamp=self.clock.time_ms(), level=level, drone_id=None, message=message)])  # type: ignore[arg-type]
 
     @contextmanager
     def watch(self) -> Iterator[Watcher]:
@@ -158,7 +158,7 @@ class GroundStation:
         self._listeners.append(listener)
         return lambda: self._listeners.remove(listener) if listener in self._listeners else None
 
-    def _tell(self, event: WatchEvent) -> None:
+    def tell(self, event: WatchEvent) -> None:
         for listener in list(self._listeners):
             listener(event)
 
@@ -168,11 +168,11 @@ class GroundStation:
         holder = self.registry.info(drone_id).mission
         if holder not in (None, mission_id):
             raise CommandRejected(409, f"{drone_id} is assigned to mission {holder}")
-        self._emit(self.registry.assign(drone_id, mission_id, self.clock.time_ms()))
+        self.emit(self.registry.assign(drone_id, mission_id, self.clock.time_ms()))
 
     def release(self, drone_id: str) -> None:
         if drone_id in self.registry:
-            self._emit(self.registry.release(drone_id, self.clock.time_ms()))
+            self.emit(self.registry.release(drone_id, self.clock.time_ms()))
 
     # ---- commands ------------------------------------------------------------------
 
@@ -184,18 +184,17 @@ class GroundStation:
         self._registered(drone_id)
         command = self._stamp(drone_id, body)
         self._check(drone_id, command.name, command.name, mission_id)
-        spot = self._check_flight(drone_id, command)
+        spot = self.airspace.check(drone_id, command)
+        if isinstance(spot, CommandRejected):
+            self._refuse(drone_id, command.name, spot)
         self._audit(drone_id, f"{command.name} (command {command.command_id})", who)
-        if spot is not None:
-            self._claims[drone_id] = (command.command_id, *spot)
-        elif command.name not in ("arm", "disarm"):  # land, return, cancel…: it gives up its target
-            self._claims.pop(drone_id, None)
+        self.airspace.sent(drone_id, command, spot)
         try:
             reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(self._signed(command)), _reply_decoder,
                                                       "CommandReply")
         except BaseException:
-            if spot is not None and self._claims.get(drone_id, ("",))[0] == command.command_id:
-                del self._claims[drone_id]
+            if spot is not None:
+                self.airspace.undo(drone_id, command.command_id)
             raise
         return reply
 
@@ -211,10 +210,7 @@ class GroundStation:
         if not obj["bundle_id"]:
             obj["bundle_id"] = self.new_bundle_id()
         bundle = parse_bundle(json.dumps(obj).encode())
-        carried = self.registry.info(drone_id).sensors
-        for path, label, kind in sensor_guards(bundle.wire):
-            if kind not in carried:
-                raise InvalidMessage(f"{label}: {drone_id} carries no {kind} sensor (it has: {', '.join(carried) or 'none'})", field=path)
+        self._check_sensor_guards(drone_id, bundle.wire)
         self._check(drone_id, "bundle", f"bundle {bundle.bundle_id}", mission_id)
         self._audit(drone_id, f"bundle {bundle.bundle_id}", who)
         # Noted before sending: the agent's first status may arrive before its reply.
@@ -240,13 +236,29 @@ class GroundStation:
             record = decode_bundle_record(raw)
         except InvalidMessage as exc:
             raise CommandRejected(502, f"the agent answered something that is not a bundle record: {exc}") from None
-        self._emit(self.registry.on_bundle_record(record, drone_id, self.clock.time_ms()))
+        self.emit(self.registry.on_bundle_record(record, drone_id, self.clock.time_ms()))
         return record
+
+    def _check_sensor_guards(self, drone_id: str, wire: Any) -> None:
+        """Every `sensor.<type>[.<field>]` a bundle's guards read: a sensor the drone
+        carries, and (declared with fields) a field it declares."""
+        info = self.registry.info(drone_id)
+        carried, declared = info.sensors, {d.type: d for d in info.sensors_declared or []}
+        for path, label, name in sensor_guards(wire):
+            kind, _, field = name.partition(".")
+            if kind not in carried:
+                raise InvalidMessage(f"{label}: {drone_id} carries no {kind} sensor (it has: {', '.join(carried) or 'none'})", field=path)
+            decl = declared.get(kind)
+            if decl is not None and decl.fields and field not in decl.fields:
+                fields = ", ".join(f"sensor.{kind}.{f}" for f in sorted(decl.fields))
+                raise InvalidMessage(f"{label}: {drone_id}'s {kind} sensor has fields {fields}", field=path)
+            if decl is not None and not decl.fields and field:
+                raise InvalidMessage(f"{label}: {drone_id}'s {kind} sensor has one value (sensor.{kind}), no fields", field=path)
 
     def _audit(self, drone_id: str, what: str, who: str | None) -> None:
         """SPEC §9: who sent it, in the event log (when the API knows: tokens are on)."""
         if who is not None:
-            self._emit([LogLine(timestamp=self.clock.time_ms(), level="info", drone_id=drone_id, message=f"{what} sent by {who}")])
+            self.emit([LogLine(timestamp=self.clock.time_ms(), level="info", drone_id=drone_id, message=f"{what} sent by {who}")])
 
     def _registered(self, drone_id: str) -> None:
         if drone_id not in self.registry:
@@ -260,60 +272,9 @@ class GroundStation:
 
     def _refuse(self, drone_id: str, label: str, rejected: CommandRejected) -> NoReturn:
         """Log the refusal as "Refused <label>: …" and raise it."""
-        self._emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
+        self.emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
                             message=f"Refused {label}: {rejected.reason}")])
         raise rejected
-
-    def _check_flight(self, drone_id: str, command: Command) -> tuple[float, float, float] | None:
-        """SPEC §11 at the ground: the fence (409 geofence), then the other drones'
-        targets and hovering drones (409 conflict, naming the other drone). Returns
-        where the command takes the drone (lat, lon, alt AMSL), if known."""
-        telem, fence = self.registry.telemetry(drone_id), self.config.geofence
-        flight = flight_of(command, telem.position, telem.heading)
-        if flight is None:
-            return None
-        why = fence.check(flight.start, flight.end, flight.alt) if fence.limits else None
-        if why is not None:
-            self._refuse(drone_id, command.name, CommandRejected(409, why, code=FENCE))
-        if flight.alt is None or telem.position is None:
-            return None
-        spot = (*flight.end, telem.position.alt - telem.position.rel_alt + flight.alt)
-        clash = self._nearest_claim(drone_id, spot)
-        if clash is not None and clash[1] < fence.min_separation_m:
-            other, gap, what = clash
-            why = (f"{CONFLICT}: the target is {gap:.1f} m from {what} of {other} "
-                   f"(geofence.min_separation_m {fence.min_separation_m:g})")
-            self._refuse(drone_id, command.name, CommandRejected(409, why, code=CONFLICT, other=other))
-        return spot
-
-    def _nearest_claim(self, drone_id: str, target: tuple[float, float, float]) -> tuple[str, float, str] | None:
-        """The other drone whose claim on the air is nearest `target` (lat, lon, alt
-        AMSL), 3-D: where the command this ground sent it, its running goto/move or its
-        takeoff goes, or else where it hovers; (drone, metres, what)."""
-        nearest: tuple[str, float, str] | None = None
-        for other in self.registry.ids():
-            if other == drone_id or self.registry.info(other).state == "unknown":
-                continue
-            for spot, what in self._claims_of(other):
-                gap = math.hypot(distance_m(target[0], target[1], spot[0], spot[1]), target[2] - spot[2])
-                if nearest is None or gap < nearest[1]:
-                    nearest = (other, gap, what)
-        return nearest
-
-    def _claims_of(self, drone_id: str) -> list[tuple[tuple[float, float, float], str]]:
-        info, t = self.registry.info(drone_id), self.registry.telemetry(drone_id)
-        cmd, pos = info.current_command, t.position
-        spots: list[tuple[tuple[float, float, float], str]] = []
-        sent = self._claims.get(drone_id)
-        if sent is not None:
-            spots.append((sent[1:], "the target"))
-        if cmd is not None and cmd.coords is not None:
-            spots.append(((cmd.coords.lat, cmd.coords.lon, cmd.coords.alt), "the target"))
-        elif cmd is not None and cmd.command == "takeoff" and cmd.altitude is not None and pos is not None:
-            spots.append(((pos.lat, pos.lon, pos.alt - pos.rel_alt + cmd.altitude), "the takeoff"))
-        elif not spots and cmd is None and pos is not None and t.armed and t.landed_state == "in_air":
-            spots.append(((pos.lat, pos.lon, pos.alt), "the hovering spot"))
-        return spots
 
     def _signed(self, message: T) -> T:
         return message if self.signer is None else self.signer.sign(message, self.clock.time_ms())
@@ -358,14 +319,15 @@ class GroundStation:
     # ---- events in -----------------------------------------------------------------
 
     def _on_telemetry(self, sample: Sample) -> None:
-        telem: Telemetry | None = self._from_drone(decode_telemetry, sample)
+        telem: Telemetry | None = self.from_drone(decode_telemetry, sample)
         if telem is not None:
-            self._emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
+            self.emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
+            self.feeds.ask_about(telem.drone_id)
             self._offer_telemetry(telem)
-            self._tell(WatchEvent("telemetry", telem))
+            self.tell(WatchEvent("telemetry", telem))
 
     def _on_status(self, sample: Sample) -> None:
-        status = self._decode(decode_status, sample)
+        status = self.decode(decode_status, sample)
         if status is None:
             return
         parsed = self.keys.parse(sample.key)
@@ -376,16 +338,15 @@ class GroundStation:
             return
         if not self.registry.first_heard(status):
             return
-        if isinstance(status, CommandStatus) and status.state in TERMINAL_STATES and status.drone_id in self._claims \
-                and self._claims[status.drone_id][0] == status.command_id:
-            del self._claims[status.drone_id]  # it hovers there now (or wherever it stopped)
+        if isinstance(status, CommandStatus):
+            self.airspace.on_status(status)
         event = WatchEvent("status", status)
         self.broadcast(event)
         if isinstance(status, BundleStatus) and self.registry.bundle_gap(status):
             self._log_after_catch_up(status)
         else:
-            self._emit(self.registry.on_status(status, self.clock.time_ms()))
-        self._tell(event)  # after the registry: missions see the drone as it now is
+            self.emit(self.registry.on_status(status, self.clock.time_ms()))
+        self.tell(event)  # after the registry: missions see the drone as it now is
 
     def _log_after_catch_up(self, status: BundleStatus) -> None:
         """Events of this bundle were lost on the way (the drone was out of reach, and
@@ -405,32 +366,36 @@ class GroundStation:
                 log.info("%s: could not read bundle %s to catch up: %s", status.drone_id, status.bundle_id, exc)
             finally:
                 for held in self._held_bundle_statuses.pop(key, []):
-                    self._emit(self.registry.on_status(held, self.clock.time_ms()))
+                    self.emit(self.registry.on_status(held, self.clock.time_ms()))
 
         task = asyncio.get_running_loop().create_task(catch_up(), name=f"catch up {status.drone_id} {status.bundle_id}")
         self._catching_up.add(task)
         task.add_done_callback(self._catching_up.discard)
 
     def _on_sensor(self, sample: Sample) -> None:
-        reading: SensorReading | None = self._from_drone(decode_sensor, sample)
+        reading: SensorReading | None = self.from_drone(decode_sensor, sample)
         if reading is not None:
-            self._emit(self.registry.on_sensor(reading, self.clock.time_ms()))
-            self._tell(WatchEvent("sensor", reading))  # a mission in its own process keeps a copy
+            dropped = self.registry.drop_reading(reading, self.clock.time_ms())
+            if dropped is not None:  # outside what the drone declared: logged, never shown as a value
+                self.emit(dropped)
+                return
+            self.emit(self.registry.on_sensor(reading, self.clock.time_ms()))
+            self.tell(WatchEvent("sensor", reading))  # a mission in its own process keeps a copy
 
     def _on_link(self, sample: Sample) -> None:
-        quality: LinkQuality | None = self._from_drone(decode_link, sample)
+        quality: LinkQuality | None = self.from_drone(decode_link, sample)
         if quality is not None:
-            self._emit(self.registry.on_link(quality, self.clock.time_ms()))
+            self.emit(self.registry.on_link(quality, self.clock.time_ms()))
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         parsed = self.keys.parse(key)
         if parsed is not None:
-            self._emit(self.registry.on_liveliness(parsed.drone_id, alive, self.clock.time_ms()))
+            self.emit(self.registry.on_liveliness(parsed.drone_id, alive, self.clock.time_ms()))
 
-    def _from_drone(self, decoder: Any, sample: Sample) -> Any:
+    def from_drone(self, decoder: Any, sample: Sample) -> Any:
         """A drone's message, its drone_id taken from the key (the key is the authority
         on who sent it: a sensor program may leave the field empty)."""
-        message = self._decode(decoder, sample)
+        message = self.decode(decoder, sample)
         parsed = self.keys.parse(sample.key)
         if message is None or parsed is None:
             return None
@@ -438,7 +403,7 @@ class GroundStation:
             message = msgspec.structs.replace(message, drone_id=parsed.drone_id)
         return message
 
-    def _decode(self, decoder: Any, sample: Sample) -> Any:
+    def decode(self, decoder: Any, sample: Sample) -> Any:
         try:
             return decoder(sample.payload)
         except InvalidMessage as exc:
@@ -447,7 +412,7 @@ class GroundStation:
 
     # ---- events out ----------------------------------------------------------------
 
-    def _emit(self, events: list[Event]) -> None:
+    def emit(self, events: list[Event]) -> None:
         for event in events:
             if isinstance(event, LogLine):
                 row = self.events.append(event)
@@ -456,7 +421,7 @@ class GroundStation:
             elif isinstance(event, InfoChanged):
                 changed = WatchEvent("drone", event.info)
                 self.broadcast(changed)
-                self._tell(changed)
+                self.tell(changed)
 
     def end_watches(self) -> None:
         """Tell every watcher the ground is stopping (event streams then close), also

@@ -218,7 +218,8 @@ def parse_guard(obj: Any, path: str) -> Guard:
         raise InvalidMessage(f"{_at(path)}.field: a dotted name such as sensor.temperature", field=f"{path}.field")
     if field.startswith("sensor."):
         if not field.removeprefix("sensor."):
-            raise InvalidMessage(f"{_at(path)}.field: sensor.<type>, e.g. sensor.temperature", field=f"{path}.field")
+            raise InvalidMessage(f"{_at(path)}.field: sensor.<type>, e.g. sensor.temperature or sensor.gas.co_ppm",
+                                 field=f"{path}.field")
         kind: type | None = None  # whatever the sensor reports
     elif field in TELEMETRY_FIELDS:
         kind = TELEMETRY_FIELDS[field]
@@ -241,9 +242,9 @@ def _at(path: str) -> str:
 
 
 def sensor_guards(wire: TaskBundle) -> list[tuple[str, str, str]]:
-    """Every `sensor.<type>` a bundle's guards read: (JSON path of the field, the
-    label a refusal starts with, the sensor type). For the ground's check that the
-    drone carries them."""
+    """Every `sensor.<type>` (or `sensor.<type>.<field>`) a bundle's guards read:
+    (JSON path of the field, the label a refusal starts with, `<type>[.<field>]`).
+    For the ground's check that the drone carries them."""
     found: list[tuple[str, str, str]] = []
 
     def walk(obj: Any, path: str, label: str) -> None:
@@ -254,7 +255,7 @@ def sensor_guards(wire: TaskBundle) -> list[tuple[str, str, str]]:
                 walk(part, f"{path}.{kind}[{j}]", f"{label}.{kind}[{j}]")
         field = obj.get("field")
         if isinstance(field, str) and field.startswith("sensor."):
-            found.append((f"{path}.field", f"{label}.field", field.removeprefix("sensor.")))
+            found.append((f"{path}.field", f"{label}.field", field.removeprefix("sensor.")))  # <type>[.<field>]
 
     for i, step in enumerate(wire.steps):
         walk(step.get("until"), f"$.steps[{i}].until", f"step {i}: until")

@@ -11,6 +11,7 @@ from typing import Any
 
 import msgspec
 
+from dronefleet.schemas.about import About
 from dronefleet.schemas.bundles import BundleRecord, BundleStatus
 from dronefleet.schemas.commands import decode_command
 from dronefleet.schemas.errors import InvalidMessage
@@ -29,7 +30,7 @@ class _StatusShape(msgspec.Struct):
 
 _decoders: dict[type, msgspec.json.Decoder] = {
     t: msgspec.json.Decoder(t)
-    for t in (Telemetry, SensorReading, LinkQuality, CommandStatus, SystemStatus, BundleStatus, BundleRecord, _StatusShape)
+    for t in (Telemetry, SensorReading, About, LinkQuality, CommandStatus, SystemStatus, BundleStatus, BundleRecord, _StatusShape)
 }
 
 
@@ -48,6 +49,10 @@ def decode_telemetry(payload: bytes) -> Telemetry:
 
 def decode_sensor(payload: bytes) -> SensorReading:
     return _decode(payload, SensorReading)
+
+
+def decode_about(payload: bytes) -> About:
+    return _decode(payload, About)
 
 
 def decode_link(payload: bytes) -> LinkQuality:
@@ -71,4 +76,4 @@ def decode_bundle_record(payload: bytes) -> BundleRecord:
     return _decode(payload, BundleRecord)
 
 
-__all__ = ["decode_bundle_record", "decode_command", "decode_link", "decode_sensor", "decode_status", "decode_telemetry", "encode"]
+__all__ = ["decode_about", "decode_bundle_record", "decode_command", "decode_link", "decode_sensor", "decode_status", "decode_telemetry", "encode"]

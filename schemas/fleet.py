@@ -10,6 +10,7 @@ from typing import Any, Literal, get_args
 
 import msgspec
 
+from dronefleet.schemas.about import SensorDeclaration
 from dronefleet.schemas.status import Coords
 from dronefleet.schemas.telemetry import LinkQuality
 
@@ -53,6 +54,10 @@ class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
     warns: list[str]
     link: LinkQuality | None = None  # the drone's measured link to the ground
     bundle: BundleInfo | None = None  # the task bundle it is running
+    # What it says it is (SPEC §2 About); None until the ground has heard it.
+    kind: str | None = None
+    roles: list[str] | None = None
+    sensors_declared: list[SensorDeclaration] | None = None
 
 
 class WatchEvent(msgspec.Struct, frozen=True):

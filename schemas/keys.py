@@ -28,7 +28,7 @@ def check_id(value: str, what: str = "drone id") -> str:
 
 class DroneKey(msgspec.Struct, frozen=True):
     drone_id: str
-    kind: str  # telem | status | cmd | bundle | link | ping | alive | sensor
+    kind: str  # telem | status | cmd | bundle | link | ping | alive | about | sensor
     rest: str = ""  # sensor type for `sensor/<type>`
 
 
@@ -59,6 +59,9 @@ class Keys(msgspec.Struct, frozen=True):
     def alive(self, drone_id: str = "*") -> str:
         return self._k("drone", drone_id, "alive")
 
+    def about(self, drone_id: str = "*") -> str:
+        return self._k("drone", drone_id, "about")
+
     def sensor(self, drone_id: str = "*", sensor_type: str = "*") -> str:
         return self._k("drone", drone_id, "sensor", sensor_type)
 
@@ -68,6 +71,23 @@ class Keys(msgspec.Struct, frozen=True):
 
     def field_sensor(self, sensor_id: str = "*", sensor_type: str = "*") -> str:
         return self._k("sensor", sensor_id, sensor_type)
+
+    def field_sensor_alive(self, sensor_id: str = "*") -> str:
+        return self._k("sensor", sensor_id, "alive")
+
+    def field_sensors(self) -> str:
+        """Everything field sensors publish (readings; their tokens are liveliness)."""
+        return self._k("sensor", "**")
+
+    def parse_field_sensor(self, key: str) -> tuple[str, str] | None:
+        """(sensor id, type) of a `sensor/<id>/<type>` key under this namespace, else None."""
+        prefix = f"{self.namespace}/" if self.namespace else ""
+        if not key.startswith(prefix):
+            return None
+        parts = key[len(prefix):].split("/")
+        if len(parts) != 3 or parts[0] != "sensor" or not parts[1] or not parts[2]:
+            return None
+        return parts[1], parts[2]
 
     def ground(self, *parts: str) -> str:
         """`ground/…`: what the ground itself says (recordings: its log, its missions)."""

@@ -83,10 +83,11 @@ class SensorReading(_Msg, frozen=True, kw_only=True):
     drone_id: str = ""
     timestamp: int
     type: str
-    value: float | str | bool | list[float] | None
+    value: float | str | bool | list[float] | None = None  # optional when it has fields
     unit: str = ""
-    sensor_id: str | None = None  # field sensors (not on a drone)
-    position: Position | None = None
+    fields: dict[str, float | str | bool | None] | None = None  # a sensor declared with fields (SPEC §2)
+    sensor_id: str | None = None  # field sensors (not on a drone): on `sensor/<sensor_id>/<type>`
+    position: Position | None = None  # field sensors: where they stand
 
 
 GROUND_PEER = "ground"  # LinkQuality.peer of a drone's link to the ground

@@ -6,7 +6,9 @@ crosses it within the lease and is re-opened by the agents' connect retries; mes
 travel the fewest-hop path over live links, each hop losing packets with the model's
 loss, which a reliable transport turns into retransmission delay, and a message that
 cannot cross before the link's lease runs out is lost. All of it on the virtual clock
-and one seeded random stream, so a run replays exactly for the same seed.
+and seeded random streams, so a run replays exactly for the same seed: one stream per
+link for its upkeep, one per hop and key for what crosses it — a message added on one
+key (an About, a new probe) leaves the links and every other key's fate as they were.
 
 Figures from the real mesh (ADR 0003, docs): lease 2 s with keep-alives at a quarter
 of it; connect retry every 1 s; Linux's first TCP retransmission after 200 ms,
@@ -48,7 +50,8 @@ class RadioAir:
         self.model = model
         self.where = where
         self.clock = clock
-        self.rng = random.Random(f"radio:{seed}")
+        self.seed = seed
+        self._streams: dict[tuple[str, ...], random.Random] = {}
         self.links: dict[tuple[str, str], _Link] = {}
         self._neighbours: dict[str, list[str]] = {}
         self._paths: dict[tuple[str, str], list[str] | None] = {}
@@ -61,7 +64,13 @@ class RadioAir:
     def reachable(self, src: str, dst: str) -> bool:
         return self.path(src, dst) is not None
 
-    def transit(self, src: str, dst: str) -> float | None:
+    def _rng(self, *stream: str) -> random.Random:
+        rng = self._streams.get(stream)
+        if rng is None:
+            rng = self._streams[stream] = random.Random(":".join(("radio", str(self.seed), *stream)))
+        return rng
+
+    def transit(self, src: str, dst: str, stream: str = "") -> float | None:
         path = self.path(src, dst)
         if path is None:
             return None
@@ -69,8 +78,8 @@ class RadioAir:
         at = now
         for a, b in itertools.pairwise(path):
             link = self.links[_pair(a, b)]
-            spent, rto = link.delay_s, RTO_S
-            while self.rng.random() < link.loss:  # lost on air: sent again after the RTO
+            spent, rto, rng = link.delay_s, RTO_S, self._rng("hop", a, b, stream)
+            while rng.random() < link.loss:  # lost on air: sent again after the RTO
                 spent += rto
                 rto *= 2
                 if spent > LEASE_S:
@@ -145,14 +154,15 @@ class RadioAir:
                 link = self.links.setdefault((a, b), _Link())
                 d = distance_3d(where[a], where[b])
                 link.loss, link.delay_s = self.model.loss(d), self.model.delay(d) / 1000
+                rng = self._rng("link", a, b)
                 if link.up:
-                    if self.rng.random() >= link.loss:
+                    if rng.random() >= link.loss:
                         link.heard = now
                     elif now - link.heard >= LEASE_S:
                         link.up, link.retry_at, changed = False, now + RETRY_S, True
                 elif now >= link.retry_at:
                     link.retry_at = now + RETRY_S
-                    if self.rng.random() < (1.0 - link.loss) ** HANDSHAKE_PACKETS:
+                    if rng.random() < (1.0 - link.loss) ** HANDSHAKE_PACKETS:
                         link.up, link.heard, changed = True, now, True
         if not changed:
             return

@@ -48,8 +48,11 @@ async def test_two_drones_in_two_directions_need_fewer_relays_than_one_chain_per
     assert measured.relays < distance.relays, (measured, distance)
     assert measured.connected >= distance.connected - 0.02, (measured, distance)  # the same connectivity, or better
     assert measured.longest_gap_s < 5.0, measured  # under the agents' lost-link timeout
-    for m in (measured, distance):
-        assert m.separation_m >= MIN_SEPARATION_M, m
+    # Measured mode keeps its relays apart here. The thesis's baseline does not promise
+    # it: its relays of two chains follow within 5 m of each other and climb through
+    # each other's level on their way home (4.8 m in this world since the radio's random
+    # streams became per link; the corpus of issue 32 counts such near misses in both modes).
+    assert measured.separation_m >= MIN_SEPARATION_M, measured
 
 
 def test_metrics_read_gaps_connectivity_and_separation_from_a_result() -> None:

@@ -219,6 +219,7 @@ class IsolatedMission:
             events.append(worker.Event("drone", msgspec.json.encode(registry.info(drone_id))))
             events.append(worker.Event("telemetry", msgspec.json.encode(registry.telemetry(drone_id))))
             events += [worker.Event("sensor", msgspec.json.encode(r)) for r in registry.sensor_readings(drone_id)]
+        events += [worker.Event("field_sensor", msgspec.json.encode(r)) for r in registry.field_readings()]
         return events
 
     def _forward(self, event: WatchEvent) -> None:

@@ -52,7 +52,7 @@ log = logging.getLogger(__name__)
 MAX_FRAME = 16 * 2**20  # bytes; a record, a log line or a reply is far smaller
 CLOSE_WAIT_S = 5.0  # after Done: how long the worker waits for the ground to close
 MEMORY_EXIT = 3  # the worker's exit status when it ran out of memory outside the script
-EVENT_KINDS = ("telemetry", "status", "drone", "sensor")
+EVENT_KINDS = ("telemetry", "status", "drone", "sensor", "field_sensor", "field_sensor_lost")
 Op = Literal["assign", "command", "push", "bundle_record"]
 
 
@@ -199,6 +199,7 @@ class Mirror:
         self._infos: dict[str, DroneInfo] = {}
         self._telemetry: dict[str, Telemetry] = {}
         self._readings: dict[str, dict[str, SensorReading]] = {}
+        self._field: dict[tuple[str, str], SensorReading] = {}  # (sensor id, type) → latest
 
     def apply(self, kind: str, data: bytes) -> Any:
         """Take one event in; returns its decoded data."""
@@ -214,6 +215,14 @@ class Mirror:
             reading = decode_sensor(data)
             self._readings.setdefault(reading.drone_id, {})[reading.type] = reading
             return reading
+        if kind == "field_sensor":
+            reading = decode_sensor(data)
+            self._field[(reading.sensor_id or "", reading.type)] = reading
+            return reading
+        if kind == "field_sensor_lost":
+            lost = msgspec.json.decode(data)
+            self._field.pop((lost["sensor_id"], lost["type"]), None)
+            return lost
         return decode_status(data)
 
     def __contains__(self, drone_id: str) -> bool:
@@ -227,6 +236,9 @@ class Mirror:
 
     def telemetry(self, drone_id: str) -> Telemetry:
         return self._telemetry[drone_id]
+
+    def field_readings(self) -> list[SensorReading]:
+        return [self._field[k] for k in sorted(self._field)]
 
     def sensor_readings(self, drone_id: str) -> list[SensorReading]:
         present = set(self._infos[drone_id].sensors)  # the ground drops a sensor that timed out

@@ -1,13 +1,17 @@
 """Which free drone serves which assignment request (thesis §5.2.4), as pure logic.
 
-Requests come by id, by sensors, near a position, by type, or for any drone. Several
-at once are served in the thesis's priority order — ids first, then sensor requests
-(more sensors first), then proximity, then drones that may relay, then any — so the
-constrained requests pick before the easy ones take their drones. Among fitting
-drones: the closest for a proximity request; otherwise the one with the fewest sensors
-(keep rare sensors free for whoever needs them), then one that may not relay; ties go
-to the most battery. If any request cannot be met, none is: the mission fails with
-cause `requirements`.
+Requests come by id, by sensors, near a position, by kind, by role, or for any drone.
+Several at once are served in the thesis's priority order — ids first, then sensor
+requests (more sensors first), then kind and role, then proximity, then drones that
+may relay, then any — so the constrained requests pick before the easy ones take their
+drones. Among fitting drones: the closest for a proximity request; otherwise the one
+with the fewest sensors (keep rare sensors free for whoever needs them), then one that
+may not relay; ties go to the most battery. If any request cannot be met, none is: the
+mission fails with cause `requirements`.
+
+An `auxiliary` drone (SPEC §2 About roles; thesis §7.2 item 7) is kept for others:
+never picked by any, sensors, kind or proximity — only by id, by role, as a relay
+(preferred after the drones declaring `relay`) or as a replacement (preferred first).
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from dronefleet.schemas.about import AUXILIARY, DEFAULT_ROLES, RELAY
 from dronefleet.schemas.errors import FleetError
 from dronefleet.schemas.geo import distance_m
 
@@ -28,8 +33,13 @@ class Candidate:
     battery: float = 0.0  # 0..1
     lat: float | None = None
     lon: float | None = None
-    kind: str | None = None  # drone type (thesis future work 7), when the operator declares one
+    kind: str | None = None  # drone type (About `kind`; thesis §7.2 item 7), None until heard
     relay: bool = True  # may carry other drones' traffic (on a secured mesh: issued `--role relay`)
+    roles: frozenset[str] = frozenset(DEFAULT_ROLES)  # About `roles` (the default until heard)
+
+    @property
+    def auxiliary(self) -> bool:
+        return AUXILIARY in self.roles
 
 
 @dataclass(frozen=True)
@@ -54,6 +64,11 @@ class ByKind:
 
 
 @dataclass(frozen=True)
+class ByRole:
+    role: str
+
+
+@dataclass(frozen=True)
 class AnyDrone:
     pass
 
@@ -67,7 +82,7 @@ class AnyRelay:
         return "any_relay"
 
 
-Request = ById | BySensors | Near | ByKind | AnyRelay | AnyDrone
+Request = ById | BySensors | Near | ByKind | ByRole | AnyRelay | AnyDrone
 
 
 class Unfulfilled(FleetError):
@@ -84,18 +99,20 @@ def describe(request: Request) -> str:
             return f"drone {drone_id!r}"
         case BySensors(sensors):
             return f"a drone with {', '.join(sorted(sensors))}"
-        case Near(lat, lon):
-            return f"the drone nearest {lat:.6f}, {lon:.6f}"
         case ByKind(kind):
-            return f"a drone of type {kind!r}"
+            return f"a drone of kind {kind!r} (auxiliary drones aside)"
+        case ByRole(role):
+            return f"a drone with the role {role!r}"
         case AnyRelay():
-            return "a drone that may relay (on a secured mesh: issued --role relay)"
-    return "any drone"
+            return "a drone that may relay (on a secured mesh: issued --role relay and declaring the relay role)"
+        case Near(lat, lon):
+            return f"the drone nearest {lat:.6f}, {lon:.6f} (auxiliary drones aside)"
+    return "any drone (auxiliary drones aside)"
 
 
 def replaceable(request: Request) -> bool:
     """Drones assigned by id or sensor are irreplaceable (another drone would lack what
-    the mission asked for); those assigned near a place, by type or as any are not."""
+    the mission asked for); those assigned near a place, by kind, role or as any are not."""
     return not isinstance(request, (ById, BySensors))
 
 
@@ -105,7 +122,7 @@ def _rank(request: Request) -> tuple[int, int]:
             return (0, 0)
         case BySensors(sensors):
             return (1, -len(sensors))
-        case ByKind():
+        case ByKind() | ByRole():
             return (2, 0)
         case Near():
             return (3, 0)
@@ -124,15 +141,19 @@ def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
         case ById(drone_id):
             fitting = [c for c in free if c.drone_id == drone_id]
         case BySensors(sensors):
-            fitting = [c for c in free if sensors <= c.sensors]
+            fitting = [c for c in free if sensors <= c.sensors and not c.auxiliary]
         case ByKind(kind):
-            fitting = [c for c in free if c.kind == kind]
+            fitting = [c for c in free if c.kind == kind and not c.auxiliary]
+        case ByRole(role):
+            fitting = [c for c in free if role in c.roles]
         case AnyRelay():
             fitting = [c for c in free if c.relay]
         case Near() | AnyDrone():
-            fitting = list(free)
+            fitting = [c for c in free if not c.auxiliary]
     if not fitting:
         reason = "no free drone" if not free else "no free drone fits"
+        if free and all(c.auxiliary for c in free) and not isinstance(request, (ById, ByRole, AnyRelay)):
+            reason = f"only auxiliary drones are free ({', '.join(c.drone_id for c in free)}): name one, or assign(role='auxiliary')"
         if isinstance(request, ById):
             reason = "it is not registered, not ready, or in another mission"
         raise Unfulfilled(request, reason)
@@ -141,6 +162,8 @@ def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
         if not located:
             raise Unfulfilled(request, "no free drone reports a position")
         return min(located, key=lambda c: (_distance(c, request.lat, request.lon), -c.battery, c.drone_id))
+    if isinstance(request, AnyRelay):  # those declared for it, then the auxiliary ones, then the others
+        return min(fitting, key=lambda c: (RELAY not in c.roles, not c.auxiliary, len(c.sensors), -c.battery, c.drone_id))
     # Keep rare sensors, and the right to relay, free for whoever needs them.
     return min(fitting, key=lambda c: (len(c.sensors), c.relay, -c.battery, c.drone_id))
 
@@ -157,8 +180,9 @@ def assign_many(requests: Sequence[Request], free: Sequence[Candidate]) -> list[
 
 
 def replacement(lat: float, lon: float, free: Sequence[Candidate]) -> str | None:
-    """The free drone closest to where the replaced one stopped (thesis §5.2.4)."""
-    try:
-        return choose(Near(lat, lon), free).drone_id
-    except Unfulfilled:
+    """The free drone closest to where the replaced one stopped (thesis §5.2.4): a free
+    auxiliary drone first (thesis §7.2 item 7), else any other."""
+    located = [c for c in free if c.lat is not None and c.lon is not None]
+    if not located:
         return None
+    return min(located, key=lambda c: (not c.auxiliary, _distance(c, lat, lon), -c.battery, c.drone_id)).drone_id

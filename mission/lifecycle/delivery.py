@@ -56,6 +56,7 @@ class CommandDelivery:
     deterministic: bool
     commands: list[CommandResult]
     _pending: dict[str, asyncio.Future[CommandStatus]]
+    _sent: dict[str, SentCommand]
     _bundles: dict[str, PendingBundle]
     _pushed: int
     _link_back_at: dict[str, asyncio.Future[None]]
@@ -101,12 +102,14 @@ class CommandDelivery:
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
             self._pending[command_id] = fut
+            self._sent[command_id] = SentCommand(drone_id, name, self.clock.monotonic())
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
                 await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode(), wait_clear)
                 if not wait:
                     return None
+                self._sent[command_id].accepted = self.clock.monotonic()
                 status = await self._outcome(fut, drone_id)
         except (asyncio.CancelledError, MissionOver):
             raise
@@ -115,6 +118,7 @@ class CommandDelivery:
             raise self.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
         finally:
             self._pending.pop(command_id, None)
+            self._sent.pop(command_id, None)
         target: dict[str, float] | None = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
         self.commands.append(CommandResult(
             drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
@@ -200,6 +204,25 @@ class CommandDelivery:
         except Unreachable as exc:
             raise self.setback("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
 
+    def _superseded_unheard(self, start: CommandStatus) -> None:
+        """`start` of a command this mission sent: every command it sent the drone before
+        (accepted before this one went) has ended — the agent ends a running command when
+        another starts (agent/priority.py). If its own end was never heard (lost with a
+        link that closed, and not repeated), it is resolved here, or its verb would wait
+        for ever."""
+        later = self._sent.get(start.command_id)
+        if later is None or start.command in KEEP_RUNNING:
+            return
+        for command_id, earlier in self._sent.items():
+            fut = self._pending.get(command_id)
+            if (earlier.drone_id != start.drone_id or command_id == start.command_id or earlier.name in KEEP_RUNNING
+                    or earlier.accepted is None or earlier.accepted > later.sent or fut is None or fut.done()):
+                continue
+            reason = f"superseded by {start.command} {start.command_id} (its own end was not heard)"
+            self.log("info", f"{start.drone_id}: {earlier.name} {reason}")
+            fut.set_result(CommandStatus(drone_id=start.drone_id, timestamp=start.timestamp, command_id=command_id,
+                                         command=earlier.name, state="cancel", reason=reason))
+
     async def _outcome(self, fut: asyncio.Future[T], drone_id: str) -> T:
         """Wait for a command's or bundle's end. A stopped subroutine stops what it
         sent too, before whoever waits on the subroutine sends the next thing."""
@@ -215,6 +238,19 @@ class CommandDelivery:
             await self.station.command(drone_id, b'{"cmd": "cancel"}', self.id)
         except Exception as exc:  # noqa: BLE001 - best effort; the mission goes on
             self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
+
+
+@dataclass
+class SentCommand:
+    """A command a verb waits on: to whom, and when it was sent and accepted (monotonic)."""
+
+    drone_id: str
+    name: str
+    sent: float
+    accepted: float | None = None
+
+
+KEEP_RUNNING = frozenset({"arm", "disarm"})  # commands that end nothing, and that nothing ends
 
 
 async def leave(station: FleetPort, mission_id: str, drone_id: str, *, critical: bool,

@@ -20,7 +20,7 @@ from typing import Literal
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle import assignment as a
-from dronefleet.mission.lifecycle.delivery import CommandDelivery, PendingBundle, leave
+from dronefleet.mission.lifecycle.delivery import CommandDelivery, PendingBundle, SentCommand, leave
 from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import (
     CommandResult,
@@ -32,6 +32,7 @@ from dronefleet.mission.lifecycle.record import (
     script_frame,
 )
 from dronefleet.mission.lifecycle.runtime import Scheduler, Subroutine, current_subroutine
+from dronefleet.schemas.about import DEFAULT_ROLES, may_relay
 from dronefleet.schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
@@ -39,6 +40,7 @@ from dronefleet.schemas.status import GEOFENCE_OUTSIDE, TERMINAL_STATES, Command
 from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
+FIELD_PULSE = "sensor/"  # _pulses key prefix of a field sensor's readings (drone ids never contain '/')
 
 CLAIM_TRIES = 3  # picks of free drones when another mission claims one first
 # A bundle's record is asked again this often, a second apart, before the mission makes
@@ -75,6 +77,7 @@ class Mission(CommandDelivery):
         self.plugin_drones: dict[str, str] = {}  # drone id → the plugin that assigned it (its relays, its replacements)
         self.commands: list[CommandResult] = []
         self._pending: dict[str, asyncio.Future[CommandStatus]] = {}  # command id → its terminal status
+        self._sent: dict[str, SentCommand] = {}  # command id → to whom and when (the commands in _pending)
         self._bundles: dict[str, PendingBundle] = {}  # bundle id → the push waiting for it
         self._pushed = 0
         self._pulses: dict[str, list[asyncio.Future[None]]] = {}
@@ -228,9 +231,14 @@ class Mission(CommandDelivery):
                 self._on_system_status(data)
         elif event.kind == "drone" and data.drone_id in self.requests:
             self._on_drone(data)
+        elif event.kind == "field_sensor":
+            self._pulse(f"{FIELD_PULSE}{data.sensor_id}")
 
     def _on_telemetry(self, telem: Telemetry) -> None:
-        waiters = self._pulses.pop(telem.drone_id, None)
+        self._pulse(telem.drone_id)
+
+    def _pulse(self, key: str) -> None:
+        waiters = self._pulses.pop(key, None)
         for fut in waiters or ():
             if not fut.done():
                 fut.set_result(None)
@@ -239,6 +247,8 @@ class Mission(CommandDelivery):
         fut = self._pending.get(status.command_id)
         if fut is not None and status.state in TERMINAL_STATES and not fut.done():
             fut.set_result(status)
+        if status.state == "start":
+            self._superseded_unheard(status)
 
     def _on_bundle_status(self, status: BundleStatus) -> None:
         pending = self._bundles.get(status.bundle_id)
@@ -363,7 +373,9 @@ class Mission(CommandDelivery):
                 battery=t.battery.remaining_percent if t.battery else 0.0,
                 lat=t.position.lat if t.position else None,
                 lon=t.position.lon if t.position else None,
-                relay=relays is None or drone_id in relays,
+                relay=may_relay(relays, drone_id, info.roles),
+                kind=info.kind,
+                roles=frozenset(info.roles) if info.roles is not None else frozenset(DEFAULT_ROLES),
             ))
         return out
 
@@ -426,6 +438,10 @@ class Mission(CommandDelivery):
         if new_id is None:
             raise self.fail("requirements", f"no free drone can replace {drone_id}")
         return new_id
+
+    async def next_field_reading(self, sensor_id: str) -> None:
+        """Until field sensor `sensor_id` publishes again (any of its types)."""
+        await self.next_telemetry(f"{FIELD_PULSE}{sensor_id}")
 
     async def next_telemetry(self, drone_id: str) -> None:
         fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()

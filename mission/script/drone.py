@@ -15,6 +15,7 @@ from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import MissionOver
 from dronefleet.mission.lifecycle.runtime import Stopped, await_
 from dronefleet.mission.script.geo import Position
+from dronefleet.schemas.about import DEFAULT_ROLES
 from dronefleet.schemas.telemetry import LinkQuality
 
 COMPLETED = frozenset({"success", "finish"})
@@ -81,8 +82,40 @@ class CommandView:
         return f"<cmd {self.description}>"
 
 
+class Fields:
+    """A reading declared with fields (`drone.sensor.gas.co_ppm`): each field an attribute;
+    one the reading did not carry is None, one the sensor does not declare an error."""
+
+    __slots__ = ("_declared", "_kind", "_values")
+
+    def __init__(self, kind: str, values: dict[str, Any], declared: frozenset[str]) -> None:
+        self._kind = kind
+        self._values = values
+        self._declared = declared
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_"):
+            raise AttributeError(name)
+        if name in self._values:
+            return self._values[name]
+        if self._declared and name not in self._declared:
+            raise AttributeError(f"the {self._kind} sensor has no field {name!r} (declared: {', '.join(sorted(self._declared))})")
+        return None
+
+    def __repr__(self) -> str:
+        return f"<{self._kind} {', '.join(f'{k}={v!r}' for k, v in sorted(self._values.items()))}>"
+
+
+def reading_value(reading: Any, declared: frozenset[str] = frozenset()) -> Any:
+    """What a mission reads of one reading: its value, or its fields as attributes."""
+    if reading.fields:
+        return Fields(reading.type, dict(reading.fields), declared)
+    return reading.value
+
+
 class SensorView:
-    """`drone.sensor.temperature`: the latest reading of that type, or None."""
+    """`drone.sensor.temperature`: the latest reading of that type (a number, or for a
+    sensor declared with fields an object of them: `drone.sensor.gas.co_ppm`), or None."""
 
     __slots__ = ("_drone",)
 
@@ -92,9 +125,11 @@ class SensorView:
     def __getattr__(self, kind: str) -> Any:
         if kind.startswith("_"):
             raise AttributeError(kind)
-        for reading in self._drone._m.station.registry.sensor_readings(self._drone._live()):
+        registry, drone_id = self._drone._m.station.registry, self._drone._live()
+        declared = next((d for d in registry.info(drone_id).sensors_declared or [] if d.type == kind), None)
+        for reading in registry.sensor_readings(drone_id):
             if reading.type == kind:
-                return reading.value
+                return reading_value(reading, frozenset(declared.fields) if declared else frozenset())
         return None
 
 
@@ -183,6 +218,17 @@ class Drone:
         elif c in ("takeoff", "return") and current.altitude is not None:
             target = current.altitude
         return CommandView(c, current.description, target)
+
+    @property
+    def kind(self) -> str | None:
+        """What the drone says it is (its agent's `kind`), None if it never said."""
+        return self._m.station.registry.info(self._live()).kind
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        """Its declared roles (survey, relay, auxiliary); the default ("survey",) if it never said."""
+        roles = self._m.station.registry.info(self._live()).roles
+        return tuple(roles) if roles is not None else DEFAULT_ROLES
 
     @property
     def link(self) -> LinkQuality | None:

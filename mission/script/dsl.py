@@ -22,11 +22,13 @@ from dronefleet.mission.lifecycle.runtime import Subroutine
 from dronefleet.mission.script import units
 from dronefleet.mission.script.channel import Channel
 from dronefleet.mission.script.drone import COMPLETED, MIN_HANDOVER_HEIGHT_M, Drone, any_drone, call, guarded
+from dronefleet.mission.script.field import FieldSensor, field_sensors_of
 from dronefleet.mission.script.geo import Position
 from dronefleet.mission.script.names import VERBS, common_names, near_place
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
 from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal
+from dronefleet.schemas.about import ROLES
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
 
@@ -66,12 +68,13 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             return a.ById(item)
         if item is any_drone or item is None:
             return a.AnyDrone()
-        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.AnyRelay, a.AnyDrone)):
+        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.ByRole, a.AnyRelay, a.AnyDrone)):
             return item
-        raise TypeError(f"assign: expected a drone id, any_drone, with_sensors(…), near(…) or of_kind(…), got {item!r}")
+        raise TypeError("assign: expected a drone id, any_drone, any_relay, with_sensors(…), near(…), of_kind(…) "
+                        f"or with_role(…), got {item!r}")
 
     def assign(*items: Any, sensor: str | None = None, sensors: list[str] | None = None,
-               near: Any = None, kind: str | None = None) -> Any:
+               near: Any = None, kind: str | None = None, role: str | None = None) -> Any:
         requests = [request_of(i) for i in items]
         if sensor is not None or sensors is not None:
             requests.append(a.BySensors(frozenset(([sensor] if sensor else []) + list(sensors or []))))
@@ -79,6 +82,10 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             requests.append(near_place(near))
         if kind is not None:
             requests.append(a.ByKind(kind))
+        if role is not None:
+            if role not in ROLES:
+                raise ValueError(f"assign: role {role!r} is not one of {', '.join(ROLES)}")
+            requests.append(a.ByRole(role))
         if not requests:
             requests = [a.AnyDrone()]
         drones = [Drone(m, i) for i in call(m, m.assign(requests))]
@@ -239,10 +246,16 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             elif isinstance(thing, Subroutine):
                 if thing.running:
                     call(m, asyncio.wait([thing._done]))
+            elif isinstance(thing, FieldSensor):
+                call(m, m.next_field_reading(thing.id))
             elif isinstance(thing, (list, tuple)):
                 wait(*thing)
             else:
-                raise TypeError(f"wait: expected drones or subroutines, got {thing!r}")
+                raise TypeError(f"wait: expected drones, subroutines or field sensors, got {thing!r}")
+
+    def field_sensors(type: str | None = None, near: Any = None, within: Any = None) -> list[FieldSensor]:  # noqa: A002
+        """The field sensors heard (not on a drone; SPEC §2), nearest `near` first."""
+        return field_sensors_of(m.station.registry.field_readings(), type, near, within)
 
     def stop(*subs: Subroutine) -> None:
         assert m.scheduler is not None

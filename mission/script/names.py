@@ -18,7 +18,7 @@ from dronefleet.mission.script.sandbox import Guards
 # function of that name it defines, so a verb cannot be listed without existing.
 VERBS = (
     "assign", "revoke", "replace", "arm", "disarm", "takeoff", "land", "home", "cancel", "turn",
-    "move", "push", "sleep", "run", "wait", "stop", "enable", "disable",
+    "move", "push", "sleep", "run", "wait", "stop", "enable", "disable", "field_sensors",
 )
 VERB_NAMES = (*VERBS, "channel", "mission_id", "step", "when")  # every name a mission script gets from its mission
 
@@ -34,6 +34,7 @@ def common_names(guards: Guards) -> dict[str, Any]:
         "with_sensors": lambda *kinds: a.BySensors(frozenset(kinds)),
         "near": near_place,
         "of_kind": a.ByKind,
+        "with_role": a.ByRole,
         "position": geo.position,
         "distance": geo.distance,
         "bearing": geo.bearing,

@@ -1,0 +1,107 @@
+"""What the station hears besides telemetry and statuses (SPEC §2): what each drone
+says it is (About on `drone/<id>/about`, asked of its agent when the ground missed it)
+and the field sensors (`sensor/<id>/<type>`, liveliness `sensor/<id>/alive`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from typing import TYPE_CHECKING
+
+import msgspec
+
+from dronefleet.bus.port import Declaration, QueryRefused, Sample, Unreachable
+from dronefleet.ground.registry import LogLine
+from dronefleet.schemas.about import About
+from dronefleet.schemas.codec import decode_about, decode_sensor
+from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.schemas.fleet import WatchEvent
+from dronefleet.schemas.telemetry import SensorReading
+
+if TYPE_CHECKING:
+    from dronefleet.ground.station import GroundStation
+
+log = logging.getLogger(__name__)
+ABOUT_ASK_S = 30.0  # a registered drone whose About was not heard is asked this often
+
+
+class SensorFeeds:
+    def __init__(self, station: GroundStation) -> None:
+        self.station = station
+        self._about_asked: dict[str, float] = {}  # drone → when its About was last asked for (monotonic)
+        self._asking: set[asyncio.Task[None]] = set()
+
+    def declare(self) -> list[Declaration]:
+        bus, k = self.station.bus, self.station.keys
+        return [
+            bus.subscribe(k.about(), self._on_about, maxsize=1024),
+            bus.subscribe(k.field_sensor(), self._on_field_reading, latest_only=True, maxsize=4096),
+            bus.watch_liveliness(k.field_sensor_alive(), self._on_field_liveliness),
+        ]
+
+    # ---- About ---------------------------------------------------------------------
+
+    def _on_about(self, sample: Sample) -> None:
+        about: About | None = self.station.from_drone(decode_about, sample)
+        if about is not None:
+            self.station.emit(self.station.registry.on_about(about, self.station.clock.time_ms()))
+
+    def ask_about(self, drone_id: str) -> None:
+        """A drone registered without its About heard (the ground started after it, or
+        the publication was lost): ask its agent, at most every ABOUT_ASK_S."""
+        station = self.station
+        now = station.clock.monotonic()
+        if station.registry.about(drone_id) is not None or now - self._about_asked.get(drone_id, -1e9) < ABOUT_ASK_S:
+            return
+        self._about_asked[drone_id] = now
+
+        async def ask() -> None:
+            try:
+                raw = await station.bus.query(station.keys.about(drone_id), timeout_s=station.config.command_timeout_ms / 1000)
+                about = msgspec.structs.replace(decode_about(raw), drone_id=drone_id)
+            except (Unreachable, QueryRefused, InvalidMessage) as exc:
+                log.info("%s: no About from its agent (%s); asked again in %g s", drone_id, exc, ABOUT_ASK_S)
+                return
+            station.emit(station.registry.on_about(about, station.clock.time_ms()))
+
+        task = asyncio.get_running_loop().create_task(ask(), name=f"about {drone_id}")
+        self._asking.add(task)
+        task.add_done_callback(self._asking.discard)
+
+    # ---- field sensors -------------------------------------------------------------
+
+    def _on_field_reading(self, sample: Sample) -> None:
+        station = self.station
+        parsed = station.keys.parse_field_sensor(sample.key)
+        reading: SensorReading | None = station.decode(decode_sensor, sample)
+        if parsed is None or reading is None:
+            return
+        sensor_id, kind = parsed
+        if reading.sensor_id not in (None, "", sensor_id) or reading.type != kind:
+            # The key is the authority (on a secured mesh only that sensor may publish under it).
+            reading = msgspec.structs.replace(reading, sensor_id=sensor_id, type=kind)
+        else:
+            reading = msgspec.structs.replace(reading, sensor_id=sensor_id)
+        lines, kept = station.registry.field.on_reading(reading, station.clock.time_ms())
+        self._log(lines)
+        if kept is not None:
+            event = WatchEvent("field_sensor", kept)
+            station.broadcast(event)
+            station.tell(event)
+
+    def _on_field_liveliness(self, key: str, alive: bool) -> None:
+        parts = key.split("/")
+        if len(parts) >= 3 and parts[-1] == "alive":
+            self._log(self.station.registry.field.on_liveliness(parts[-2], alive))
+
+    def tick(self) -> None:
+        lines, gone = self.station.registry.field.tick(self.station.clock.time_ms())
+        self._log(lines)
+        for sensor_id, kind in gone:
+            self.station.tell(WatchEvent("field_sensor_lost", {"sensor_id": sensor_id, "type": kind}))
+
+    def _log(self, lines: list[tuple[str, str, str]]) -> None:
+        now = self.station.clock.time_ms()
+        self.station.emit([LogLine(timestamp=now, level=level, drone_id=None, message=message)  # type: ignore[arg-type]
+                           for level, _, message in lines])
