@@ -92,7 +92,7 @@ def access_control(pki_dir: Path, namespace: str = "", bridges: tuple[str, froze
          "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "liveliness_token", "put",
                       "reply"], "key_exprs": [f"{prefix}ground/**"]},
         {"id": "forward", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES,
-         "key_exprs": [f"{prefix}drone/**"]},
+         "key_exprs": [f"{prefix}drone/**", f"{prefix}sensor/**"]},
         {"id": "no-commands", "permission": "deny", "flows": ["ingress"], "messages": ["query"],
          "key_exprs": [f"{prefix}drone/*/cmd", f"{prefix}drone/*/bundle"]},
     ]
@@ -109,6 +109,10 @@ def access_control(pki_dir: Path, namespace: str = "", bridges: tuple[str, froze
             policies.append({"rules": ["forward", "probes", "learn", "ground-state"], "subjects": [cn]})
         elif role == "operator":
             policies.append({"rules": ["read", "read-out"], "subjects": [cn]})
+        elif role == "sensor":  # a field sensor (SPEC §2): its readings and its token, nothing else
+            rules.append({"id": f"field-{cn}", "permission": "allow", "flows": ["ingress"],
+                          "messages": ["put", "liveliness_token"], "key_exprs": [f"{prefix}sensor/{cn}/**"]})
+            policies.append({"rules": [f"field-{cn}", "learn", "ground-state"], "subjects": [cn]})
         else:
             rules.append({"id": f"own-{cn}", "permission": "allow", "flows": BOTH, "messages": ALL_MESSAGES,
                           "key_exprs": [f"{prefix}drone/{cn}/**", f"{prefix}drone/{cn}"]})

@@ -181,6 +181,39 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
     run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count, extra))
 
 
+@sensor.command("publish")
+@click.option("--id", "sensor_id", required=True, help="The field sensor's id (its key: sensor/<id>/<type>).")
+@click.option("--type", "sensor_type", required=True, help="What it measures, e.g. gas or temperature.")
+@click.option("--at", "at", required=True, help="Where it stands: LAT,LON[,ALT] (degrees, metres AMSL).")
+@click.option("--value", type=float, help="A one-value reading (else FIELD=NUMBER pairs, else JSON lines on stdin).")
+@click.option("--unit", default="", help="The value's unit, e.g. degC.")
+@click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True,
+              help="Zenoh endpoint of the ground or a drone's agent (repeatable).")
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="On a secured mesh (SPEC §9): ca.pem and the sensor's NAME.pem/NAME.key (issued --role sensor); endpoints tls/…")
+@click.option("--name", "cert_name", help="The certificate to show, with --pki-dir (default: the sensor id).")
+@click.argument("fields", nargs=-1)
+def sensor_publish(sensor_id: str, sensor_type: str, at: str, value: float | None, unit: str, connect: tuple[str, ...],
+                   pki_dir: Path | None, cert_name: str | None, fields: tuple[str, ...]) -> None:
+    """A field sensor (not on a drone) publishes on sensor/<id>/<type> with its position.
+
+    One reading from FIELDS (co_ppm=12.5 no2_ppb=31) or --value; with neither, one per
+    JSON line on stdin ({"co_ppm": 12.5}, {"value": 21.5}, "at": [lat, lon, alt] moves it)
+    until end of input: a script beside a real sensor pipes into it.
+    """
+    from dronefleet.sim.field_sensor import parse_at, parse_fields, run_publish
+
+    position = parse_at(at)
+    given = parse_fields(fields)
+    if value is not None and given:
+        raise ConfigError("give --value or FIELD=NUMBER pairs, not both")
+    extra = secured_client(pki_dir, cert_name or sensor_id, list(connect))
+    sent = run_async(run_publish(sensor_id, sensor_type, position, value, given, unit, list(connect), extra,
+                                 lambda line: click.echo(line)))
+    if not sent:
+        fail("nothing published", 1)
+
+
 @main.command()
 @click.option("--port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="Port of the demo ground's Zenoh router.")
 @click.option("--http-port", type=click.IntRange(1, 65535), default=8001, show_default=True, help="Port of the demo ground's HTTP API.")

@@ -55,12 +55,15 @@ from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.fleet import WatchEvent
 from dronefleet.schemas.keys import Keys
-from dronefleet.schemas.telemetry import Telemetry
+from dronefleet.schemas.telemetry import Position, Telemetry
+from dronefleet.sim.field_model import sample
+from dronefleet.sim.field_sensor import simulated_field_sensor
+from dronefleet.sim.heat_field import temperature_at
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
 from dronefleet.sim.radio_air import RadioAir
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.vehicle import Vehicle
-from dronefleet.sim.world import World
+from dronefleet.sim.world import DroneSpec, FieldSensorSpec, World
 
 log = logging.getLogger(__name__)
 SHUTDOWN_GRACE_S = 3
@@ -250,13 +253,15 @@ class SimField:
             self._fcs.append(fc)
             if self.air is not None:
                 self.air.tick()  # the new drone's links
-            agent = Agent(spec.id, self.agent_config, fc, self._bus(spec.id), self.clock)
+            agent = Agent(spec.id, self._agent_config(spec), fc, self._bus(spec.id), self.clock)
             self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
             self._tasks.append(self._agents[spec.id])
             for fault in spec.faults:
                 self._tasks.append(loop.create_task(self._fault_at(vehicle, fault.at_s, fault.fault, fault.value)))
             if spec.sensors:
-                self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensors)))
+                self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensor_types)))
+        for field_sensor in self.world.field_sensors:
+            self._tasks.append(loop.create_task(self._field_sensor(field_sensor), name=f"field sensor {field_sensor.id}"))
         store = MissionStore(self.data_dir / "missions.db")
         port = self.station if self._fleet_port is None else self._fleet_port(self.station)
         self.manager = MissionManager(port, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins)
@@ -266,12 +271,34 @@ class SimField:
         # starts; on the radio, every drone the ground can reach.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000 + 0.1)
         for _ in range(100):
-            if all(set(spec.sensors) <= set(self._sensors_of(spec.id)) for spec in self.specs
+            if all(set(spec.sensor_types) <= set(self._sensors_of(spec.id)) for spec in self.specs
                    if self.air is None or self.air.reachable(spec.id, GROUND)):
                 break
             await self.clock.advance(0.1)
         else:
             raise RuntimeError("simulated drones did not register with their sensors within 10 s")
+
+    def _agent_config(self, spec: DroneSpec) -> AgentConfig:
+        """The agents' config with what this drone is (its world entry's kind, roles, sensors)."""
+        config = msgspec.structs.replace(self.agent_config, sensors=self.world.declarations(spec))
+        if spec.kind is not None:
+            config = msgspec.structs.replace(config, kind=spec.kind)
+        if spec.roles is not None:
+            config = msgspec.structs.replace(config, roles=list(spec.roles))
+        return config
+
+    async def _field_sensor(self, spec: FieldSensorSpec) -> None:
+        """A world's field sensor on the mesh (its own session, wired to the ground)."""
+        world = self.world
+        at = Position(lat=spec.lat, lon=spec.lon, alt=spec.alt)
+
+        def read(where: Position) -> dict[str, float] | float:
+            if spec.type == "temperature" and spec.type not in world.fields:
+                return round(temperature_at(world.environment_temp, world.heat_sources, where.lat, where.lon), 3)
+            return sample(world.fields[spec.type], where.lat, where.lon)
+
+        await simulated_field_sensor(self._bus(f"sensor {spec.id}"), spec.id, spec.type, at, read,
+                                     world.field_sensor_rate_ms, self.clock, Keys(self.config.namespace))
 
     def _sensors_of(self, drone_id: str) -> list[str]:
         registry = self.station.registry

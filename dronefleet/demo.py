@@ -178,11 +178,11 @@ class Demo:
         for spec in specs:
             bus.subscribe(self.keys.telem(spec.id), self._on_telem, latest_only=True)
             bus.subscribe(self.keys.sensor(spec.id), self._on_sensor)
-            for kind in spec.sensors if not opts.radio else []:  # on the radio: beside each agent
+            for kind in spec.sensor_types if not opts.radio else []:  # on the radio: beside each agent
                 self._start_sensor(bus, world, spec.id, kind)
         sampler = self._background(self._sample(), "the telemetry recorder")
 
-        names = ", ".join(s.id + (f" ({', '.join(s.sensors)})" if s.sensors else "") for s in specs)
+        names = ", ".join(s.id + (f" ({', '.join(s.sensor_types)})" if s.sensors else "") for s in specs)
         self.out("")
         self.out(f"Fleet demo: a ground station and {len(specs)} simulated drones ({names}), world {opts.world}")
         self.out(f"  API:    {self.url}/   (OpenAPI at {self.url}/openapi.json)")
@@ -193,7 +193,7 @@ class Demo:
         self.out("")
         await self._wait_drones(http, specs)
 
-        watched = next((s.id for s in specs if "temperature" in s.sensors), specs[0].id)
+        watched = next((s.id for s in specs if "temperature" in s.sensor_types), specs[0].id)
         gs = world.ground_station or world.origin
         frame = LocalFrame(gs.lat, gs.lon)
         mission_id = await self._submit(http, source)
@@ -272,7 +272,7 @@ class Demo:
             infos = await self._poll_states(http)
             missing = [  # ready, with its sensors, and healthy (an autopilot's checks pass after its start)
                 s.id for s in specs
-                if s.id not in infos or infos[s.id]["state"] != "ready" or not set(s.sensors) <= set(infos[s.id]["sensors"])
+                if s.id not in infos or infos[s.id]["state"] != "ready" or not set(s.sensor_types) <= set(infos[s.id]["sensors"])
                 or infos[s.id].get("errors")
             ]
             if not missing:

@@ -19,7 +19,7 @@ import click
 
 from dronefleet.schemas.keys import check_id
 
-ROLES = ("drone", "relay", "ground", "operator")  # relay: a drone that may carry its neighbours' traffic
+ROLES = ("drone", "relay", "ground", "operator", "sensor")  # relay: a drone that may carry its neighbours' traffic; sensor: a field sensor
 CA_YEARS, NODE_YEARS = 10, 2
 
 

@@ -27,7 +27,7 @@ RELAY = "relay"
 _NAME = re.compile(r"^[A-Za-z0-9_\-]+$")  # a key chunk (sensor type) or a Python name part (field)
 
 
-class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True, omit_defaults=True):
     pass
 
 

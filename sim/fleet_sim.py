@@ -146,7 +146,7 @@ async def run_sim(
                                          config=agent_config)
                 children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
-                for kind in v.spec.sensors if field is not None else []:
+                for kind in v.spec.sensor_types if field is not None else []:
                     assert field is not None
                     sensor_args = field.sensor_args(v.spec.id, kind, Path(scratch.name))
                     if sensor_args is not None:

@@ -1,4 +1,5 @@
-"""Simulated sensors: the temperature sensor of thesis example 21.
+"""Simulated sensors: the temperature sensor of thesis example 21, and any sensor type
+the world gives `fields` (sim/field_model.py: a gas plume, say), read the same way.
 
 A heat field is an environment temperature plus heat sources, each a centre, a
 radius and a centre temperature: inside a source the temperature falls linearly from
@@ -23,6 +24,7 @@ from dronefleet.bus.port import Bus, Sample
 from dronefleet.schemas.codec import decode_telemetry, encode
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
+from dronefleet.sim.field_model import sample
 from dronefleet.sim.heat_field import HeatConfig, temperature_at
 
 if TYPE_CHECKING:
@@ -35,7 +37,11 @@ class TemperatureSensor:
     """Publishes the heat field's temperature where the drone's telemetry says it is."""
 
     def __init__(self, bus: Bus, drone_id: str, config: HeatConfig, *, clock: Clock | None = None,
-                 keys: Keys | None = None, on_reading: Callable[[SensorReading], None] | None = None) -> None:
+                 keys: Keys | None = None, on_reading: Callable[[SensorReading], None] | None = None,
+                 kind: str = "temperature", model: Callable[[float, float], dict[str, float]] | None = None) -> None:
+        """`model`: another type's fields where the drone is (sim/field_model.py), instead of the heat field."""
+        self.kind = kind
+        self.model = model
         self.bus = bus
         self.drone_id = drone_id
         self.config = config
@@ -58,13 +64,16 @@ class TemperatureSensor:
         t = self.telemetry
         if t is None or t.position is None:
             return None
+        if self.model is not None:
+            return SensorReading(drone_id=self.drone_id, timestamp=self.clock.time_ms(), type=self.kind,
+                                 fields=dict(self.model(t.position.lat, t.position.lon)))
         value = temperature_at(self.config.environment_temp, self.config.heat_sources, t.position.lat, t.position.lon)
         return SensorReading(drone_id=self.drone_id, timestamp=self.clock.time_ms(), type="temperature",
                              value=round(value, 3), unit="degC")
 
     async def run(self) -> None:
         sub = self.bus.subscribe(self.keys.telem(self.drone_id), self._on_telem, latest_only=True)
-        key = self.keys.sensor(self.drone_id, "temperature")
+        key = self.keys.sensor(self.drone_id, self.kind)
         try:
             while True:
                 reading = self.reading()
@@ -84,6 +93,9 @@ def simulated_sensor(bus: Bus, drone_id: str, kind: str, world: World, *, clock:
     any other kind is announced with readings of value None, so missions can assign by it."""
     if kind == "temperature":
         return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys).run()
+    if kind in world.fields:  # a sensor with fields (sim/field_model.py): each read where the drone is
+        return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys, kind=kind,
+                                 model=lambda lat, lon: sample(world.fields[kind], lat, lon)).run()
     return _announce(bus, drone_id, kind, world.sensor_rate_ms, clock or SystemClock(), keys or Keys())
 
 

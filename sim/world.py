@@ -10,8 +10,10 @@ from typing import Annotated, Literal
 import msgspec
 from msgspec import Meta
 
+from dronefleet.schemas.about import FieldSpec, Role, SensorDeclaration
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination
+from dronefleet.sim.field_model import FieldModel
 from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon
 from dronefleet.sim.radio import RadioModel, Spot3
 from dronefleet.sim.vehicle import VehicleParams
@@ -44,8 +46,24 @@ class DroneSpec(_Strict, frozen=True):
     lat: Lat | None = None
     lon: Lon | None = None
     alt: float | None = None
-    sensors: list[str] = []
+    sensors: list[str | SensorDeclaration] = []  # a type, or a declaration (SPEC §2 About)
     faults: list[Fault] = []
+    kind: str | None = None  # its agent's `kind` and `roles` (default: the agent's defaults)
+    roles: list[Role] | None = None
+
+    @property
+    def sensor_types(self) -> list[str]:
+        return [s if isinstance(s, str) else s.type for s in self.sensors]
+
+
+class FieldSensorSpec(_Strict, frozen=True):
+    """A simulated field sensor (not on a drone): it reads the world's `fields` of its type."""
+
+    id: str
+    type: str
+    lat: Lat
+    lon: Lon
+    alt: float = 0.0
 
 
 class BatteryModel(_Strict, frozen=True):
@@ -61,6 +79,9 @@ class World(_Strict, frozen=True):
     count: Annotated[int, Meta(ge=1, le=100)] | None = None
     environment_temp: float = 20.0
     heat_sources: list[HeatSource] = []
+    fields: dict[str, dict[str, FieldModel]] = {}  # sensor type → field name → model (sim/field_model.py)
+    field_sensors: list[FieldSensorSpec] = []
+    field_sensor_rate_ms: Annotated[int, Meta(ge=100, le=600_000)] = 1000
     sensor_rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200  # simulated sensors publish this often
     battery: BatteryModel = BatteryModel()
     # Distance → loss between any two nodes (SPEC §8). Fast time flies on a perfect
@@ -83,6 +104,26 @@ class World(_Strict, frozen=True):
         """Where the field laptop stands: `ground_station`, else the origin, at field level."""
         spot = self.ground_station or self.origin
         return Spot(lat=spot.lat, lon=spot.lon, alt=spot.alt or self.origin.alt)
+
+    def __post_init__(self) -> None:
+        missing = sorted({f.type for f in self.field_sensors if f.type not in self.fields and f.type != "temperature"})
+        if missing:
+            raise ValueError(f"field_sensors of type {', '.join(missing)} need `fields:` of that type to read")
+
+    def declarations(self, spec: DroneSpec) -> list[SensorDeclaration]:
+        """What a drone's agent declares of its simulated sensors: as listed, or for a bare
+        type the world's fields of that type (temperature: degC)."""
+        out = []
+        for s in spec.sensors:
+            if isinstance(s, SensorDeclaration):
+                out.append(s)
+            elif s == "temperature":
+                out.append(SensorDeclaration(type=s, unit="degC"))
+            elif s in self.fields:
+                out.append(SensorDeclaration(type=s, fields={name: FieldSpec() for name in self.fields[s]}))
+            else:
+                out.append(SensorDeclaration(type=s))
+        return out
 
     def heat_config(self) -> HeatConfig:
         return HeatConfig(rate_ms=self.sensor_rate_ms, environment_temp=self.environment_temp, heat_sources=self.heat_sources)

@@ -245,11 +245,14 @@ class GroundProcess(ChildProcess):
 class GroundFleet:
     """A `fleet ground` and `fleet agent --fc sim` children, one per (drone id, fc url)."""
 
-    def __init__(self, tmp: Path, fcs: dict[str, str], agent_config: dict[str, Any] | None = None, **ground_config: Any) -> None:
+    def __init__(self, tmp: Path, fcs: dict[str, str], agent_config: dict[str, Any] | None = None,
+                 per_agent: dict[str, dict[str, Any]] | None = None, **ground_config: Any) -> None:
+        """`agent_config` for every agent, `per_agent` (drone id → keys) on top of it."""
         self.tmp = tmp
         self.ground = GroundProcess(tmp, **ground_config)
         self.agents = {
-            d: AgentProcess(d, self.ground.endpoint, tmp, fc=fc, **(agent_config or {})) for d, fc in fcs.items()
+            d: AgentProcess(d, self.ground.endpoint, tmp, fc=fc, **{**(agent_config or {}), **(per_agent or {}).get(d, {})})
+            for d, fc in fcs.items()
         }
 
     def stop(self) -> None:
