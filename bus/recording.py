@@ -29,6 +29,7 @@ import msgspec
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.keyexpr import intersects
 from dronefleet.bus.port import Bus, Declaration, Sample
+from dronefleet.schemas.about import About
 from dronefleet.schemas.bundles import BundleStatus, TaskBundle
 from dronefleet.schemas.commands import Command
 from dronefleet.schemas.errors import FleetError
@@ -54,9 +55,10 @@ MESH_KINDS: dict[str, Any] = {
     "Command": Command,
     "TaskBundle": TaskBundle,
     "Liveliness": Liveliness,
+    "About": About,
 }
 _BY_LAST_CHUNK = {"telem": "Telemetry", "status": "Status", "link": "LinkQuality", "cmd": "Command",
-                  "bundle": "TaskBundle", "alive": "Liveliness"}
+                  "bundle": "TaskBundle", "alive": "Liveliness", "about": "About"}
 # Sent as queries (commands, bundles) or the ground's own: kept in a recording, never replayed.
 NOT_REPLAYED = frozenset({"Command", "TaskBundle"})
 
@@ -64,14 +66,14 @@ NOT_REPLAYED = frozenset({"Command", "TaskBundle"})
 def kind_of(key: str) -> str | None:
     """The message kind of a key, whatever namespace it is under: `…/drone/<id>/telem`
     → Telemetry, `…/drone/<id>/sensor/<type>` and `…/sensor/<id>/<type>` →
-    SensorReading, `…/ground/alive` → Liveliness; None for keys outside the contract."""
+    SensorReading, `…/drone/<id>/about` → About, `…/ground/alive` and `…/sensor/<id>/alive` → Liveliness; None for keys outside the contract."""
     parts = key.split("/")
     if len(parts) >= 3 and parts[-3] == "drone" and parts[-1] in _BY_LAST_CHUNK:
         return _BY_LAST_CHUNK[parts[-1]]
     if len(parts) >= 4 and parts[-4] == "drone" and parts[-2] == "sensor":
         return "SensorReading"
-    if len(parts) >= 3 and parts[-3] == "sensor":
-        return "SensorReading"
+    if len(parts) >= 3 and parts[-3] == "sensor":  # a field sensor: its readings and its token
+        return "Liveliness" if parts[-1] == "alive" else "SensorReading"
     if parts[-2:] == ["ground", "alive"]:
         return "Liveliness"
     return None

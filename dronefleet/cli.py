@@ -54,8 +54,12 @@ def main(ctx: click.Context, verbose: int) -> None:
 @click.option("--telemetry-rate-ms", type=int, help="Telemetry period in milliseconds.")
 @click.option("--state-dir", help="Where task bundle records outlive the agent; default ~/.local/state/fleet/<id>.")
 @click.option("--pki-dir", type=click.Path(file_okay=False, exists=True), help=PKI_DIR_HELP)
+@click.option("--kind", help="What the drone is (About `kind`, free text), e.g. x500-quad; default multicopter.")
+@click.option("--role", "roles", multiple=True, type=click.Choice(["survey", "relay", "auxiliary"]),
+              help="Its roles (repeatable; About `roles`); default survey.")
 def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tuple[str, ...], listen: tuple[str, ...],
-          mesh_interface: str | None, telemetry_rate_ms: int | None, state_dir: str | None, pki_dir: str | None) -> None:
+          mesh_interface: str | None, telemetry_rate_ms: int | None, state_dir: str | None, pki_dir: str | None,
+          kind: str | None, roles: tuple[str, ...]) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
     from dronefleet.agent.config import AgentConfig, default_state_dir
     from dronefleet.agent.runtime import run_agent
@@ -64,7 +68,7 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
         AgentConfig, config_path,
         {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
          "mesh_interface": mesh_interface, "telemetry_rate_ms": telemetry_rate_ms, "state_dir": state_dir,
-         "security": security_with_pki(config_path, pki_dir)},
+         "security": security_with_pki(config_path, pki_dir), "kind": kind, "roles": list(roles) or None},
     )
     if config.state_dir is None:
         import msgspec

@@ -15,9 +15,14 @@ def fleet_command(*args: str) -> list[str]:
 
 def agent_command(drone_id: str, fc: str, *, connect: Iterable[str] = (), listen: Iterable[str] = (),
                   mesh_interface: str | None = None, telemetry_rate_ms: int | None = None,
-                  state_dir: Path | None = None, config: Path | None = None) -> list[str]:
+                  state_dir: Path | None = None, config: Path | None = None, kind: str | None = None,
+                  roles: Iterable[str] = ()) -> list[str]:
     """`fleet agent --id ID --fc FC …` (SPEC §3)."""
     args = ["agent", "--id", drone_id, "--fc", fc]
+    if kind is not None:
+        args += ["--kind", kind]
+    for role in roles:
+        args += ["--role", role]
     for endpoint in connect:
         args += ["--connect", endpoint]
     for endpoint in listen:

@@ -139,11 +139,11 @@ async def run_sim(
         if agents:
             for v in vehicles.values():
                 fc = f"udpin://127.0.0.1:{v.port}"
-                if field is not None:
-                    args = field.agent_args(v.spec.id, fc, agent_config)
+                if field is not None:  # the world's kind and roles of each drone (its sensors: the agent config's)
+                    args = field.agent_args(v.spec.id, fc, agent_config, v.spec.kind, list(v.spec.roles or []))
                 else:
                     args = agent_command(v.spec.id, fc, connect=connect or [], listen=["tcp/127.0.0.1:0"],
-                                         config=agent_config)
+                                         config=agent_config, kind=v.spec.kind, roles=v.spec.roles or ())
                 children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
                 for kind in v.spec.sensor_types if field is not None else []:

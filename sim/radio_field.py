@@ -66,10 +66,11 @@ class RadioField:
             self.update(positions())
             await asyncio.sleep(period)
 
-    def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None) -> list[str]:
+    def agent_args(self, drone_id: str, fc: str, agent_config: Path | None = None, kind: str | None = None,
+                   roles: list[str] | None = None) -> list[str]:
         return [*self.net.exec_args(drone_id), *agent_command(
             drone_id, fc, connect=[self.ground_endpoint], listen=[f"{self.scheme}/0.0.0.0:{AGENT_PORT}"],
-            mesh_interface=RADIO_INTERFACE, config=agent_config)]
+            mesh_interface=RADIO_INTERFACE, config=agent_config, kind=kind, roles=roles or ())]
 
     def sensor_args(self, drone_id: str, kind: str, config_dir: Path) -> list[str] | None:
         """A simulated sensor program beside the drone's agent (temperature only)."""

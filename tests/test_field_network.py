@@ -266,7 +266,8 @@ async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildPr
     processes.append(ground)
     await ground.ready()
     a, b = north(50), north(105)
-    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1]}, {"id": "droneB", "lat": b[0], "lon": b[1]}],
+    # droneA may relay: its certificate (--role relay) and its About (roles) agree.
+    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1], "roles": ["survey", "relay"]}, {"id": "droneB", "lat": b[0], "lon": b[1]}],
                    lost_link={"timeout_s": 60, "action": "continue"})
     processes.append(sim)
     await sim.up()
@@ -367,7 +368,8 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
     processes.append(ground)
     await ground.ready()
     a, b, c, d = north(50), north(105), north(-50), north(-105)
-    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1]}, {"id": "droneB", "lat": b[0], "lon": b[1], "sensors": ["temperature"]},
+    # droneA may relay: its certificate (--role relay) and its About (roles) agree.
+    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1], "roles": ["survey", "relay"]}, {"id": "droneB", "lat": b[0], "lon": b[1], "sensors": ["temperature"]},
                                       {"id": "droneC", "lat": c[0], "lon": c[1]}, {"id": "droneD", "lat": d[0], "lon": d[1]}],
                    lost_link={"timeout_s": 60, "action": "continue"}, security=security)
     processes.append(sim)

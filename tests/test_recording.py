@@ -177,6 +177,8 @@ def comparable(view: dict[str, Any]) -> dict[str, Any]:
     """What a replay must reproduce of a drone in the registry (not the ground's clock)."""
     info = dict(view["info"])
     info.pop("link")  # measured every second: compared with the recording's last word instead
+    for about in ("kind", "roles", "sensors_declared"):  # About goes out at the agent's start, before
+        info.pop(about, None)  # `fleet record` began: not in this recording (the live ground asked the agent)
     current = info.pop("current_command", None)
     info["current_command"] = current and {k: v for k, v in current.items() if k != "timestamp"}
     return {"info": info, "telem": view["telem"]}
