@@ -56,9 +56,7 @@ from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.fleet import WatchEvent
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Position, Telemetry
-from dronefleet.sim.field_model import sample
 from dronefleet.sim.field_sensor import simulated_field_sensor
-from dronefleet.sim.heat_field import temperature_at
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
 from dronefleet.sim.radio_air import RadioAir
 from dronefleet.sim.sensors import simulated_sensor
@@ -289,16 +287,10 @@ class SimField:
 
     async def _field_sensor(self, spec: FieldSensorSpec) -> None:
         """A world's field sensor on the mesh (its own session, wired to the ground)."""
-        world = self.world
-        at = Position(lat=spec.lat, lon=spec.lon, alt=spec.alt)
-
-        def read(where: Position) -> dict[str, float] | float:
-            if spec.type == "temperature" and spec.type not in world.fields:
-                return round(temperature_at(world.environment_temp, world.heat_sources, where.lat, where.lon), 3)
-            return sample(world.fields[spec.type], where.lat, where.lon)
-
-        await simulated_field_sensor(self._bus(f"sensor {spec.id}"), spec.id, spec.type, at, read,
-                                     world.field_sensor_rate_ms, self.clock, Keys(self.config.namespace))
+        await simulated_field_sensor(self._bus(f"sensor {spec.id}"), spec.id, spec.type,
+                                     Position(lat=spec.lat, lon=spec.lon, alt=spec.alt),
+                                     lambda where: self.world.reading_at(spec.type, where.lat, where.lon),
+                                     self.world.field_sensor_rate_ms, self.clock, Keys(self.config.namespace))
 
     def _sensors_of(self, drone_id: str) -> list[str]:
         registry = self.station.registry

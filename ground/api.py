@@ -22,13 +22,15 @@ from litestar import Litestar, MediaType, Request, Response, delete, get, post
 from litestar.datastructures import ResponseHeader
 from litestar.di import Provide
 from litestar.exceptions import HTTPException, ValidationException
-from litestar.openapi import OpenAPIConfig, ResponseSpec
+from litestar.openapi import OpenAPIConfig
 from litestar.openapi.spec import Components, OpenAPIMediaType, Operation, RequestBody, SecurityScheme
 from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from dronefleet.bus.port import QueryRefused, Unreachable
 from dronefleet.ground.api_error import ApiError
+from dronefleet.ground.api_error import error_response as _error
+from dronefleet.ground.api_error import error_specs as _errors
 from dronefleet.ground.config import ROLE_RANK, ApiToken
 from dronefleet.ground.dashboard_routes import DashboardAssets, dashboard_config, dashboard_file, index
 from dronefleet.ground.describe import Level
@@ -79,24 +81,6 @@ class MissionView(MissionRecord, kw_only=True):
     """A mission record with its log lines (GET /mission/{id})."""
 
     log: list[MissionLogLine] = msgspec.field(default_factory=list)
-
-
-def _errors(*codes: int) -> dict[int, ResponseSpec]:
-    return {c: ResponseSpec(ApiError, description=_REASONS[c], generate_examples=False) for c in codes}
-
-
-_REASONS = {
-    400: "malformed request (the field at fault is named; for a script: line and column)",
-    404: "no such drone, mission or route",
-    409: "the drone cannot run this command now, or the mission already ended (reason given)",
-    413: "the script is too large",
-    502: "the agent answered with an error",
-    504: "the drone's agent did not answer (unreachable)",
-}
-
-
-def _error(status: int, error: str, detail: Any = None) -> Response[ApiError]:
-    return Response(ApiError(error=error, detail=detail), status_code=status)
 
 
 # ---- command body: decoded by schemas/, documented as the Command union --------------

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import msgspec
 
 from dronefleet.bus.port import Declaration, QueryRefused, Sample, Unreachable
+from dronefleet.ground.describe import Level
 from dronefleet.ground.registry import LogLine
 from dronefleet.schemas.about import About
 from dronefleet.schemas.codec import decode_about, decode_sensor
@@ -78,11 +79,8 @@ class SensorFeeds:
         if parsed is None or reading is None:
             return
         sensor_id, kind = parsed
-        if reading.sensor_id not in (None, "", sensor_id) or reading.type != kind:
-            # The key is the authority (on a secured mesh only that sensor may publish under it).
-            reading = msgspec.structs.replace(reading, sensor_id=sensor_id, type=kind)
-        else:
-            reading = msgspec.structs.replace(reading, sensor_id=sensor_id)
+        # The key is the authority (on a secured mesh only that sensor may publish under it).
+        reading = msgspec.structs.replace(reading, sensor_id=sensor_id, type=kind)
         lines, kept = station.registry.field.on_reading(reading, station.clock.time_ms())
         self._log(lines)
         if kept is not None:
@@ -101,7 +99,6 @@ class SensorFeeds:
         for sensor_id, kind in gone:
             self.station.tell(WatchEvent("field_sensor_lost", {"sensor_id": sensor_id, "type": kind}))
 
-    def _log(self, lines: list[tuple[str, str, str]]) -> None:
+    def _log(self, lines: list[tuple[Level, str]]) -> None:
         now = self.station.clock.time_ms()
-        self.station.emit([LogLine(timestamp=now, level=level, drone_id=None, message=message)  # type: ignore[arg-type]
-                           for level, _, message in lines])
+        self.station.emit([LogLine(timestamp=now, level=level, drone_id=None, message=message) for level, message in lines])

@@ -16,9 +16,8 @@ from dataclasses import dataclass, field
 
 import msgspec
 
+from dronefleet.ground.describe import Level
 from dronefleet.schemas.telemetry import Position, SensorReading
-
-Level = str
 
 
 class FieldSensorInfo(msgspec.Struct, frozen=True, kw_only=True):
@@ -62,27 +61,27 @@ class FieldSensors:
         """The latest reading of every (field sensor, type), as missions read them."""
         return [s.readings[t][0] for s in self._sensors.values() for t in sorted(s.readings)]
 
-    def on_reading(self, reading: SensorReading, now_ms: int) -> tuple[list[tuple[Level, str, str]], SensorReading | None]:
+    def on_reading(self, reading: SensorReading, now_ms: int) -> tuple[list[tuple[Level, str]], SensorReading | None]:
         """Log lines (level, sensor id, message) and the reading as kept (with the
         sensor's position when it did not repeat it), or None when it is dropped."""
         sensor_id = reading.sensor_id or ""
         sensor = self._sensors.get(sensor_id)
         position = reading.position or (sensor.position if sensor is not None else None)
         if position is None:
-            return [("warn", sensor_id, f"Dropped a {reading.type} reading of field sensor {sensor_id}: "
-                                        "no position (a field sensor's first reading says where it stands)")], None
-        lines: list[tuple[Level, str, str]] = []
+            return [("warn", f"Dropped a {reading.type} reading of field sensor {sensor_id}: "
+                             "no position (a field sensor's first reading says where it stands)")], None
+        lines: list[tuple[Level, str]] = []
         if sensor is None:
             sensor = self._sensors[sensor_id] = _Field(sensor_id)
-            lines.append(("info", sensor_id, f"Field sensor {sensor_id} registered at {position.lat:.6f}, {position.lon:.6f}"))
+            lines.append(("info", f"Field sensor {sensor_id} registered at {position.lat:.6f}, {position.lon:.6f}"))
         if reading.type not in sensor.readings:
-            lines.append(("info", sensor_id, f"Field sensor {sensor_id}: detected {reading.type}"))
+            lines.append(("info", f"Field sensor {sensor_id}: detected {reading.type}"))
         sensor.position = position
         kept = msgspec.structs.replace(reading, position=position, drone_id="")
         sensor.readings[reading.type] = (kept, now_ms)
         return lines, kept
 
-    def on_liveliness(self, sensor_id: str, alive: bool) -> list[tuple[Level, str, str]]:
+    def on_liveliness(self, sensor_id: str, alive: bool) -> list[tuple[Level, str]]:
         sensor = self._sensors.get(sensor_id)
         if sensor is None:
             if alive:  # its first reading registers it; the token says it is there
@@ -90,14 +89,14 @@ class FieldSensors:
             return []
         was, sensor.alive = sensor.alive, alive
         if was is not False and not alive:
-            return [("warn", sensor_id, f"Field sensor {sensor_id}: liveliness token lost (its readings stay until they time out)")]
+            return [("warn", f"Field sensor {sensor_id}: liveliness token lost (its readings stay until they time out)")]
         if was is False and alive:
-            return [("info", sensor_id, f"Field sensor {sensor_id}: back")]
+            return [("info", f"Field sensor {sensor_id}: back")]
         return []
 
-    def tick(self, now_ms: int) -> tuple[list[tuple[Level, str, str]], list[tuple[str, str]]]:
+    def tick(self, now_ms: int) -> tuple[list[tuple[Level, str]], list[tuple[str, str]]]:
         """Timeouts: log lines and the (sensor id, type) pairs that went."""
-        lines: list[tuple[Level, str, str]] = []
+        lines: list[tuple[Level, str]] = []
         gone: list[tuple[str, str]] = []
         for sensor_id, sensor in list(self._sensors.items()):
             for kind, (_, heard) in list(sensor.readings.items()):
@@ -105,8 +104,8 @@ class FieldSensors:
                 if limit and now_ms - heard > limit:
                     del sensor.readings[kind]
                     gone.append((sensor_id, kind))
-                    lines.append(("warn", sensor_id, f"Field sensor {sensor_id}: lost {kind}, no reading for {limit} ms"))
+                    lines.append(("warn", f"Field sensor {sensor_id}: lost {kind}, no reading for {limit} ms"))
             if not sensor.readings and sensor.alive is not True and (sensor.position is not None or sensor.alive is False):
                 del self._sensors[sensor_id]
-                lines.append(("warn", sensor_id, f"Field sensor {sensor_id} forgotten: no reading left and no liveliness token"))
+                lines.append(("warn", f"Field sensor {sensor_id} forgotten: no reading left and no liveliness token"))
         return lines, gone

@@ -6,11 +6,10 @@ from __future__ import annotations
 from typing import Annotated
 
 from litestar import Response, get
-from litestar.openapi.datastructures import ResponseSpec
 from litestar.openapi.spec import Example
 from litestar.params import Parameter
 
-from dronefleet.ground.api_error import ApiError
+from dronefleet.ground.api_error import error_response, error_specs
 from dronefleet.ground.field_sensors import FieldSensorInfo
 from dronefleet.ground.station import GroundStation
 
@@ -26,11 +25,9 @@ def list_field_sensors(
     return [s for s in found if s is not None and (sensor_type is None or sensor_type in s.types)]
 
 
-@get("/sensor/{sensor_id:str}", sync_to_thread=False, summary="One field sensor",
-     responses={404: ResponseSpec(ApiError, description="no such field sensor is heard", generate_examples=False)})
+@get("/sensor/{sensor_id:str}", sync_to_thread=False, summary="One field sensor", responses=error_specs(404))
 def show_field_sensor(station: GroundStation, sensor_id: str) -> Response[FieldSensorInfo]:
     found = station.registry.field.get(sensor_id)
     if found is None:
-        error = ApiError(error=f"no field sensor {sensor_id!r} is heard", detail={"sensor_id": sensor_id})
-        return Response(error, status_code=404)  # type: ignore[arg-type]
+        return error_response(404, f"no field sensor {sensor_id!r} is heard", {"sensor_id": sensor_id})  # type: ignore[return-value]
     return Response(found)

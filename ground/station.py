@@ -273,7 +273,7 @@ class GroundStation:
     def _refuse(self, drone_id: str, label: str, rejected: CommandRejected) -> NoReturn:
         """Log the refusal as "Refused <label>: …" and raise it."""
         self.emit([LogLine(timestamp=self.clock.time_ms(), level="warn", drone_id=drone_id,
-                            message=f"Refused {label}: {rejected.reason}")])
+                           message=f"Refused {label}: {rejected.reason}")])
         raise rejected
 
     def _signed(self, message: T) -> T:

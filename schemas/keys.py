@@ -75,10 +75,6 @@ class Keys(msgspec.Struct, frozen=True):
     def field_sensor_alive(self, sensor_id: str = "*") -> str:
         return self._k("sensor", sensor_id, "alive")
 
-    def field_sensors(self) -> str:
-        """Everything field sensors publish (readings; their tokens are liveliness)."""
-        return self._k("sensor", "**")
-
     def parse_field_sensor(self, key: str) -> tuple[str, str] | None:
         """(sensor id, type) of a `sensor/<id>/<type>` key under this namespace, else None."""
         prefix = f"{self.namespace}/" if self.namespace else ""

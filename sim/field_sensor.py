@@ -8,8 +8,10 @@ read the world's fields (sim/field_model.py) where they stand.
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
+import sys
 from collections.abc import AsyncIterator, Callable
 from typing import Any
 
@@ -115,9 +117,6 @@ async def simulated_field_sensor(bus: Bus, sensor_id: str, sensor_type: str, at:
 async def run_publish(sensor_id: str, sensor_type: str, at: Position, value: float | None, fields: dict[str, float],
                       unit: str, connect: list[str], extra: dict[str, Any], out: Callable[[str], None]) -> int:
     """`fleet sensor publish`: one reading from the command line, or one per stdin line."""
-    import asyncio
-    import sys
-
     from dronefleet.bus.zenoh_bus import ZenohBus
 
     clock = SystemClock()

@@ -13,8 +13,8 @@ from msgspec import Meta
 from dronefleet.schemas.about import FieldSpec, Role, SensorDeclaration
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination
-from dronefleet.sim.field_model import FieldModel
-from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon
+from dronefleet.sim.field_model import FieldModel, sample
+from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon, temperature_at
 from dronefleet.sim.radio import RadioModel, Spot3
 from dronefleet.sim.vehicle import VehicleParams
 
@@ -124,6 +124,13 @@ class World(_Strict, frozen=True):
             else:
                 out.append(SensorDeclaration(type=s))
         return out
+
+    def reading_at(self, kind: str, lat: float, lon: float) -> dict[str, float] | float:
+        """What a simulated sensor of `kind` reads there: the world's fields of that type,
+        else (temperature) the heat field."""
+        if kind in self.fields:
+            return sample(self.fields[kind], lat, lon)
+        return round(temperature_at(self.environment_temp, self.heat_sources, lat, lon), 3)
 
     def heat_config(self) -> HeatConfig:
         return HeatConfig(rate_ms=self.sensor_rate_ms, environment_temp=self.environment_temp, heat_sources=self.heat_sources)

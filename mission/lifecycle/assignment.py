@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from dronefleet.schemas.about import AUXILIARY, DEFAULT_ROLES, RELAY
+from dronefleet.schemas.about import AUXILIARY, DEFAULT_ROLES, RELAY, ROLES
 from dronefleet.schemas.errors import FleetError
 from dronefleet.schemas.geo import distance_m
 
@@ -66,6 +66,10 @@ class ByKind:
 @dataclass(frozen=True)
 class ByRole:
     role: str
+
+    def __post_init__(self) -> None:  # assign(role=…) and with_role(…) alike
+        if self.role not in ROLES:
+            raise ValueError(f"assign: role {self.role!r} is not one of {', '.join(ROLES)}")
 
 
 @dataclass(frozen=True)

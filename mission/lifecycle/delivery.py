@@ -55,7 +55,6 @@ class CommandDelivery:
     record: MissionRecord
     deterministic: bool
     commands: list[CommandResult]
-    _pending: dict[str, asyncio.Future[CommandStatus]]
     _sent: dict[str, SentCommand]
     _bundles: dict[str, PendingBundle]
     _pushed: int
@@ -101,8 +100,7 @@ class CommandDelivery:
         command_id = self.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
-            self._pending[command_id] = fut
-            self._sent[command_id] = SentCommand(drone_id, name, self.clock.monotonic())
+            self._sent[command_id] = SentCommand(drone_id, name, self.clock.monotonic(), fut)
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
@@ -117,7 +115,6 @@ class CommandDelivery:
             log.exception("mission %s: %s %s", self.id, name, drone_id)
             raise self.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
         finally:
-            self._pending.pop(command_id, None)
             self._sent.pop(command_id, None)
         target: dict[str, float] | None = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
         self.commands.append(CommandResult(
@@ -214,13 +211,12 @@ class CommandDelivery:
         if later is None or start.command in KEEP_RUNNING:
             return
         for command_id, earlier in self._sent.items():
-            fut = self._pending.get(command_id)
             if (earlier.drone_id != start.drone_id or command_id == start.command_id or earlier.name in KEEP_RUNNING
-                    or earlier.accepted is None or earlier.accepted > later.sent or fut is None or fut.done()):
+                    or earlier.accepted is None or earlier.accepted > later.sent or earlier.outcome.done()):
                 continue
             reason = f"superseded by {start.command} {start.command_id} (its own end was not heard)"
             self.log("info", f"{start.drone_id}: {earlier.name} {reason}")
-            fut.set_result(CommandStatus(drone_id=start.drone_id, timestamp=start.timestamp, command_id=command_id,
+            earlier.outcome.set_result(CommandStatus(drone_id=start.drone_id, timestamp=start.timestamp, command_id=command_id,
                                          command=earlier.name, state="cancel", reason=reason))
 
     async def _outcome(self, fut: asyncio.Future[T], drone_id: str) -> T:
@@ -242,11 +238,13 @@ class CommandDelivery:
 
 @dataclass
 class SentCommand:
-    """A command a verb waits on: to whom, and when it was sent and accepted (monotonic)."""
+    """A command a verb waits on: to whom, when it was sent and accepted (monotonic),
+    and the future its terminal status resolves."""
 
     drone_id: str
     name: str
     sent: float
+    outcome: asyncio.Future[CommandStatus]
     accepted: float | None = None
 
 

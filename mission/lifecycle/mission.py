@@ -76,8 +76,7 @@ class Mission(CommandDelivery):
         self.requests: dict[str, a.Request] = {}  # drone id → how it was assigned
         self.plugin_drones: dict[str, str] = {}  # drone id → the plugin that assigned it (its relays, its replacements)
         self.commands: list[CommandResult] = []
-        self._pending: dict[str, asyncio.Future[CommandStatus]] = {}  # command id → its terminal status
-        self._sent: dict[str, SentCommand] = {}  # command id → to whom and when (the commands in _pending)
+        self._sent: dict[str, SentCommand] = {}  # command id → the command a verb waits on, and its outcome
         self._bundles: dict[str, PendingBundle] = {}  # bundle id → the push waiting for it
         self._pushed = 0
         self._pulses: dict[str, list[asyncio.Future[None]]] = {}
@@ -180,9 +179,9 @@ class Mission(CommandDelivery):
         for wait in self._link_waits.values():
             wait.cancel()
         self._link_waits.clear()
-        for fut in self._pending.values():
-            if not fut.done():
-                fut.cancel()
+        for sent in self._sent.values():
+            if not sent.outcome.done():
+                sent.outcome.cancel()
         for pending in self._bundles.values():
             if not pending.done.done():
                 pending.done.cancel()
@@ -244,9 +243,9 @@ class Mission(CommandDelivery):
                 fut.set_result(None)
 
     def _on_command_status(self, status: CommandStatus) -> None:
-        fut = self._pending.get(status.command_id)
-        if fut is not None and status.state in TERMINAL_STATES and not fut.done():
-            fut.set_result(status)
+        sent = self._sent.get(status.command_id)
+        if sent is not None and status.state in TERMINAL_STATES and not sent.outcome.done():
+            sent.outcome.set_result(status)
         if status.state == "start":
             self._superseded_unheard(status)
 

@@ -28,7 +28,6 @@ from dronefleet.mission.script.names import VERBS, common_names, near_place
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
 from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal
-from dronefleet.schemas.about import ROLES
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
 
@@ -83,8 +82,6 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         if kind is not None:
             requests.append(a.ByKind(kind))
         if role is not None:
-            if role not in ROLES:
-                raise ValueError(f"assign: role {role!r} is not one of {', '.join(ROLES)}")
             requests.append(a.ByRole(role))
         if not requests:
             requests = [a.AnyDrone()]
