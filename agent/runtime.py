@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
 RECENT_STATUSES = 64  # command statuses kept to repeat to a ground that was out of reach
+STEADY_PROBES = 5  # probes answered in a row after a gap before its repeats count as heard
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 GEOFENCE_ID_PREFIX = "geofence-"
@@ -87,6 +88,10 @@ class Agent:
         # Published before the ground first answered (None after): sent again then.
         self._before_contact: list[CommandStatus | BundleStatus] | None = []
         self._last_contact_ms: int | None = None  # when the ground last answered a probe
+        # Statuses from this time on may not have reached the ground (a gap since, and
+        # the contact after it not yet steady): each contact after a gap repeats them.
+        self._unsure_since_ms: int | None = None
+        self._steady_from_ms = 0
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -121,8 +126,15 @@ class Agent:
         if gap_began_ms is not None and now_ms - gap_began_ms > 1.5 * period_ms:
             # At least one probe went unanswered: the link dropped for a while, maybe for
             # less than the lost-link timeout, and a reliable publication whose link closed
-            # meanwhile is gone (ADR 0003). Statuses from then on are sent again.
-            self._tell_what_happened_unheard(gap_began_ms - period_ms)
+            # meanwhile is gone (ADR 0003). Statuses from then on are sent again — and
+            # those sent again before, while the link has not held since: a repeat can
+            # go down with a link that closes again at once.
+            since = gap_began_ms - period_ms
+            self._unsure_since_ms = min(since, self._unsure_since_ms if self._unsure_since_ms is not None else since)
+            self._steady_from_ms = now_ms
+            self._tell_what_happened_unheard(self._unsure_since_ms)
+        elif self._unsure_since_ms is not None and now_ms - self._steady_from_ms >= STEADY_PROBES * period_ms:
+            self._unsure_since_ms = None  # the link held long enough for the repeats to arrive
 
     def _signed_by_the_ground(self) -> None:
         """A command or bundle that passed the ground's signature is contact (SPEC §8),

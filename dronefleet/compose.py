@@ -46,7 +46,7 @@ from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
-from dronefleet.mission.hosting.simulate import telemetry_sample, write_result
+from dronefleet.mission.hosting.simulate import add_field_reading, sensor_values, telemetry_sample, write_result
 from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary, plugin_summary
@@ -211,6 +211,7 @@ class SimField:
             if self.agent_config.geofence == Geofence():
                 self.agent_config = msgspec.structs.replace(self.agent_config, geofence=world.geofence)
         self.tracks: dict[str, Track] = {}
+        self.field_sensors: dict[str, dict[str, Any]] = {}  # what the ground heard of them (result.json)
         self._tasks: list[asyncio.Task[Any]] = []
         self._agents: dict[str, asyncio.Task[Any]] = {}
         self._buses: list[MemoryBus] = []
@@ -326,8 +327,10 @@ class SimField:
                 return
             registry = self.station.registry
             info = registry.info(t.drone_id)
-            sensors = {r.type: r.value for r in registry.sensor_readings(t.drone_id)}
+            sensors = sensor_values(registry.sensor_readings(t.drone_id))
             track.samples.append(telemetry_sample(t, self.clock.monotonic(), info.state, sensors, info.link))
+        elif event.kind == "field_sensor":
+            add_field_reading(self.field_sensors, event.data, self.clock.monotonic())
 
     def _fly_log(self) -> None:
         """On the radio the ground may not hear a drone: keep its true path beside."""
@@ -392,6 +395,7 @@ class SimField:
                 }
                 for drone_id, track in sorted(self.tracks.items())
             },
+            **({"field_sensors": self.field_sensors} if self.field_sensors else {}),
         }
 
     async def close(self) -> None:

@@ -22,7 +22,7 @@ from dronefleet.bus.port import Bus
 from dronefleet.bus.recording import BusRecording, Contents, Recorder
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.registry import LogLine, Registry
-from dronefleet.mission.hosting.simulate import telemetry_sample
+from dronefleet.mission.hosting.simulate import add_field_reading, sensor_values, telemetry_sample
 from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
 from dronefleet.schemas.codec import decode_link, decode_sensor, decode_status, decode_telemetry
 from dronefleet.schemas.errors import InvalidMessage
@@ -140,6 +140,7 @@ def result_of_recording(contents: Contents, config: GroundConfig | None = None) 
     samples: dict[str, list[dict[str, Any]]] = {}
     mission: dict[str, Any] = {"mission_id": meta.get("mission_id", "-"), "status": "recorded", "cause": None}
     log_lines: list[dict[str, Any]] = []
+    field_sensors: dict[str, dict[str, Any]] = {}
     t0 = contents.messages[0].log_ns if contents.messages else 0
     first: Telemetry | None = None
     for message in contents.messages:
@@ -152,13 +153,17 @@ def result_of_recording(contents: Contents, config: GroundConfig | None = None) 
                 first = first or telem
                 if telem.position is not None:
                     info = registry.info(telem.drone_id)
-                    sensors = {r.type: r.value for r in registry.sensor_readings(telem.drone_id)}
+                    sensors = sensor_values(registry.sensor_readings(telem.drone_id))
                     samples.setdefault(telem.drone_id, []).append(
                         telemetry_sample(telem, (message.log_ns - t0) / 1e9, info.state, sensors, info.link))
             elif message.kind == "Status":
                 registry.on_status(decode_status(message.data), now_ms)
-            elif message.kind == "SensorReading" and message.topic.split("/")[-4:-3] == ["drone"]:
-                registry.on_sensor(decode_sensor(message.data), now_ms)
+            elif message.kind == "SensorReading":
+                reading = decode_sensor(message.data)
+                if reading.sensor_id:  # a field sensor (SPEC §2 sensor/<id>/<type>)
+                    add_field_reading(field_sensors, reading, (message.log_ns - t0) / 1e9)
+                else:
+                    registry.on_sensor(reading, now_ms)
             elif message.kind == "LinkQuality":
                 registry.on_link(decode_link(message.data), now_ms)
             elif message.kind == "MissionRecord":
@@ -180,4 +185,5 @@ def result_of_recording(contents: Contents, config: GroundConfig | None = None) 
         "ground_station": ground_station,
         **({"geofence": json.loads(meta["geofence"])} if "geofence" in meta else {}),
         "drones": {drone_id: {"samples": rows, "commands": []} for drone_id, rows in sorted(samples.items())},
+        **({"field_sensors": field_sensors} if field_sensors else {}),
     }

@@ -5,10 +5,12 @@ from __future__ import annotations
 import pytest
 
 from dronefleet.mission.lifecycle.assignment import (
+    AllOf,
     AnyDrone,
     AnyRelay,
     ById,
     ByKind,
+    ByRole,
     BySensors,
     Candidate,
     Near,
@@ -89,3 +91,24 @@ def test_only_drones_that_may_relay_serve_any_relay_and_any_drone_keeps_them_fre
     assert assign_many([AnyDrone(), AnyRelay()], free[:2]) == ["plain", "relay_low"]  # the relay request picks first
     with pytest.raises(Unfulfilled, match="cannot assign a drone that may relay .*--role relay.*: no free drone fits"):
         choose(AnyRelay(), [c for c in free if not c.relay])
+
+
+def test_keywords_together_describe_one_drone_the_nearest_that_fits_them_all() -> None:
+    """assign(sensor="gas", role="survey", near=pos): one drone meeting every part."""
+    free = [
+        Candidate("near_plain", battery=0.9, lat=40.6346, lon=-8.6608),  # nearest, no gas
+        Candidate("far_gas", frozenset({"gas"}), battery=0.9, lat=40.6300, lon=-8.6608),
+        Candidate("mid_gas", frozenset({"gas"}), battery=0.1, lat=40.6340, lon=-8.6608),
+        Candidate("aux_gas", frozenset({"gas"}), battery=1.0, lat=40.6346, lon=-8.6609, roles=frozenset({"auxiliary"})),
+    ]
+    gas_near = AllOf((BySensors(frozenset({"gas"})), ByRole("survey"), Near(40.6346, -8.6608)))
+    assert choose(gas_near, free).drone_id == "mid_gas"  # the nearest fitting, not the nearest, nor the auxiliary
+    assert not replaceable(gas_near)  # a sensor was asked for
+    assert replaceable(AllOf((ByKind("x"), Near(40.0, -8.0))))
+    # an auxiliary drone is taken only when a part names its role
+    aux = AllOf((ByRole("auxiliary"), Near(40.6346, -8.6608)))
+    assert choose(aux, free).drone_id == "aux_gas"
+    with pytest.raises(Unfulfilled, match="a drone with camera and the drone nearest"):
+        choose(AllOf((BySensors(frozenset({"camera"})), Near(40.6346, -8.6608))), free)
+    # served with the rank of its most demanding part: before a plain proximity request
+    assert assign_many([Near(40.6340, -8.6608), gas_near], free) == ["near_plain", "mid_gas"]

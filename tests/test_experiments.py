@@ -201,3 +201,47 @@ async def test_replacement_plugin_swaps_at_the_first_sample_past_the_threshold()
     swapped = goto_targets(result, "drone01") + handed[1:-1]  # drone02's first goto: to where drone01 stopped
     assert swapped == single
     assert len(single) == 12
+
+
+# ---- a field gas alarm (issue 35) ----------------------------------------------------
+
+
+async def test_gas_alarm_sends_the_nearest_gas_survey_drone_and_an_auxiliary_relay(tmp_path: Path) -> None:
+    """examples/gas_alarm.py: the field sensor's alarm picks drone02 (drone01 is nearer
+    but has no gas sensor), the relay is an auxiliary drone, the ring's strongest
+    reading lies towards the plume's source, and the plots show the field sensor."""
+    import matplotlib.image
+
+    from dronefleet.schemas.geo import bearing_deg
+
+    world = load_world(WORLDS / "gas_alarm.yml")
+    (pole,), (source,) = world.field_sensors, world.fields["gas"]["co_ppm"].sources
+    result = await simulate((EXAMPLES / "gas_alarm.py").read_text(), world, out_dir=tmp_path, plots=True)
+    record = result["mission"]
+    assert (record["status"], record["cause"]) == ("finished", "success"), record["message"]
+    messages = [line["message"] for line in result["log"]]
+    assigned = [m.split()[1] for m in messages if m.startswith("Assigned ")]
+    assert assigned[0] == "drone02", messages
+    relays = assigned[1:]
+    assert relays and set(relays) <= {"drone04", "drone05"}, messages  # auxiliary drones relay
+    strongest = next(m for m in messages if m.startswith("strongest"))
+    towards = float(strongest.split(" at ")[1].split("°")[0])
+    source_bearing = bearing_deg(pole.lat, pole.lon, source.lat, source.lon)
+    assert abs((towards - source_bearing + 180) % 360 - 180) <= 45 / 2 + 1, (strongest, source_bearing)
+    # the drone's own gas readings reached the samples as fields, rising near the plume
+    readings = [s["sensors"]["gas"]["co_ppm"] for s in result["drones"]["drone02"]["samples"] if "gas" in s["sensors"]]
+    assert min(readings) < 5 < 250 < max(readings)
+    # the field sensor is in result.json and on the plots
+    heard = result["field_sensors"]["gas07"]
+    assert (heard["lat"], heard["lon"]) == (pole.lat, pole.lon) and len(heard["readings"]) > 50
+    assert heard["readings"][0]["value"]["co_ppm"] > 50
+    image = matplotlib.image.imread(tmp_path / "paths.png")
+    magenta = (image[..., 0] > 0.95) & (image[..., 1] < 0.05) & (image[..., 2] > 0.95)
+    assert magenta.sum() > 50, magenta.sum()  # the field sensor's diamond and label
+    assert (tmp_path / "sensors.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # and `fleet plot` finds it in the mission's recording as well
+    from dronefleet.bus.recording import read
+    from dronefleet.ground.recording import result_of_recording
+
+    replayed = result_of_recording(read(tmp_path / "recording.mcap"))
+    assert replayed["field_sensors"]["gas07"]["readings"][0]["value"]["co_ppm"] > 50

@@ -1,5 +1,7 @@
 """The plots of a simulation result (SPEC §5), drawn with matplotlib (Agg): paths,
-altitude, battery, distances and, where links were measured, link quality."""
+altitude, battery, distances and, where links were measured, link quality; where field
+sensors were heard, they stand on the paths (magenta diamonds) and `sensors.png` draws
+their readings beside the drones' readings of the same types."""
 
 from __future__ import annotations
 
@@ -40,6 +42,13 @@ def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
             ax.plot([e for _, e in flown], [n for n, _ in flown], linestyle=":", color=colour, linewidth=1,
                     label=f"{drone_id} flown (heard or not)")
     ax.plot(0, 0, "k^", markersize=10, label=gs.get("label", "ground station"))
+    field_sensors = result.get("field_sensors") or {}
+    for sensor_id, sensor in sorted(field_sensors.items()):
+        north, east = frame.to_local(sensor["lat"], sensor["lon"])
+        types = sorted({r["type"] for r in sensor["readings"]})
+        ax.plot(east, north, "D", color=FIELD_SENSOR_COLOUR, markersize=9,
+                label=f"field sensor {sensor_id} ({', '.join(types)})")
+        ax.annotate(sensor_id, (east, north), textcoords="offset points", xytext=(6, 6), color=FIELD_SENSOR_COLOUR)
     fence = (result.get("geofence") or {}).get("polygon")
     if fence:
         corners = [frame.to_local(lat, lon) for lat, lon in [*fence, fence[0]]]
@@ -87,4 +96,43 @@ def write_plots(result: dict[str, Any], out_dir: Path) -> list[Path]:
         ax.grid(True, alpha=0.3)
         ax.legend()
         save(fig, "link.png")
+
+    series = _sensor_series(result)
+    if field_sensors and series:
+        fig, axes = plt.subplots(len(series), 1, figsize=(8, 3.2 * len(series)), squeeze=False)
+        for ax, (kind, lines) in zip(axes[:, 0], sorted(series.items()), strict=True):
+            for (source, name), points in sorted(lines.items()):
+                on_field = source in field_sensors
+                ax.plot([t for t, _ in points], [v for _, v in points], label=f"{source} {name}",
+                        linestyle="-" if on_field else "--", marker="D" if on_field else None, markersize=3)
+            ax.set(xlabel="time (s)", ylabel=kind, title=f"{kind} readings - {title}")
+            ax.grid(True, alpha=0.3)
+            ax.legend()
+        fig.tight_layout()
+        save(fig, "sensors.png")
     return written
+
+
+FIELD_SENSOR_COLOUR = "#ff00ff"  # magenta: no drone's line takes it
+
+
+def _sensor_series(result: dict[str, Any]) -> dict[str, dict[tuple[str, str], list[tuple[float, float]]]]:
+    """Per sensor type, per (field sensor or drone, field): the numeric readings over time."""
+    series: dict[str, dict[tuple[str, str], list[tuple[float, float]]]] = {}
+
+    def add(kind: str, source: str, t_s: float, value: Any) -> None:
+        values = value if isinstance(value, dict) else {kind: value}
+        for name, v in values.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                series.setdefault(kind, {}).setdefault((source, name), []).append((t_s, float(v)))
+
+    for sensor_id, sensor in (result.get("field_sensors") or {}).items():
+        for r in sensor["readings"]:
+            add(r["type"], sensor_id, r["t_s"], r["value"])
+    kinds = set(series)
+    for drone_id, drone in result["drones"].items():
+        for s in drone["samples"]:
+            for kind, value in (s.get("sensors") or {}).items():
+                if kind in kinds:  # beside the field sensors of the same type
+                    add(kind, drone_id, s["t_s"], value)
+    return series

@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from dronefleet.schemas.telemetry import LinkQuality, Telemetry
+from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
 
 def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, Any],
@@ -28,6 +28,22 @@ def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, An
         "state": state, "armed": t.armed, "sensors": sensors,
         "link": None if link is None else {"quality": link.quality, "rtt_ms": link.rtt_ms, "loss": link.loss},
     }
+
+
+def sensor_values(readings: list[SensorReading]) -> dict[str, Any]:
+    """A drone's latest readings as a sample's `sensors`: type → value, or its fields."""
+    return {r.type: dict(r.fields) if r.fields else r.value for r in readings}
+
+
+def add_field_reading(rows: dict[str, dict[str, Any]], reading: SensorReading, t_s: float) -> None:
+    """result.json's `field_sensors`: per field sensor where it stands and what it read
+    (`{"gas07": {"lat", "lon", "readings": [{"t_s", "type", "value"}]}}`)."""
+    if reading.position is None or not reading.sensor_id:
+        return
+    row = rows.setdefault(reading.sensor_id, {"lat": reading.position.lat, "lon": reading.position.lon, "readings": []})
+    row["lat"], row["lon"] = reading.position.lat, reading.position.lon
+    row["readings"].append({"t_s": round(t_s, 3), "type": reading.type,
+                            "value": dict(reading.fields) if reading.fields else reading.value})
 
 
 def write_result(result: dict[str, Any], out_dir: Path, plots: bool) -> None:

@@ -86,7 +86,27 @@ class AnyRelay:
         return "any_relay"
 
 
-Request = ById | BySensors | Near | ByKind | ByRole | AnyRelay | AnyDrone
+Part = ById | BySensors | Near | ByKind | ByRole | AnyRelay | AnyDrone
+
+
+@dataclass(frozen=True)
+class AllOf:
+    """One drone meeting every part: `assign(sensor="gas", role="survey", near=pos)` —
+    keyword arguments describe one drone (the nearest of those fitting, with `near`)."""
+
+    parts: tuple[Part, ...]
+
+
+Request = Part | AllOf
+
+
+def parts_of(request: Request) -> tuple[Request, ...]:
+    return request.parts if isinstance(request, AllOf) else (request,)
+
+
+def sensors_of(request: Request) -> frozenset[str]:
+    """The sensors a request asked for (the mission fails `sensor` should one go)."""
+    return frozenset().union(*(p.sensors for p in parts_of(request) if isinstance(p, BySensors)))
 
 
 class Unfulfilled(FleetError):
@@ -111,17 +131,21 @@ def describe(request: Request) -> str:
             return "a drone that may relay (on a secured mesh: issued --role relay and declaring the relay role)"
         case Near(lat, lon):
             return f"the drone nearest {lat:.6f}, {lon:.6f} (auxiliary drones aside)"
+        case AllOf(parts):
+            return " and ".join(describe(p) for p in parts)
     return "any drone (auxiliary drones aside)"
 
 
 def replaceable(request: Request) -> bool:
     """Drones assigned by id or sensor are irreplaceable (another drone would lack what
     the mission asked for); those assigned near a place, by kind, role or as any are not."""
-    return not isinstance(request, (ById, BySensors))
+    return not any(isinstance(p, (ById, BySensors)) for p in parts_of(request))
 
 
 def _rank(request: Request) -> tuple[int, int]:
     match request:
+        case AllOf(parts):
+            return min(_rank(p) for p in parts)
         case ById():
             return (0, 0)
         case BySensors(sensors):
@@ -139,34 +163,47 @@ def _distance(c: Candidate, lat: float, lon: float) -> float:
     return distance_m(c.lat, c.lon, lat, lon) if c.lat is not None and c.lon is not None else float("inf")
 
 
+def _fits(part: Request, c: Candidate) -> bool:
+    """Whether a free drone meets one request, the auxiliary rule aside."""
+    match part:
+        case ById(drone_id):
+            return c.drone_id == drone_id
+        case BySensors(sensors):
+            return sensors <= c.sensors
+        case ByKind(kind):
+            return c.kind == kind
+        case ByRole(role):
+            return role in c.roles
+        case AnyRelay():
+            return c.relay
+        case AllOf(parts):
+            return all(_fits(p, c) for p in parts)
+    return True  # Near, AnyDrone
+
+
+def _names_auxiliary(request: Request) -> bool:
+    """Requests that may take an auxiliary drone: by id, by role, as a relay."""
+    return any(isinstance(p, (ById, ByRole, AnyRelay)) for p in parts_of(request))
+
+
 def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
     """The best free drone for one request, or Unfulfilled."""
-    match request:
-        case ById(drone_id):
-            fitting = [c for c in free if c.drone_id == drone_id]
-        case BySensors(sensors):
-            fitting = [c for c in free if sensors <= c.sensors and not c.auxiliary]
-        case ByKind(kind):
-            fitting = [c for c in free if c.kind == kind and not c.auxiliary]
-        case ByRole(role):
-            fitting = [c for c in free if role in c.roles]
-        case AnyRelay():
-            fitting = [c for c in free if c.relay]
-        case Near() | AnyDrone():
-            fitting = [c for c in free if not c.auxiliary]
+    parts = parts_of(request)
+    fitting = [c for c in free if _fits(request, c) and (_names_auxiliary(request) or not c.auxiliary)]
     if not fitting:
         reason = "no free drone" if not free else "no free drone fits"
-        if free and all(c.auxiliary for c in free) and not isinstance(request, (ById, ByRole, AnyRelay)):
+        if free and all(c.auxiliary for c in free) and not _names_auxiliary(request):
             reason = f"only auxiliary drones are free ({', '.join(c.drone_id for c in free)}): name one, or assign(role='auxiliary')"
-        if isinstance(request, ById):
+        if any(isinstance(p, ById) for p in parts):
             reason = "it is not registered, not ready, or in another mission"
         raise Unfulfilled(request, reason)
-    if isinstance(request, Near):
+    place = next((p for p in parts if isinstance(p, Near)), None)
+    if place is not None:
         located = [c for c in fitting if c.lat is not None]
         if not located:
             raise Unfulfilled(request, "no free drone reports a position")
-        return min(located, key=lambda c: (_distance(c, request.lat, request.lon), -c.battery, c.drone_id))
-    if isinstance(request, AnyRelay):  # those declared for it, then the auxiliary ones, then the others
+        return min(located, key=lambda c: (_distance(c, place.lat, place.lon), -c.battery, c.drone_id))
+    if any(isinstance(p, AnyRelay) for p in parts):  # those declared for it, then the auxiliary ones, then the others
         return min(fitting, key=lambda c: (RELAY not in c.roles, not c.auxiliary, len(c.sensors), -c.battery, c.drone_id))
     # Keep rare sensors, and the right to relay, free for whoever needs them.
     return min(fitting, key=lambda c: (len(c.sensors), c.relay, -c.battery, c.drone_id))

@@ -38,6 +38,7 @@ class PendingBundle:
 
 
 DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
+RETRY_WAIT_S = 2.0  # between them: the drone is heard again within this, or counts as unheard
 # Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
 # them (relative ones — move by offsets, turn, offboard — would not mean the same again).
 RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
@@ -126,10 +127,13 @@ class CommandDelivery:
 
     async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False) -> None:
         """Send a command; with no answer, send it again (same command id: the agent
-        runs it once) before the mission gives up on the drone. With `wait_clear`, a
+        runs it once) each time the drone is heard, before the mission gives up on it
+        (cmd_exec after DELIVERY_TRIES heard and unanswered). A drone not heard either
+        is out of reach, whatever the ground's liveliness says yet: tried again for
+        mission.link_grace_s, then the mission ends link_lost. With `wait_clear`, a
         target another drone holds (409 conflict) is tried again each time that drone
         reports, for up to mission.clear_wait_s."""
-        attempt, waited_for = 1, None
+        attempt, waited_for, unheard_since = 1, None, None
         give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
         while True:
             try:
@@ -137,14 +141,26 @@ class CommandDelivery:
                 if waited_for is not None:
                     self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
                 return
-            except Unreachable:
+            except Unreachable as exc:
                 if self._out_of_reach(drone_id):  # the link dropped as it went: not the drone's fault
                     await self._heard_again(drone_id, name)
                     continue
                 if attempt == DELIVERY_TRIES:
                     raise
-                attempt += 1
-                self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt}/{DELIVERY_TRIES})")
+                # A link just back may not carry queries yet: try again once the drone
+                # is heard (or the ground reports it lost), not at once.
+                if await self._heard_within(drone_id, RETRY_WAIT_S):
+                    attempt += 1
+                    unheard_since = None
+                    self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt}/{DELIVERY_TRIES})")
+                    continue
+                now = self.clock.monotonic()
+                unheard_since = now if unheard_since is None else unheard_since
+                if unheard_since == now:
+                    self.log("warn", f"{drone_id}: no answer to {name} and not heard; trying again as it is heard")
+                if now - unheard_since > self.config.mission.link_grace_s:
+                    raise self.setback("link_lost", f"{name} {drone_id}: not heard for "
+                                       f"{self.config.mission.link_grace_s:g} s ({exc})") from None
             except CommandRejected as exc:
                 if exc.code == STATE_UNKNOWN:  # the ground stopped hearing it before the mission heard so
                     await self._heard_again(drone_id, name)
@@ -169,6 +185,17 @@ class CommandDelivery:
             await asyncio.shield(self._link_back_at[drone_id])
         else:
             await self.next_telemetry(drone_id)
+
+    async def _heard_within(self, drone_id: str, seconds: float) -> bool:
+        """Whether the drone's next telemetry comes within `seconds`."""
+        heard = asyncio.ensure_future(self.next_telemetry(drone_id))
+        nap = asyncio.ensure_future(self.clock.sleep(seconds))
+        try:
+            await asyncio.wait({heard, nap}, return_when=asyncio.FIRST_COMPLETED)
+            return heard.done() and not heard.cancelled()
+        finally:
+            heard.cancel()
+            nap.cancel()
 
     async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
         """Send a task bundle as this mission and wait until it has ended (SPEC §6);

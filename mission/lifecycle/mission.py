@@ -305,8 +305,8 @@ class Mission(CommandDelivery):
             self.end("drone_error", f"{info.drone_id}: {'; '.join(info.errors)}")
         else:
             request = self.requests.get(info.drone_id)
-            if isinstance(request, a.BySensors):
-                missing = sorted(request.sensors - set(info.sensors))
+            if request is not None:
+                missing = sorted(a.sensors_of(request) - set(info.sensors))
                 if missing:
                     self.end("sensor", f"{info.drone_id} lost its {', '.join(missing)} sensor")
 

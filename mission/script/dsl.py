@@ -67,22 +67,30 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             return a.ById(item)
         if item is any_drone or item is None:
             return a.AnyDrone()
-        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.ByRole, a.AnyRelay, a.AnyDrone)):
+        if isinstance(item, (a.ById, a.BySensors, a.Near, a.ByKind, a.ByRole, a.AnyRelay, a.AnyDrone, a.AllOf)):
             return item
         raise TypeError("assign: expected a drone id, any_drone, any_relay, with_sensors(…), near(…), of_kind(…) "
                         f"or with_role(…), got {item!r}")
 
     def assign(*items: Any, sensor: str | None = None, sensors: list[str] | None = None,
                near: Any = None, kind: str | None = None, role: str | None = None) -> Any:
+        """Positional items ask for one drone each; the keywords together describe one
+        drone more (`assign(sensor="gas", role="survey", near=pos)`: the nearest survey
+        drone carrying gas)."""
         requests = [request_of(i) for i in items]
+        described: list[a.Part] = []
         if sensor is not None or sensors is not None:
-            requests.append(a.BySensors(frozenset(([sensor] if sensor else []) + list(sensors or []))))
+            described.append(a.BySensors(frozenset(([sensor] if sensor else []) + list(sensors or []))))
         if near is not None:
-            requests.append(near_place(near))
+            described.append(near_place(near))
         if kind is not None:
-            requests.append(a.ByKind(kind))
+            described.append(a.ByKind(kind))
         if role is not None:
-            requests.append(a.ByRole(role))
+            described.append(a.ByRole(role))
+        if len(described) > 1:
+            requests.append(a.AllOf(tuple(described)))
+        else:
+            requests.extend(described)
         if not requests:
             requests = [a.AnyDrone()]
         drones = [Drone(m, i) for i in call(m, m.assign(requests))]
