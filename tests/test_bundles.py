@@ -363,6 +363,46 @@ print("the move returned")
     assert any("repeating" in r.getMessage() for r in caplog.records)
 
 
+async def test_a_repeat_lost_as_the_link_relapses_is_repeated_at_the_next_contact(caplog: pytest.LogCaptureFixture) -> None:
+    """Seen on examples/gas_alarm.py (seed 38): a move's `finish` was lost in a gap, its
+    repeat at the next answered probe was lost too as the link dropped again at once,
+    and the contact after that repeated only what was newer — the verb waited for ever.
+    Here: drone01 is silent for 3 s as the finish is published, its statuses are lost
+    for 2 s after (the repeat), then it is silent again for 2.5 s. The agent repeats
+    the finish again after the second gap, as the link had not held since the first."""
+    windows: dict[str, float] = {}
+
+    def relapsing(sim: SimField) -> None:
+        assert sim.air is not None
+        home, through = first_home(sim), sim.air.transit
+
+        def transit(src: str, dst: str, stream: str = "") -> float | None:
+            if "drone01" not in (src, dst):
+                return through(src, dst, stream)
+            now = sim.clock.monotonic()
+            if "from" not in windows and distance_m(*home, sim._where()["drone01"].lat, sim._where()["drone01"].lon) > 16:
+                windows["from"] = now
+            t = now - windows.get("from", now + 1)
+            if 0 <= t < 3 or (3 <= t < 5 and stream.endswith("/status")) or 5 <= t < 7.5:
+                return None
+            return through(src, dst, stream)
+
+        sim.air.transit = transit  # type: ignore[method-assign]
+
+    caplog.set_level(logging.INFO, logger="dronefleet.agent.runtime")
+    _, (record, log), _ = await fly("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=17*m, speed=2*m/s)
+print("the move returned")
+""", fire_world(RadioModel()), max_s=120, prepare=relapsing)
+    assert "from" in windows
+    assert "the move returned" in log, (record, log)
+    repeats = [r.getMessage() for r in caplog.records if "repeating" in r.getMessage() and "drone01" in r.getMessage()]
+    assert len(repeats) >= 2, repeats
+
+
 async def test_a_verb_sent_while_its_drone_is_out_of_reach_waits_for_the_link() -> None:
     """The ground refuses commands to a drone it marks unknown (409); a mission verb
     sent then waits, within mission.link_grace_s, for the drone to be back instead of

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import itertools
 import json
 import subprocess
 import sys
@@ -343,3 +344,31 @@ async def test_a_bundle_record_the_ground_cannot_read_yet_is_asked_again(failure
     record, _, lines = await fly(script, world_with(), fleet_port=inject(bundle_record=unreachable_at_first))
     assert record.status == "finished", (record, lines)
     assert len(calls) == min(failures + 1, 10)
+
+
+@pytest.mark.parametrize(("failures", "ends"), [(2, ("finished", "success")), (3, ("failed", "cmd_exec"))])
+async def test_an_unanswered_command_is_sent_again_once_the_drone_is_heard_not_at_once(
+        failures: int, ends: tuple[str, str]) -> None:
+    """Seen on examples/gas_alarm.py (seed 4): a link just back did not carry queries
+    yet and the three tries of a goto went at the same instant, failing the mission.
+    Each try again now waits for the drone's next telemetry; a drone that is heard and
+    still does not answer three tries fails cmd_exec, as before."""
+    tries: list[float] = []
+    clock: list[Any] = []
+
+    async def goto_unanswered(original: Callable[..., Awaitable[Any]], drone_id: str, payload: bytes, *args: Any) -> Any:
+        if json.loads(payload)["cmd"] == "goto" and len(tries) < failures:
+            tries.append(clock[0].monotonic())
+            raise Unreachable(f"no queryable answers drone/{drone_id}/cmd (test)")
+        return await original(drone_id, payload, *args)
+
+    def port(station: GroundStation) -> FleetPort:
+        clock.append(station.clock)
+        return inject(command=goto_unanswered)(station)
+
+    script = "d = assign()\narm(d)\ntakeoff(d, 5*m)\nmove(d, forward=10*m)\nland(d)\n"
+    record, _, lines = await fly(script, world_with(), fleet_port=port)
+    assert cause(record) == ends, (record.message, lines)
+    assert len(tries) == failures
+    assert all(b > a for a, b in itertools.pairwise(tries)), tries  # not all at once
+    assert sum("no answer to goto, sending it again" in line for line in lines) == 2, lines
