@@ -630,3 +630,64 @@ async def test_on_a_ground_with_tokens_the_page_asks_once_and_commands_as_its_ho
         assert "sent by alice" in log and len(asked) == 1, (asked, log[-800:])
     finally:
         fleet.stop()
+
+
+# ---- what drones say they are, and field sensors (issue 35) ------------------------
+
+
+@pytest.mark.slow(40)
+async def test_a_drones_kind_roles_and_declared_sensors_and_field_sensors_on_the_map(
+    tmp_path: Path, dashboard: Dashboard
+) -> None:
+    """drone01 declares a kind, the relay role and a gas sensor with a field; a field
+    sensor on the raw wire (SPEC §2) appears on the map with its reading, its reading
+    changes live, and it leaves the map when it times out at the ground."""
+    import time
+
+    from dronefleet.bus.zenoh_bus import ZenohBus
+    from dronefleet.schemas.codec import encode
+    from dronefleet.schemas.telemetry import Position, SensorReading
+
+    gas = {"type": "gas", "fields": {"co_ppm": {"unit": "ppm", "min": 0, "max": 1000}}}
+    spawns = {"drone01": (40.633400, -8.660810), "drone02": (40.633400, -8.660680)}
+    fcs = {d: f"sim://?lat={lat}&lon={lon}&alt=8.2" for d, (lat, lon) in spawns.items()}
+    fleet = GroundFleet(tmp_path, fcs, per_agent={"drone01": {"kind": "x500-quad", "roles": ["survey", "relay"],
+                                                              "sensors": [gas]}},
+                        sensor_timeout_ms={"gas": 4000})
+    field_bus = None
+    try:
+        async with fleet.client():
+            await dashboard.open(fleet.ground.url)
+        page = dashboard.page
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "2", timeout=UI_S * 1000)
+        await dashboard.click_map(*await dashboard.screen_of("drone01"))
+        await expect(page.locator("#drone-about")).to_have_text("x500-quad · survey, relay", timeout=UI_S * 1000)
+        await expect(page.locator("#drone-declares")).to_have_text("gas (co_ppm ppm 0–1000)")
+        await dashboard.click_map(*await dashboard.screen_of("drone02"))
+        await expect(page.locator("#drone-about")).to_have_text("multicopter · survey", timeout=UI_S * 1000)
+        await expect(page.locator("#drone-declares")).to_have_text("none")
+
+        field_bus = await ZenohBus.open("client", [fleet.ground.endpoint])
+        at = Position(lat=40.633500, lon=-8.660750, alt=9.0)
+        canvas = page.locator("#map")
+        for co_ppm in (40.0, 55.5):
+            field_bus.publish("sensor/gas07/gas", encode(SensorReading(
+                sensor_id="gas07", timestamp=int(time.time() * 1000), type="gas", fields={"co_ppm": co_ppm}, position=at)))
+            await expect(canvas).to_have_attribute("data-field-sensors", "1", timeout=UI_S * 1000)
+            await page.wait_for_function(
+                "v => [...window.fleetDashboard.fleet.fieldSensors.values()][0]?.readings.get('gas')?.fields.co_ppm === v",
+                arg=co_ppm, timeout=UI_S * 1000)
+        # drawn where it stands: the diamond's magenta (#d61fd6) at its spot on the canvas
+        x, y = await page.evaluate("([lat, lon]) => window.fleetDashboard.map.toScreen(lat, lon)", [at.lat, at.lon])
+        pixel = await page.evaluate("""([x, y]) => {
+            const c = document.getElementById('map'); const k = c.width / c.getBoundingClientRect().width;
+            return [...c.getContext('2d').getImageData(Math.round(x * k), Math.round(y * k), 1, 1).data];
+        }""", [x, y])
+        assert pixel[:3] == [0xD6, 0x1F, 0xD6], pixel
+        # no more readings: the ground forgets it after sensor_timeout_ms, and so does the map
+        await expect(canvas).to_have_attribute("data-field-sensors", "0", timeout=(4 + 3 + UI_S) * 1000)
+        assert not dashboard.errors, dashboard.errors
+    finally:
+        if field_bus is not None:
+            await field_bus.close()
+        fleet.stop()

@@ -3,7 +3,7 @@
 // the API to a command is shown, refusals first and loudest.
 
 import { call } from "./api.js";
-import { STATE_COLOURS } from "./map.js";
+import { STATE_COLOURS, readingsText } from "./map.js";
 
 const MESSAGES = 8;
 const SENSOR_POLL_MS = 1000; // sensor readings are not in /events: the selected drone's are asked for
@@ -71,10 +71,9 @@ export class DronePanel {
     const r = await call("GET", `/drone/${encodeURIComponent(id)}?data=sensors`);
     if (!r.ok || this.selected !== id) return;
     const now = Date.now();
-    this.sensorText = (r.data.sensors || []).map((s) => {
-      const value = Array.isArray(s.value) ? `[${s.value.map(fmt).join(", ")}]` : typeof s.value === "number" ? fmt(s.value) : String(s.value);
-      return `${s.type} ${value}${s.unit ? " " + s.unit : ""} (${Math.max(0, (now - s.timestamp) / 1000).toFixed(0)} s ago)`;
-    }).join(" · ") || "—";
+    this.sensorText = (r.data.sensors || []).map((s) =>
+      `${readingsText(new Map([[s.type, s]]))} (${Math.max(0, (now - s.timestamp) / 1000).toFixed(0)} s ago)`,
+    ).join(" · ") || "—";
     this.fleet.changed.add(id);
     this.hooks.redraw();
   }
@@ -215,6 +214,8 @@ export class DronePanel {
     const bundle = info.bundle;
     set($("current-command"), (cmd ? cmd.description : "none") + (bundle ? ` · bundle ${bundle.bundle_id} step ${bundle.step + 1}/${bundle.steps}: ${bundle.description}` : ""));
     set($("drone-mission"), info.mission || "—");
+    set($("drone-about"), info.kind ? `${info.kind} · ${(info.roles || []).join(", ")}` : "not declared yet");
+    set($("drone-declares"), declared(info.sensors_declared));
     set($("sensors"), info.sensors?.length ? this.sensorText === "—" ? info.sensors.join(", ") : this.sensorText : "none");
     this._renderAlerts(info);
     this._renderLog(d);
@@ -263,4 +264,15 @@ function fmt(x) {
 function round(x, digits) {
   const k = 10 ** digits;
   return Math.round(x * k) / k;
+}
+
+/** What a drone declares of its sensors (SPEC §2 About): "gas (co_ppm ppm 0–1000)". */
+function declared(sensors) {
+  if (sensors == null) return "—";
+  if (!sensors.length) return "none";
+  const range = (d) => [d.unit, d.min != null || d.max != null ? `${d.min ?? ""}–${d.max ?? ""}` : ""].filter(Boolean).join(" ");
+  return sensors.map((s) => {
+    const inner = s.fields ? Object.entries(s.fields).map(([k, d]) => [k, range(d)].filter(Boolean).join(" ")).join(", ") : range(s);
+    return inner ? `${s.type} (${inner})` : s.type;
+  }).join(" · ");
 }

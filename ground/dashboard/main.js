@@ -12,6 +12,7 @@ import { View } from "./view.js";
 
 const $ = (id) => document.getElementById(id);
 const WORK_SAMPLES = 600;
+const FIELD_SENSORS_MS = 3000;
 
 async function loadConfig() {
   for (let attempt = 1; ; attempt++) {
@@ -155,6 +156,16 @@ async function main() {
   }, 1000);
 
   const data = () => frames.request();
+  // Field sensors come with their readings on /events; which of them timed out, the
+  // ground's list says (asked again every FIELD_SENSORS_MS).
+  const loadFieldSensors = async () => {
+    const r = await call("GET", "/sensor");
+    if (r.ok) {
+      fleet.resyncFieldSensors(r.data);
+      data();
+    }
+  };
+  setInterval(() => { if (!document.hidden) loadFieldSensors(); }, FIELD_SENSORS_MS);
   const stream = new EventStream("/events", {
     telemetry: (t) => { fleet.stats.events++; fleet.onTelemetry(t); data(); },
     drone: (info) => { fleet.stats.events++; fleet.onDrone(info); data(); },
@@ -162,11 +173,12 @@ async function main() {
     status: () => { fleet.stats.events++; },
     mission: (record) => { fleet.stats.events++; fleet.onMission(record); data(); },
     mission_log: (line) => { fleet.stats.events++; fleet.onMissionLog(line); data(); },
+    field_sensor: (reading) => { fleet.stats.events++; fleet.onFieldSensor(reading); data(); },
   }, {
     onOpen: async () => {
       showUp();
       const epoch = ++fleet.epoch;
-      const [views] = await Promise.all([call("GET", "/drone"), missions.reload(), drones.loadLog()]);
+      const [views] = await Promise.all([call("GET", "/drone"), missions.reload(), drones.loadLog(), loadFieldSensors()]);
       if (views.ok && epoch === fleet.epoch) fleet.resync(views.data, epoch);
       redraw();
     },

@@ -1,5 +1,5 @@
-// The map: drones (state colour, heading, battery, track), the fence, heat sources
-// and the ground station on a canvas, over raster tiles (`dashboard.tiles`) or a
+// The map: drones (state colour, heading, battery, track), the fence, heat sources,
+// field sensors (magenta diamonds with their latest readings) and the ground station on a canvas, over raster tiles (`dashboard.tiles`) or a
 // local metres grid with a scale bar. Drag pans, the wheel and the buttons zoom; a
 // click selects a drone, or, while picking a goto target, answers with its lat/lon.
 
@@ -8,6 +8,7 @@ import { niceMetres } from "./view.js";
 export const STATE_COLOURS = {
   ready: "#2e9d4f", active: "#2f6fd6", hold: "#0e9aa7", manual: "#8a4fd6", error: "#d13434", unknown: "#8a8f98",
 };
+export const FIELD_SENSOR_COLOUR = "#d61fd6";
 const LABELS_UP_TO = 40; // more drones than this: only the selected one is labelled
 const HIT_PX = 16;
 const DRAG_PX = 4;
@@ -70,6 +71,7 @@ export class MapView {
     const points = this.fence.length ? this.fence : [];
     if (!points.length) {
       for (const d of this.fleet.drones.values()) if (d.telem?.position) points.push(d.telem.position);
+      for (const f of this.fleet.fieldSensors.values()) if (points.length) points.push(f.position);
       const gs = this.groundStation();
       if (gs && points.length) points.push(gs);
     }
@@ -114,6 +116,7 @@ export class MapView {
     this._drawFence();
     this._drawHeat();
     this._drawGround();
+    this._drawFieldSensors();
     const drones = fleet.sortedIds().map((id) => fleet.drones.get(id));
     this._drawTracks(drones);
     this._drawTarget();
@@ -219,6 +222,31 @@ export class MapView {
       ctx.arc(x, y, r, 0, 2 * Math.PI);
       ctx.fill();
     }
+  }
+
+  /** Field sensors (SPEC §2): a magenta diamond each, its id and latest readings beside;
+   * one whose liveliness token went is drawn hollow. */
+  _drawFieldSensors() {
+    const { ctx, view: v, fleet } = this;
+    let count = 0;
+    ctx.font = "11px system-ui, sans-serif";
+    ctx.textAlign = "left";
+    ctx.textBaseline = "middle";
+    for (const f of fleet.fieldSensors.values()) {
+      count++;
+      const [x, y] = v.toScreen(f.position.lat, f.position.lon);
+      ctx.beginPath();
+      ctx.moveTo(x, y - 7); ctx.lineTo(x + 7, y); ctx.lineTo(x, y + 7); ctx.lineTo(x - 7, y);
+      ctx.closePath();
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = FIELD_SENSOR_COLOUR;
+      ctx.fillStyle = f.alive === false ? "#ffffff" : FIELD_SENSOR_COLOUR;
+      ctx.fill();
+      ctx.stroke();
+      ctx.fillStyle = "#1d2129";
+      ctx.fillText(`${f.id} ${readingsText(f.readings)}`, x + 10, y);
+    }
+    if (this.canvas.dataset.fieldSensors !== String(count)) this.canvas.dataset.fieldSensors = String(count);
   }
 
   _drawGround() {
@@ -451,4 +479,16 @@ export class MapView {
 
 function colourOf(d) {
   return STATE_COLOURS[d.info?.state] || STATE_COLOURS.unknown;
+}
+
+/** A field sensor's latest readings in a line: "gas co_ppm 12.5 · temperature 21.3 degC". */
+export function readingsText(readings) {
+  return [...readings.values()].map((r) => {
+    if (r.fields) return `${r.type} ${Object.entries(r.fields).map(([k, v]) => `${k} ${fmtValue(v)}`).join(" ")}`;
+    return `${r.type} ${fmtValue(r.value)}${r.unit ? " " + r.unit : ""}`;
+  }).join(" · ");
+}
+
+function fmtValue(v) {
+  return typeof v === "number" ? String(Math.round(v * 10) / 10) : Array.isArray(v) ? `[${v.map(fmtValue).join(", ")}]` : String(v);
 }

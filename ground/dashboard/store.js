@@ -22,6 +22,27 @@ export class Fleet {
     this.telemetryChanged = false; // the map has something new to draw
     this.epoch = 0; // bumped on each (re)connection of the event stream
     this.stats = { events: 0, telemetry: 0 };
+    this.fieldSensors = new Map(); // id -> {id, position, alive, readings: Map type -> SensorReading}
+    this.fieldSensorsChanged = false;
+  }
+
+  /** A field sensor's reading from /events (SPEC §2 sensor/<id>/<type>). */
+  onFieldSensor(reading) {
+    const id = reading.sensor_id;
+    if (!id || !reading.position) return;
+    let s = this.fieldSensors.get(id);
+    if (!s) this.fieldSensors.set(id, (s = { id, position: reading.position, alive: null, readings: new Map() }));
+    s.position = reading.position;
+    s.readings.set(reading.type, reading);
+    this.fieldSensorsChanged = true;
+  }
+
+  /** GET /sensor: the field sensors the ground keeps now (those timed out are gone). */
+  resyncFieldSensors(list) {
+    this.fieldSensors = new Map(list.filter((s) => s.position).map((s) => [s.sensor_id, {
+      id: s.sensor_id, position: s.position, alive: s.alive, readings: new Map(s.readings.map((r) => [r.type, r])),
+    }]));
+    this.fieldSensorsChanged = true;
   }
 
   drone(id) {
