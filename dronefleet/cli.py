@@ -231,17 +231,21 @@ def sensor_publish(sensor_id: str, sensor_type: str, at: str, value: float | Non
 @click.option("--radio", is_flag=True,
               help="Drones on the emulated radio: each agent and its sensors in its own network namespace, "
                    "loss following the distances (needs root; SPEC §8).")
+@click.option("--mission", "mission", type=click.Path(path_type=Path, dir_okay=False, exists=True),
+              help="The mission script to fly; default examples/fire_tracing.py (e.g. examples/gas_alarm.py "
+                   "with --world examples/worlds/gas_alarm.yml).")
 def demo(port: int, http_port: int, world: Path | None, out_dir: Path, until_done: bool, max_time_s: float,
-         radio: bool) -> None:
-    """A ground and three simulated drones run the fire-tracing mission, with progress and plots."""
-    from dronefleet.demo import DEFAULT_WORLD, Demo, DemoOptions
+         radio: bool, mission: Path | None) -> None:
+    """A ground and the world's simulated drones (and field sensors) fly a mission
+    (default: fire tracing), with progress and plots."""
+    from dronefleet.demo import DEFAULT_WORLD, SCRIPT, Demo, DemoOptions
 
     if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the demo prints its own progress; -v shows the rest
         for name in ("dronefleet.ground", "dronefleet.mission", "dronefleet.agent", "dronefleet.bus", "dronefleet.sim", "matplotlib"):
             logging.getLogger(name).setLevel(logging.WARNING)
     options = DemoOptions(
         port=port, http_port=http_port, world=world or DEFAULT_WORLD, out_dir=out_dir,
-        until_done=until_done, max_time_s=max_time_s, radio=radio,
+        until_done=until_done, max_time_s=max_time_s, radio=radio, mission=mission or SCRIPT,
     )
     run = Demo(options, lambda line: click.echo(line))
     code = run_async(run.run())

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import math
 import subprocess
@@ -41,14 +42,15 @@ from dronefleet.bus.port import Bus, Sample
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.compose import run_ground
 from dronefleet.ground.config import GroundConfig
-from dronefleet.mission.hosting.simulate import telemetry_sample
+from dronefleet.mission.hosting.simulate import add_field_reading, telemetry_sample
 from dronefleet.mission_cli import outcome
 from dronefleet.schemas.codec import decode_sensor, decode_telemetry
 from dronefleet.schemas.config import writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
 from dronefleet.schemas.keys import Keys
-from dronefleet.schemas.telemetry import Telemetry
-from dronefleet.sim.agent_command import agent_command
+from dronefleet.schemas.telemetry import Position, Telemetry
+from dronefleet.sim.agent_command import agent_command, drone_agent_config
+from dronefleet.sim.field_sensor import simulated_field_sensor
 from dronefleet.sim.projection import LocalFrame
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.world import DroneSpec, World, load_world
@@ -76,6 +78,7 @@ class DemoOptions:
     until_done: bool = False
     max_time_s: float = 600.0
     radio: bool = False  # drones on the emulated radio (root): MAVLink vehicles here, agents in namespaces
+    mission: Path = SCRIPT  # the script it submits
 
 
 @dataclass
@@ -136,12 +139,13 @@ class Demo:
         if not specs:
             raise ConfigError(f"{self.options.world}: the world has no drones")
         try:
-            source = SCRIPT.read_text(encoding="utf-8")
+            source = self.options.mission.read_text(encoding="utf-8")
         except OSError as exc:
             raise ConfigError(f"{exc.filename}: {exc.strerror}") from None
         writable_dir(self.options.out_dir / "logs", "--out")
         self._broken = asyncio.get_running_loop().create_future()
         self.tracks = {spec.id: _Track() for spec in specs}
+        self.field_sensors: dict[str, dict[str, Any]] = {}  # result.json's, as heard on the mesh
         with tempfile.TemporaryDirectory(prefix="fleet-demo-") as data_dir:
             config = GroundConfig(listen=[self.listen], http_port=self.options.http_port, data_dir=data_dir)
             self._background(run_ground(config, self.out), "the ground")
@@ -173,13 +177,19 @@ class Demo:
             self._start_radio(world)
         else:
             for spec in specs:
-                self._start_agent(spec)
+                self._start_agent(world, spec)
         self.bus = bus = await ZenohBus.open("client", connect=[self.endpoint], wait=True)
         for spec in specs:
             bus.subscribe(self.keys.telem(spec.id), self._on_telem, latest_only=True)
             bus.subscribe(self.keys.sensor(spec.id), self._on_sensor)
             for kind in spec.sensor_types if not opts.radio else []:  # on the radio: beside each agent
                 self._start_sensor(bus, world, spec.id, kind)
+        bus.subscribe(self.keys.field_sensor(), self._on_field_sensor)
+        for field_sensor in world.field_sensors:  # the world's field sensors, on the ground's router
+            self._background(simulated_field_sensor(
+                bus, field_sensor.id, field_sensor.type, Position(lat=field_sensor.lat, lon=field_sensor.lon, alt=field_sensor.alt),
+                functools.partial(_reading_at, world, field_sensor.type), world.field_sensor_rate_ms, keys=self.keys),
+                f"field sensor {field_sensor.id}")
         sampler = self._background(self._sample(), "the telemetry recorder")
 
         names = ", ".join(s.id + (f" ({', '.join(s.sensor_types)})" if s.sensors else "") for s in specs)
@@ -225,14 +235,16 @@ class Demo:
                 raise FleetError(f"the ground's HTTP API at {self.url} did not answer within {HTTP_READY_S:g} s")
             await asyncio.sleep(0.1)
 
-    def _start_agent(self, spec: DroneSpec) -> None:
+    def _start_agent(self, world: World, spec: DroneSpec) -> None:
         log_path = self.options.out_dir / "logs" / f"{spec.id}.log"
         log_file = open(log_path, "wb")  # noqa: SIM115 - closed in _stop, after the process ends
         fc = f"sim://?lat={spec.lat!r}&lon={spec.lon!r}&alt={spec.alt!r}"
         proc = subprocess.Popen(
             # three agents share this host: each router on its own ephemeral loopback port
             agent_command(spec.id, fc, connect=[self.endpoint], listen=["tcp/127.0.0.1:0"],
-                          telemetry_rate_ms=TELEMETRY_RATE_MS, state_dir=self.options.out_dir / "state" / spec.id),
+                          telemetry_rate_ms=TELEMETRY_RATE_MS, state_dir=self.options.out_dir / "state" / spec.id,
+                          config=drone_agent_config(None, world, spec, self.options.out_dir / "state"),
+                          kind=spec.kind, roles=spec.roles or ()),
             stdin=subprocess.DEVNULL, stdout=log_file, stderr=subprocess.STDOUT,
         )
         self.agents.append(_Agent(spec, proc, log_path, log_file))
@@ -307,11 +319,12 @@ class Demo:
     # ---- the mission ---------------------------------------------------------------------
 
     async def _submit(self, http: httpx.AsyncClient, source: str) -> str:
-        response = await http.post("/mission", content=source.encode(), params={"name": SCRIPT.name})
+        name = self.options.mission.name
+        response = await http.post("/mission", content=source.encode(), params={"name": name})
         if response.status_code != 201:
-            raise FleetError(f"the ground refused {SCRIPT.name}: {response.status_code} {response.text}")
+            raise FleetError(f"the ground refused {name}: {response.status_code} {response.text}")
         mission_id = str(response.json()["mission_id"])
-        self.out(f"{self._stamp()} mission {mission_id} submitted: {SCRIPT.name}"
+        self.out(f"{self._stamp()} mission {mission_id} submitted: {name}"
                  f" (follow it: fleet mission show {mission_id} --url {self.url})")
         return mission_id
 
@@ -384,7 +397,14 @@ class Demo:
             return
         track = self.tracks.get(reading.drone_id)
         if track is not None:
-            track.sensors[reading.type] = reading.value
+            track.sensors[reading.type] = dict(reading.fields) if reading.fields else reading.value
+
+    def _on_field_sensor(self, sample: Sample) -> None:
+        try:
+            reading = decode_sensor(sample.payload)
+        except Exception:  # noqa: BLE001
+            return
+        add_field_reading(self.field_sensors, reading, time.monotonic() - self.t0)
 
     async def _sample(self) -> None:
         """Every drone's latest telemetry at the same instants (so the plots can pair them)."""
@@ -416,6 +436,7 @@ class Demo:
             "drones": {
                 drone_id: {"samples": track.samples, "commands": []} for drone_id, track in sorted(self.tracks.items())
             },
+            **({"field_sensors": self.field_sensors} if self.field_sensors else {}),
         }
         write_result(result, out_dir, plots=False)  # the one writer of result.json (fast time's too)
         events = await http.get("/drone/logs")
@@ -472,3 +493,7 @@ class Demo:
     def _stamp(self, at_ms: int | None = None) -> str:
         seconds = (at_ms - self.t0_ms) / 1000 if at_ms is not None else time.monotonic() - self.t0
         return f"[{seconds:6.1f} s]"
+
+
+def _reading_at(world: World, kind: str, where: Position) -> dict[str, float] | float:
+    return world.reading_at(kind, where.lat, where.lon)

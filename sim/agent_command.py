@@ -6,6 +6,10 @@ from __future__ import annotations
 import sys
 from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from dronefleet.sim.world import DroneSpec, World
 
 
 def fleet_command(*args: str) -> list[str]:
@@ -36,3 +40,23 @@ def agent_command(drone_id: str, fc: str, *, connect: Iterable[str] = (), listen
     if config is not None:
         args += ["--config", str(config)]
     return fleet_command(*args)
+
+
+def drone_agent_config(base: Path | None, world: World, spec: DroneSpec, out_dir: Path) -> Path | None:
+    """One world drone's agent config: `base`'s keys and the drone's sensor declarations
+    (SPEC §2 About, `World.declarations`), written to out_dir/<id>-agent.yml; `base`
+    itself when the drone carries no sensor (or the base config declares its own)."""
+    import msgspec
+    import yaml
+
+    from dronefleet.schemas.config import read_yaml
+
+    declared = world.declarations(spec)
+    data = read_yaml(base) if base is not None else {}
+    if not declared or "sensors" in data:
+        return base
+    data["sensors"] = msgspec.to_builtins(declared)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{spec.id}-agent.yml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    return path

@@ -28,7 +28,7 @@ import msgspec
 
 from dronefleet.schemas.config import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
-from dronefleet.sim.agent_command import agent_command
+from dronefleet.sim.agent_command import agent_command, drone_agent_config
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.radio import Spot3, spot_of
@@ -139,11 +139,13 @@ async def run_sim(
         if agents:
             for v in vehicles.values():
                 fc = f"udpin://127.0.0.1:{v.port}"
-                if field is not None:  # the world's kind and roles of each drone (its sensors: the agent config's)
-                    args = field.agent_args(v.spec.id, fc, agent_config, v.spec.kind, list(v.spec.roles or []))
+                # the world's kind, roles and sensor declarations of each drone
+                config = drone_agent_config(agent_config, world, v.spec, Path(scratch.name))
+                if field is not None:
+                    args = field.agent_args(v.spec.id, fc, config, v.spec.kind, list(v.spec.roles or []))
                 else:
                     args = agent_command(v.spec.id, fc, connect=connect or [], listen=["tcp/127.0.0.1:0"],
-                                         config=agent_config, kind=v.spec.kind, roles=v.spec.roles or ())
+                                         config=config, kind=v.spec.kind, roles=v.spec.roles or ())
                 children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
                 for kind in v.spec.sensor_types if field is not None else []:

@@ -178,3 +178,22 @@ def test_only_auxiliary_drones_left_fails_any_drone_with_requirements_naming_the
     assert "only auxiliary drones are free (aux)" in str(caught.value)
     with pytest.raises(Unfulfilled):  # nor by its sensors
         choose(BySensors(frozenset({"gas"})), [Candidate("auxgas", frozenset({"gas"}), roles=frozenset({"auxiliary"}))])
+
+
+def test_a_world_drones_agent_config_carries_its_sensor_declarations(tmp_path: Path) -> None:
+    """`fleet sim --agents` and `fleet demo`: each agent's config is the given one plus
+    what the world says the drone carries; a drone with no sensor keeps the given file."""
+    from dronefleet.sim.agent_command import drone_agent_config
+    from dronefleet.sim.world import load_world
+
+    world = load_world(Path(__file__).parent.parent / "examples" / "worlds" / "gas_alarm.yml")
+    base = tmp_path / "agent.yml"
+    base.write_text("telemetry_rate_ms: 250\n")
+    by_id = {spec.id: spec for spec in world.spawn()}
+    written = drone_agent_config(base, world, by_id["drone02"], tmp_path / "out")
+    assert written is not None and written != base
+    config = load_config(AgentConfig, written, {})
+    assert config.telemetry_rate_ms == 250
+    assert [(d.type, sorted(d.fields)) for d in config.sensors] == [("gas", ["co_ppm"])]
+    assert drone_agent_config(base, world, by_id["drone04"], tmp_path / "out") == base  # no sensor
+    assert load_config(AgentConfig, drone_agent_config(None, world, by_id["drone01"], tmp_path / "out"), {}).sensors[0].unit == "degC"

@@ -116,3 +116,38 @@ def test_demo_with_its_http_port_taken_fails_fast_naming_the_port(tmp_path: Path
     # It failed before it flew anything: no drone was started, no mission submitted.
     assert "all drones ready" not in stdout and "mission m1" not in stdout, stdout
     assert not (tmp_path / "out" / "logs" / "drone01.log").exists()
+
+
+SHORT_GAS = """
+gas = field_sensors(type="gas")
+while not gas:
+    sleep(0.5 * s)
+    gas = field_sensors(type="gas")
+alarm = gas[0]
+d = assign(sensor="gas", role="survey", near=alarm)
+print(f"alarm {alarm.id} {alarm.value.co_ppm:.0f} ppm; {d.id} reads {d.sensor.gas.co_ppm:.1f} ppm")
+"""
+
+
+@pytest.mark.timeout(240)
+def test_demo_with_another_world_and_mission_runs_its_declared_sensors_and_field_sensors(tmp_path: Path) -> None:
+    """`fleet demo --world examples/worlds/gas_alarm.yml --mission …`: the agents (real
+    processes) declare the world's kinds, roles and sensors, the world's field sensor is
+    on the mesh, and the mission reads both; result.json and the plots have them."""
+    script = tmp_path / "gas.py"
+    script.write_text(SHORT_GAS)
+    out = tmp_path / "out"
+    zenoh_port, http_port = free_port(), free_port()
+    code, stdout, stderr, _ = run_demo("--world", str(REPO / "examples/worlds/gas_alarm.yml"), "--mission", str(script),
+                                       "--until-done", "--out", str(out), "--port", str(zenoh_port),
+                                       "--http-port", str(http_port), timeout_s=200)
+    assert code == 0, stdout + stderr
+    assert "mission m1 submitted: gas.py" in stdout
+    assert "alarm gas07 195 ppm; drone02 reads 2.0 ppm" in stdout, stdout
+    ground = (out / "ground.log").read_text()
+    assert "drone02 - Declares kind multicopter, roles survey, sensors gas (co_ppm)" in ground, ground
+    assert "drone04 - Declares kind multicopter, roles auxiliary, sensors none declared" in ground, ground
+    result = json.loads((out / "result.json").read_text())
+    assert result["field_sensors"]["gas07"]["readings"][0]["value"]["co_ppm"] > 50
+    assert any(s["sensors"].get("gas", {}).get("co_ppm") == 2.0 for s in result["drones"]["drone02"]["samples"])
+    assert (out / "sensors.png").stat().st_size > 0
