@@ -339,6 +339,15 @@ def radio_shadow(sim: SimField, begins: Callable[[Spot3], bool], lasts_s: float,
     return shadow
 
 
+SEVENTEEN_M_OUT = """
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+move(d, forward=17*m, speed=2*m/s)
+print("the move returned")
+"""
+
+
 async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered_again(caplog: pytest.LogCaptureFixture) -> None:
     """A radio shadow 16 m out silences drone01 for 3 s, shorter than the lost-link
     timeout (5 s), just as its move publishes `finish` there: the status is lost with the
@@ -351,13 +360,7 @@ async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered
         shadows.append(radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 16, 3.0))
 
     caplog.set_level(logging.INFO, logger="dronefleet.agent.runtime")
-    _, (record, log), _ = await fly("""
-d = assign("drone01")
-arm(d)
-takeoff(d, 10*m)
-move(d, forward=17*m, speed=2*m/s)
-print("the move returned")
-""", fire_world(RadioModel()), max_s=120, prepare=sixteen_metres_out)
+    _, (record, log), _ = await fly(SEVENTEEN_M_OUT, fire_world(RadioModel()), max_s=120, prepare=sixteen_metres_out)
     assert "from" in shadows[0]
     assert "the move returned" in log, (record, log)
     assert any("repeating" in r.getMessage() for r in caplog.records)
@@ -390,13 +393,7 @@ async def test_a_repeat_lost_as_the_link_relapses_is_repeated_at_the_next_contac
         sim.air.transit = transit  # type: ignore[method-assign]
 
     caplog.set_level(logging.INFO, logger="dronefleet.agent.runtime")
-    _, (record, log), _ = await fly("""
-d = assign("drone01")
-arm(d)
-takeoff(d, 10*m)
-move(d, forward=17*m, speed=2*m/s)
-print("the move returned")
-""", fire_world(RadioModel()), max_s=120, prepare=relapsing)
+    _, (record, log), _ = await fly(SEVENTEEN_M_OUT, fire_world(RadioModel()), max_s=120, prepare=relapsing)
     assert "from" in windows
     assert "the move returned" in log, (record, log)
     repeats = [r.getMessage() for r in caplog.records if "repeating" in r.getMessage() and "drone01" in r.getMessage()]
