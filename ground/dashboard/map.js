@@ -1,5 +1,6 @@
 // The map: drones (state colour, heading, battery, track), the fence, heat sources,
-// field sensors (magenta diamonds with their latest readings) and the ground station on a canvas, over raster tiles (`dashboard.tiles`) or a
+// field sensors (magenta diamonds with their latest readings) and the ground station
+// on a canvas, over raster tiles (`dashboard.tiles`) or a
 // local metres grid with a scale bar. Drag pans, the wheel and the buttons zoom; a
 // click selects a drone, or, while picking a goto target, answers with its lat/lon.
 
