@@ -129,8 +129,8 @@ class Agent:
             # meanwhile is gone (ADR 0003). Statuses from then on are sent again — and
             # those sent again before, while the link has not held since: a repeat can
             # go down with a link that closes again at once.
-            since = gap_began_ms - period_ms
-            self._unsure_since_ms = min(since, self._unsure_since_ms if self._unsure_since_ms is not None else since)
+            if self._unsure_since_ms is None:  # the first gap since the link last held
+                self._unsure_since_ms = gap_began_ms - period_ms
             self._steady_from_ms = now_ms
             self._tell_what_happened_unheard(self._unsure_since_ms)
         elif self._unsure_since_ms is not None and now_ms - self._steady_from_ms >= STEADY_PROBES * period_ms:
@@ -242,7 +242,7 @@ class Agent:
             reading = decode_sensor(sample.payload)
         except InvalidMessage:
             return
-        self.bundles.sensors[sample.key.rsplit("/", 1)[-1]] = reading.fields if reading.fields else reading.value
+        self.bundles.sensors[sample.key.rsplit("/", 1)[-1]] = reading.data
 
     def _not_mine(self, drone_id: str) -> str | None:
         """Why a request naming another drone is refused (no name: it is for us)."""

@@ -55,8 +55,8 @@ from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.fleet import WatchEvent
 from dronefleet.schemas.keys import Keys
-from dronefleet.schemas.telemetry import Position, Telemetry
-from dronefleet.sim.field_sensor import simulated_field_sensor
+from dronefleet.schemas.telemetry import Telemetry
+from dronefleet.sim.field_sensor import world_field_sensor
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
 from dronefleet.sim.radio_air import RadioAir
 from dronefleet.sim.sensors import simulated_sensor
@@ -288,10 +288,7 @@ class SimField:
 
     async def _field_sensor(self, spec: FieldSensorSpec) -> None:
         """A world's field sensor on the mesh (its own session, wired to the ground)."""
-        await simulated_field_sensor(self._bus(f"sensor {spec.id}"), spec.id, spec.type,
-                                     Position(lat=spec.lat, lon=spec.lon, alt=spec.alt),
-                                     lambda where: self.world.reading_at(spec.type, where.lat, where.lon),
-                                     self.world.field_sensor_rate_ms, self.clock, Keys(self.config.namespace))
+        await world_field_sensor(self._bus(f"sensor {spec.id}"), self.world, spec, self.clock, Keys(self.config.namespace))
 
     def _sensors_of(self, drone_id: str) -> list[str]:
         registry = self.station.registry

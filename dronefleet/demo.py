@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import functools
 import logging
 import math
 import subprocess
@@ -48,9 +47,9 @@ from dronefleet.schemas.codec import decode_sensor, decode_telemetry
 from dronefleet.schemas.config import writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
 from dronefleet.schemas.keys import Keys
-from dronefleet.schemas.telemetry import Position, Telemetry
+from dronefleet.schemas.telemetry import Telemetry
 from dronefleet.sim.agent_command import agent_command, drone_agent_config
-from dronefleet.sim.field_sensor import simulated_field_sensor
+from dronefleet.sim.field_sensor import world_field_sensor
 from dronefleet.sim.projection import LocalFrame
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.world import DroneSpec, World, load_world
@@ -186,10 +185,7 @@ class Demo:
                 self._start_sensor(bus, world, spec.id, kind)
         bus.subscribe(self.keys.field_sensor(), self._on_field_sensor)
         for field_sensor in world.field_sensors:  # the world's field sensors, on the ground's router
-            self._background(simulated_field_sensor(
-                bus, field_sensor.id, field_sensor.type, Position(lat=field_sensor.lat, lon=field_sensor.lon, alt=field_sensor.alt),
-                functools.partial(_reading_at, world, field_sensor.type), world.field_sensor_rate_ms, keys=self.keys),
-                f"field sensor {field_sensor.id}")
+            self._background(world_field_sensor(bus, world, field_sensor, keys=self.keys), f"field sensor {field_sensor.id}")
         sampler = self._background(self._sample(), "the telemetry recorder")
 
         names = ", ".join(s.id + (f" ({', '.join(s.sensor_types)})" if s.sensors else "") for s in specs)
@@ -397,7 +393,7 @@ class Demo:
             return
         track = self.tracks.get(reading.drone_id)
         if track is not None:
-            track.sensors[reading.type] = dict(reading.fields) if reading.fields else reading.value
+            track.sensors[reading.type] = reading.data
 
     def _on_field_sensor(self, sample: Sample) -> None:
         try:
@@ -494,6 +490,3 @@ class Demo:
         seconds = (at_ms - self.t0_ms) / 1000 if at_ms is not None else time.monotonic() - self.t0
         return f"[{seconds:6.1f} s]"
 
-
-def _reading_at(world: World, kind: str, where: Position) -> dict[str, float] | float:
-    return world.reading_at(kind, where.lat, where.lon)

@@ -7,7 +7,7 @@ get defaults so older receivers keep decoding newer senders.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 import msgspec
 
@@ -88,6 +88,11 @@ class SensorReading(_Msg, frozen=True, kw_only=True):
     fields: dict[str, float | str | bool | None] | None = None  # a sensor declared with fields (SPEC §2)
     sensor_id: str | None = None  # field sensors (not on a drone): on `sensor/<sensor_id>/<type>`
     position: Position | None = None  # field sensors: where they stand
+
+    @property
+    def data(self) -> Any:
+        """What it read: its fields (a sensor declared with fields), else its value."""
+        return self.fields if self.fields else self.value
 
 
 GROUND_PEER = "ground"  # LinkQuality.peer of a drone's link to the ground

@@ -13,7 +13,7 @@ import json
 import logging
 import sys
 from collections.abc import AsyncIterator, Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.port import Bus
@@ -21,6 +21,9 @@ from dronefleet.schemas.codec import encode
 from dronefleet.schemas.errors import InvalidMessage
 from dronefleet.schemas.keys import Keys, check_id
 from dronefleet.schemas.telemetry import Position, SensorReading
+
+if TYPE_CHECKING:
+    from dronefleet.sim.world import FieldSensorSpec, World
 
 log = logging.getLogger(__name__)
 
@@ -88,12 +91,20 @@ async def publish_readings(bus: Bus, sensor_id: str, readings: AsyncIterator[Sen
         async for reading in readings:
             bus.publish(keys.field_sensor(sensor_id, reading.type), encode(reading), reliable=True)
             sent += 1
-            shown = reading.fields if reading.fields else reading.value
+            shown = reading.data
             out(f"{sensor_id} {reading.type} {shown} at {reading.position.lat:.6f}, {reading.position.lon:.6f}"
                 if reading.position else f"{sensor_id} {reading.type} {shown}")
     finally:
         token.close()
     return sent
+
+
+async def world_field_sensor(bus: Bus, world: World, spec: FieldSensorSpec, clock: Clock | None = None,
+                             keys: Keys | None = None) -> None:
+    """A field sensor the world file places: the world's fields of its type where it stands."""
+    await simulated_field_sensor(bus, spec.id, spec.type, Position(lat=spec.lat, lon=spec.lon, alt=spec.alt),
+                                 lambda where: world.reading_at(spec.type, where.lat, where.lon),
+                                 world.field_sensor_rate_ms, clock, keys)
 
 
 async def simulated_field_sensor(bus: Bus, sensor_id: str, sensor_type: str, at: Position,

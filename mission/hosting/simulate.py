@@ -32,7 +32,7 @@ def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, An
 
 def sensor_values(readings: list[SensorReading]) -> dict[str, Any]:
     """A drone's latest readings as a sample's `sensors`: type → value, or its fields."""
-    return {r.type: dict(r.fields) if r.fields else r.value for r in readings}
+    return {r.type: r.data for r in readings}
 
 
 def add_field_reading(rows: dict[str, dict[str, Any]], reading: SensorReading, t_s: float) -> None:
@@ -43,7 +43,7 @@ def add_field_reading(rows: dict[str, dict[str, Any]], reading: SensorReading, t
     row = rows.setdefault(reading.sensor_id, {"lat": reading.position.lat, "lon": reading.position.lon, "readings": []})
     row["lat"], row["lon"] = reading.position.lat, reading.position.lon
     row["readings"].append({"t_s": round(t_s, 3), "type": reading.type,
-                            "value": dict(reading.fields) if reading.fields else reading.value})
+                            "value": reading.data})
 
 
 def write_result(result: dict[str, Any], out_dir: Path, plots: bool) -> None:

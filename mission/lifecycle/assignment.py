@@ -189,10 +189,11 @@ def _names_auxiliary(request: Request) -> bool:
 def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
     """The best free drone for one request, or Unfulfilled."""
     parts = parts_of(request)
-    fitting = [c for c in free if _fits(request, c) and (_names_auxiliary(request) or not c.auxiliary)]
+    may_take_auxiliary = _names_auxiliary(request)
+    fitting = [c for c in free if _fits(request, c) and (may_take_auxiliary or not c.auxiliary)]
     if not fitting:
         reason = "no free drone" if not free else "no free drone fits"
-        if free and all(c.auxiliary for c in free) and not _names_auxiliary(request):
+        if free and all(c.auxiliary for c in free) and not may_take_auxiliary:
             reason = f"only auxiliary drones are free ({', '.join(c.drone_id for c in free)}): name one, or assign(role='auxiliary')"
         if any(isinstance(p, ById) for p in parts):
             reason = "it is not registered, not ready, or in another mission"
