@@ -158,7 +158,7 @@ def fault(drone: str, kind: str, value: str | None, control: tuple[str, int]) ->
 
 @main.group()
 def sensor() -> None:
-    """Simulated sensors that publish next to a drone's agent."""
+    """Sensors on the mesh: simulated ones beside a drone's agent, and field sensors."""
 
 
 @sensor.command("temperature")
@@ -183,6 +183,40 @@ def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: 
     checked_id(config.drone_id, f"{config_path}: drone_id")
     extra = secured_client(pki_dir, cert_name or config.drone_id, list(connect))
     run_async(run_temperature_sensor(config.drone_id, config, list(connect), lambda line: click.echo(line), count, extra))
+
+
+@sensor.command("simulate")
+@click.option("--world", "world_path", required=True, type=click.Path(path_type=Path, dir_okay=False, exists=True),
+              help="The world file whose heat field and `fields:` (and `field_sensors:`) are read.")
+@click.option("--drone", "drone_id", callback=drone_id_option, help="A sensor on this drone: read where its telemetry puts it.")
+@click.option("--type", "kind", help="The sensor type on the drone: temperature, or a type of the world's `fields:` (e.g. gas).")
+@click.option("--field", "field_id", help="Instead: the world's field sensor with this id, where the world places it.")
+@click.option("--connect", multiple=True, type=ENDPOINT, default=["tcp/127.0.0.1:7447"], show_default=True,
+              help="Zenoh endpoint: the drone's agent or the ground (repeatable).")
+@click.option("--count", type=click.IntRange(1), help="Exit after publishing this many readings.")
+@click.option("--pki-dir", type=click.Path(file_okay=False, exists=True, path_type=Path),
+              help="On a secured mesh (SPEC §9): ca.pem and NAME.pem/NAME.key (the drone's, or the field sensor's issued --role sensor).")
+@click.option("--name", "cert_name", help="The certificate to show, with --pki-dir (default: the drone or sensor id).")
+def sensor_simulate(world_path: Path, drone_id: str | None, kind: str | None, field_id: str | None, connect: tuple[str, ...],
+                    count: int | None, pki_dir: Path | None, cert_name: str | None) -> None:
+    """Any simulated sensor a world file describes, as a program on the mesh.
+
+    On a drone (--drone ID --type T): drone/<id>/sensor/<T>, the world's heat field
+    (temperature) or its `fields:` of type T where the drone's telemetry puts it. A field
+    sensor (--field ID): sensor/<id>/<type> with its position and liveliness token.
+    """
+    from dronefleet.sim.sensors import run_sensor_program, world_sensor_program
+    from dronefleet.sim.world import load_world
+
+    if drone_id is not None and field_id is not None:
+        raise ConfigError("give --drone ID --type TYPE or --field ID, not both")
+    world = load_world(world_path)
+    program, about = world_sensor_program(world, drone_id=drone_id, kind=kind, field_id=field_id)
+    name = field_id or drone_id
+    assert name is not None
+    extra = secured_client(pki_dir, cert_name or name, list(connect))
+    click.echo(about)
+    run_async(run_sensor_program(program, list(connect), lambda line: click.echo(line), count, extra))
 
 
 @sensor.command("publish")

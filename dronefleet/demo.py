@@ -184,7 +184,7 @@ class Demo:
             for kind in spec.sensor_types if not opts.radio else []:  # on the radio: beside each agent
                 self._start_sensor(bus, world, spec.id, kind)
         bus.subscribe(self.keys.field_sensor(), self._on_field_sensor)
-        for field_sensor in world.field_sensors:  # the world's field sensors, on the ground's router
+        for field_sensor in world.field_sensors if not opts.radio else []:  # on the radio: `fleet sim` runs them too
             self._background(world_field_sensor(bus, world, field_sensor, keys=self.keys), f"field sensor {field_sensor.id}")
         sampler = self._background(self._sample(), "the telemetry recorder")
 

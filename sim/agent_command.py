@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
+    from dronefleet.schemas.config import Security
     from dronefleet.sim.world import DroneSpec, World
 
 
@@ -40,6 +41,36 @@ def agent_command(drone_id: str, fc: str, *, connect: Iterable[str] = (), listen
     if config is not None:
         args += ["--config", str(config)]
     return fleet_command(*args)
+
+
+def sensor_command(world_file: Path, connect: Iterable[str], security: Security | None = None, *,
+                   drone_id: str | None = None, kind: str | None = None, field_id: str | None = None) -> list[str]:
+    """`fleet sensor simulate --world W` for a drone's sensor `kind` or the field sensor
+    `field_id`; on a secured mesh showing the drone's certificate (or the field sensor's own)."""
+    args = ["sensor", "simulate", "--world", str(world_file)]
+    if field_id is not None:
+        args += ["--field", field_id]
+    else:
+        assert drone_id is not None and kind is not None
+        args += ["--drone", drone_id, "--type", kind]
+    for endpoint in connect:
+        args += ["--connect", endpoint]
+    if security is not None and security.tls:
+        assert security.pki_dir is not None
+        args += ["--pki-dir", security.pki_dir, "--name", field_id or security.name or str(drone_id)]
+    return fleet_command(*args)
+
+
+def world_file(world: World, out_dir: Path) -> Path:
+    """The world as a file for the sensor programs (`fleet sensor simulate --world`), written once."""
+    import msgspec
+    import yaml
+
+    path = out_dir / "world.yml"
+    if not path.exists():
+        out_dir.mkdir(parents=True, exist_ok=True)
+        path.write_text(yaml.safe_dump(msgspec.to_builtins(world)))
+    return path
 
 
 def drone_agent_config(base: Path | None, world: World, spec: DroneSpec, out_dir: Path) -> Path | None:

@@ -100,17 +100,18 @@ async def publish_readings(bus: Bus, sensor_id: str, readings: AsyncIterator[Sen
 
 
 async def world_field_sensor(bus: Bus, world: World, spec: FieldSensorSpec, clock: Clock | None = None,
-                             keys: Keys | None = None) -> None:
+                             keys: Keys | None = None, out: Callable[[str], None] | None = None) -> None:
     """A field sensor the world file places: the world's fields of its type where it stands."""
     await simulated_field_sensor(bus, spec.id, spec.type, Position(lat=spec.lat, lon=spec.lon, alt=spec.alt),
                                  lambda where: world.reading_at(spec.type, where.lat, where.lon),
-                                 world.field_sensor_rate_ms, clock, keys)
+                                 world.field_sensor_rate_ms, clock, keys, out)
 
 
 async def simulated_field_sensor(bus: Bus, sensor_id: str, sensor_type: str, at: Position,
                                  sample: Callable[[Position], dict[str, float] | float], rate_ms: int,
-                                 clock: Clock | None = None, keys: Keys | None = None) -> None:
-    """A world's field sensor: the world's field where it stands, every `rate_ms`."""
+                                 clock: Clock | None = None, keys: Keys | None = None,
+                                 out: Callable[[str], None] | None = None) -> None:
+    """A world's field sensor: the world's field where it stands, every `rate_ms`; `out` gets a line per reading."""
     clock = clock or SystemClock()
 
     async def readings() -> AsyncIterator[SensorReading]:
@@ -122,7 +123,7 @@ async def simulated_field_sensor(bus: Bus, sensor_id: str, sensor_type: str, at:
                 yield reading_of(sensor_id, sensor_type, at, clock.time_ms(), value=measured)
             await clock.sleep(rate_ms / 1000)
 
-    await publish_readings(bus, sensor_id, readings(), lambda line: None, keys)
+    await publish_readings(bus, sensor_id, readings(), out or (lambda line: None), keys)
 
 
 async def run_publish(sensor_id: str, sensor_type: str, at: Position, value: float | None, fields: dict[str, float],

@@ -28,7 +28,7 @@ import msgspec
 
 from dronefleet.schemas.config import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
-from dronefleet.sim.agent_command import agent_command, drone_agent_config
+from dronefleet.sim.agent_command import agent_command, drone_agent_config, sensor_command, world_file
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.radio import Spot3, spot_of
@@ -100,7 +100,10 @@ async def run_sim(
     children: list[subprocess.Popen[bytes]] = []
     control_transport: asyncio.BaseTransport | None = None
     loop = asyncio.get_running_loop()
-    field = RadioField(world, [s.id for s in specs], ground_port, agent_security(agent_config)).up() if radio else None
+    security = agent_security(agent_config)
+    # off the radio, the sensor programs connect where the agents do
+    sensor_connect = connect or (read_yaml(agent_config).get("connect") if agent_config else None) or ["tcp/127.0.0.1:7447"]
+    field = RadioField(world, [s.id for s in specs], ground_port, security).up() if radio else None
     scratch = tempfile.TemporaryDirectory(prefix="fleet-sim-")
     try:
         if field is not None:
@@ -148,12 +151,17 @@ async def run_sim(
                                          config=config, kind=v.spec.kind, roles=v.spec.roles or ())
                 children.append(_child(args, log_dir, v.spec.id))
                 out(f"agent {v.spec.id} started (pid {children[-1].pid})")
-                for kind in v.spec.sensor_types if field is not None else []:
-                    assert field is not None
-                    sensor_args = field.sensor_args(v.spec.id, kind, Path(scratch.name))
-                    if sensor_args is not None:
-                        children.append(_child(sensor_args, log_dir, f"{v.spec.id}-{kind}"))
-                        out(f"{kind} sensor of {v.spec.id} started (pid {children[-1].pid})")
+                for kind in v.spec.sensor_types:  # any type the world reads, beside the agent
+                    args = (field.sensor_args(v.spec.id, kind, Path(scratch.name)) if field is not None else
+                            sensor_command(world_file(world, Path(scratch.name)), sensor_connect, security,
+                                           drone_id=v.spec.id, kind=kind))
+                    children.append(_child(args, log_dir, f"{v.spec.id}-{kind}"))
+                    out(f"{kind} sensor of {v.spec.id} started (pid {children[-1].pid})")
+            for pole in world.field_sensors:  # on their own link to the ground, not the drones' radio
+                args = (field.field_sensor_args(pole.id, Path(scratch.name)) if field is not None else
+                        sensor_command(world_file(world, Path(scratch.name)), sensor_connect, security, field_id=pole.id))
+                children.append(_child(args, log_dir, pole.id))
+                out(f"field sensor {pole.id} ({pole.type}) started (pid {children[-1].pid})")
         await asyncio.gather(*tasks)
     finally:
         for child in children:

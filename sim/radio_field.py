@@ -5,9 +5,10 @@ following where the vehicles are (SPEC §8: updated `radio.update_hz` times a se
 5 by default), from the same RadioModel fast-time simulation uses. It also builds
 the command lines that put a drone's agent and sensor programs inside the drone's
 namespace: the agent connects to the ground's radio address and listens for its
-on-board programs and neighbours on its own; the sensors connect to that agent. On a
+on-board programs and neighbours on its own; the sensors connect to that agent. The
+world's field sensors stand outside the radio (their own link to the ground). On a
 secured mesh (the agents' `security.tls`, SPEC §9) every one of those links is
-mutual TLS, and each sensor shows its drone's certificate.
+mutual TLS, and each sensor shows its drone's certificate (a field sensor its own).
 """
 
 from __future__ import annotations
@@ -17,12 +18,9 @@ import logging
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-import msgspec
-import yaml
-
 from dronefleet.schemas.config import Security
 from dronefleet.schemas.endpoints import AGENT_PORT
-from dronefleet.sim.agent_command import agent_command, fleet_command
+from dronefleet.sim.agent_command import agent_command, sensor_command, world_file
 from dronefleet.sim.radio import GROUND, Spot3, distance_3d, link_losses
 from dronefleet.sim.radio_net import RadioNet
 from dronefleet.sim.world import World
@@ -72,18 +70,18 @@ class RadioField:
             drone_id, fc, connect=[self.ground_endpoint], listen=[f"{self.scheme}/0.0.0.0:{AGENT_PORT}"],
             mesh_interface=RADIO_INTERFACE, config=agent_config, kind=kind, roles=roles or ())]
 
-    def sensor_args(self, drone_id: str, kind: str, config_dir: Path) -> list[str] | None:
-        """A simulated sensor program beside the drone's agent (temperature only)."""
-        if kind != "temperature":
-            return None
-        heat = config_dir / f"{drone_id}-heat.yml"
-        heat.write_text(yaml.safe_dump(msgspec.to_builtins(self.world.heat_config())))
-        args = [*self.net.exec_args(drone_id), *fleet_command("sensor", "temperature"),
-                "--drone", drone_id, "--config", str(heat), "--connect", f"{self.scheme}/127.0.0.1:{AGENT_PORT}"]
-        if self.security.tls:
-            assert self.security.pki_dir is not None
-            args += ["--pki-dir", self.security.pki_dir, "--name", self.security.name or drone_id]
-        return args
+    def sensor_args(self, drone_id: str, kind: str, config_dir: Path) -> list[str]:
+        """A simulated sensor program beside the drone's agent, in its namespace: any type
+        the world reads (`fleet sensor simulate`; temperature from the heat field)."""
+        return [*self.net.exec_args(drone_id), *sensor_command(
+            world_file(self.world, config_dir), [f"{self.scheme}/127.0.0.1:{AGENT_PORT}"], self.security,
+            drone_id=drone_id, kind=kind)]
+
+    def field_sensor_args(self, sensor_id: str, config_dir: Path) -> list[str]:
+        """A world's field sensor: on its own link to the ground (a pole's cable or modem,
+        not the drones' radio), so outside the namespaces; on a secured mesh it shows the
+        certificate issued for its id (`fleet pki issue ID --role sensor`)."""
+        return sensor_command(world_file(self.world, config_dir), [self.ground_endpoint], self.security, field_id=sensor_id)
 
     def describe(self) -> list[str]:
         lines = [f"radio: {self.net.subnet}, ground {self.net.ground_address} (agents connect to {self.ground_endpoint}); "
@@ -91,3 +89,4 @@ class RadioField:
         for drone_id in self.net.drone_ids:
             lines.append(f"radio: {drone_id} at {self.net.address(drone_id)} in namespace {self.net.netns(drone_id)}")
         return lines
+

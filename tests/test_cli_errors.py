@@ -22,6 +22,8 @@ DEAD_URL = "http://127.0.0.1:9"  # discard port: nothing listens there
 def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("bad")
     (d / "bad_world.yml").write_text("drones: [{id: d1, bogus: 1}]\n")
+    (d / "gas_world.yml").write_text("drones: [{id: d1, sensors: [gas, sonar]}]\nfields: {gas: {co_ppm: {background: 2}}}\n"
+                                     "field_sensors: [{id: gas07, type: gas, lat: 40.6, lon: -8.6}]\n")
     (d / "bad_agent.yml").write_text("telemetry_rate_ms: 100\nwings: 4\n")
     (d / "bad_ground.yml").write_text("http_port: many\n")
     (d / "not_yaml.yml").write_text("drones: [unclosed\n")
@@ -94,6 +96,15 @@ CASES = [
     ("sim: bad world", ["sim", "{d}/bad_world.yml"], {2}, "bogus"),
     ("sim: bad --output", ["sim", "--output", "nohostport"], {2}, "--output"),
     ("sensor: missing config", ["sensor", "temperature", "--drone", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
+    ("sensor simulate: no such field sensor", ["sensor", "simulate", "--world", "{d}/gas_world.yml", "--field", "gas99"], {2},
+     "no such field sensor (it has: gas07)"),
+    ("sensor simulate: a type the world cannot read", ["sensor", "simulate", "--world", "{d}/gas_world.yml", "--drone", "d2",
+                                                       "--type", "smoke"], {2}, "it reads: gas, temperature"),
+    ("sensor simulate: --drone without --type", ["sensor", "simulate", "--world", "{d}/gas_world.yml", "--drone", "d1"], {2},
+     "d1 carries gas, sonar"),
+    ("sensor simulate: both a drone and a field", ["sensor", "simulate", "--world", "{d}/gas_world.yml", "--drone", "d1",
+                                                   "--type", "gas", "--field", "gas07"], {2}, "not both"),
+    ("sensor simulate: bad world", ["sensor", "simulate", "--world", "{d}/bad_world.yml", "--field", "x"], {2}, "bogus"),
     ("sensor: bad endpoint", ["sensor", "temperature", "--drone", "d1", "--connect", "udp/:"], {2}, "udp/:"),
     ("demo: bad world", ["demo", "--world", "{d}/bad_world.yml", "--until-done"], {2}, "bogus"),
     ("demo: --out is a file", ["demo", "--out", "{d}/a_file", "--until-done"], {2}, "a_file"),

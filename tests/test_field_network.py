@@ -66,13 +66,15 @@ class RadioSim(ChildProcess):
 
     name = "fleet sim --radio"
 
-    def __init__(self, tmp: Path, ground: GroundProcess, drones: list[dict[str, Any]], **agent: Any) -> None:
+    def __init__(self, tmp: Path, ground: GroundProcess, drones: list[dict[str, Any]], world_keys: dict[str, Any] | None = None,
+                 **agent: Any) -> None:
         world = tmp / "world.yml"
         world.write_text(yaml.safe_dump({
             "origin": {"lat": GROUND[0], "lon": GROUND[1], "alt": FIELD_ALT},
             "ground_station": {"lat": GROUND[0], "lon": GROUND[1]},
             "drones": drones,
             "heat_sources": [{"lat": GROUND[0], "lon": GROUND[1], "radius": 300, "temp": 60}],
+            **(world_keys or {}),
         }))
         cfg = tmp / "agent.yml"
         cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 200, "probe_period_ms": 500, "probe_window": 6, "max_speed": 10, **agent}))
@@ -195,12 +197,16 @@ def index_of(lines: list[str], text: str, start: int = 0) -> int:
 @pytest.mark.slow(70)
 async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """A drone flies from 20 m towards 150 m and is brought home by its lost-link policy;
-    its sensor keeps feeding its agent while the ground is out of reach."""
+    its sensors keep feeding its agent while the ground is out of reach. Its gas sensor
+    and the world's field sensor are `fleet sensor simulate` programs reading the world's
+    `fields:` (the drone's in its namespace, the field sensor on its own link)."""
     ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0")
     processes.append(ground)
     await ground.ready()
-    start = north(20)
-    sim = RadioSim(tmp_path, ground, [{"id": "drone01", "lat": start[0], "lon": start[1], "sensors": ["temperature"]}],
+    start, pole = north(20), north(40)
+    plume = {"gas": {"co_ppm": {"background": 3, "sources": [{"lat": GROUND[0], "lon": GROUND[1], "radius": 80, "peak": 163}]}}}
+    sim = RadioSim(tmp_path, ground, [{"id": "drone01", "lat": start[0], "lon": start[1], "sensors": ["temperature", "gas"]}],
+                   {"fields": plume, "field_sensors": [{"id": "gas07", "type": "gas", "lat": pole[0], "lon": pole[1]}]},
                    lost_link={"timeout_s": 3, "action": "hold", "return_after_s": 6}, return_altitude=10)
     processes.append(sim)
     await sim.up()
@@ -209,6 +215,15 @@ async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProces
         onboard = OnBoard(tmp_path, sim.netns("drone01"), "drone01")  # the agent listens now
         processes.append(onboard)
         await until(lambda: onboard.messages("/sensor/temperature"), 30, "readings at the on-board listener")
+        # 163 - 160 * d / 80 where each stands: 20 m (the drone) and 40 m (the pole)
+        gas = await until(lambda: onboard.messages("/sensor/gas"), 30, "gas readings at the on-board listener")
+        assert gas[-1]["fields"]["co_ppm"] == pytest.approx(123, abs=1.5) and gas[-1].get("value") is None, gas[-1]
+        field = await until(lambda: _field_sensor(http, "gas07"), 30, "field sensor gas07 at the ground")
+        assert field["alive"] is True and field["types"] == ["gas"], field
+        assert field["readings"][-1]["fields"]["co_ppm"] == pytest.approx(83, abs=0.5), field
+        assert field["position"]["lat"] == pytest.approx(pole[0], abs=1e-6), field
+        at_ground = await until(lambda: _reading(http, "drone01", "gas"), 30, "drone01's gas reading at the ground")
+        assert at_ground["fields"]["co_ppm"] == pytest.approx(123, abs=1.5), at_ground
         await command(http, "drone01", cmd="arm")
         await command(http, "drone01", cmd="takeoff", alt=10)
         await until(lambda: state_is(http, "drone01", "hold"), 60, "drone01 hovering")
@@ -251,6 +266,16 @@ async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProces
     during = [r for r in onboard.messages("/sensor/temperature") if lost_ms < r["timestamp"] < back_ms]
     # The sensor publishes every 200 ms: the agent got its readings all through the outage.
     assert len(during) >= (back_ms - lost_ms) / 200 * 0.8, (len(during), back_ms - lost_ms)
+
+
+async def _field_sensor(http: httpx.AsyncClient, sensor_id: str) -> dict[str, Any] | None:
+    r = await http.get(f"/sensor/{sensor_id}")
+    return r.json() if r.status_code == 200 and r.json()["readings"] else None
+
+
+async def _reading(http: httpx.AsyncClient, drone_id: str, kind: str) -> dict[str, Any] | None:
+    view = await drone(http, drone_id)
+    return next((r for r in (view or {}).get("sensors") or [] if r["type"] == kind), None)
 
 
 async def _has(http: httpx.AsyncClient, text: str) -> bool:

@@ -13,6 +13,7 @@ import textwrap
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 import yaml
 
@@ -23,9 +24,9 @@ from dronefleet.schemas.geo import destination
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import SensorReading
 from dronefleet.sim.heat_field import HeatSource, temperature_at
-from dronefleet.sim.world import World
-from tests.harness import Operator, fleet_command
-from tests.helpers import Collector
+from dronefleet.sim.world import DroneSpec, World
+from tests.harness import ChildProcess, GroundProcess, Operator, fleet_command, stop_all
+from tests.helpers import Collector, free_udp_base, until
 
 pytestmark = pytest.mark.integration
 
@@ -122,3 +123,91 @@ async def test_a_mission_reads_and_assigns_by_any_sensor_type() -> None:
     assert "Assigned drone02 (a drone with humidity)" in log
     (line,) = [m for m in log if "humidity" in m and m.startswith("drone02")]
     assert line.endswith("temperature None")
+
+
+PLUME = {"gas": {"co_ppm": {"background": 3, "sources": [{"lat": LAT, "lon": LON, "radius": 80, "peak": 163}],
+                            }, "no2_ppb": {"background": 12}}}
+
+
+async def test_fleet_sim_runs_any_declared_type_and_the_worlds_field_sensors_as_sensor_programs(tmp_path: Path) -> None:
+    """`fleet sim --agents` (no radio) starts a `fleet sensor simulate` per drone sensor the
+    world reads and per field sensor it places: a gas reading with the world's fields
+    where the drone stands, the field sensor listed at the ground with its own; its
+    liveliness goes with the sim."""
+    pole = destination(LAT, LON, 40, 90)
+    start = destination(LAT, LON, 20, 0)
+    world = tmp_path / "world.yml"
+    world.write_text(yaml.safe_dump({
+        "origin": {"lat": LAT, "lon": LON, "alt": 8.2},
+        "drones": [{"id": "drone01", "lat": start[0], "lon": start[1], "sensors": ["gas"]}],
+        "fields": PLUME, "field_sensors": [{"id": "gas07", "type": "gas", "lat": pole[0], "lon": pole[1]}],
+        "field_sensor_rate_ms": 200,
+    }))
+    ground = GroundProcess(tmp_path)
+    children: list[ChildProcess] = [ground]
+    try:
+        await ground.ready()
+        sim = ChildProcess(fleet_command("sim", str(world), "--agents", "--connect", ground.endpoint,
+                                         "--base-port", str(free_udp_base(1) + 1)), tmp_path / "sim.log")
+        children.append(sim)
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            async def gas_of_drone() -> dict[str, Any] | None:
+                r = await http.get("/drone/drone01")
+                found = [s for s in r.json().get("sensors") or [] if s["type"] == "gas"] if r.status_code == 200 else []
+                return found[0] if found else None
+
+            async def gas07() -> dict[str, Any] | None:
+                r = await http.get("/sensor/gas07")
+                return r.json() if r.status_code == 200 and r.json()["readings"] else None
+
+            reading = await until(gas_of_drone, 60, f"drone01's gas reading at the ground\n{sim.output()[-2000:]}")
+            # 163 - 160 * 20 / 80 where the drone stands, and the background of no2_ppb
+            assert reading["fields"] == {"co_ppm": pytest.approx(123, abs=0.5), "no2_ppb": 12}, reading
+            field = await until(gas07, 30, "field sensor gas07 at the ground")
+            assert field["alive"] is True and field["readings"][-1]["fields"]["co_ppm"] == pytest.approx(83, abs=0.5), field
+            assert "field sensor gas07 (gas) started" in sim.output() and "gas sensor of drone01 started" in sim.output()
+            assert sim.stop() == 0
+            await until(lambda: _not_alive(http, "gas07"), 20, "gas07's liveliness gone with the sim")
+    finally:
+        stop_all(reversed(children))
+
+
+async def _not_alive(http: httpx.AsyncClient, sensor_id: str) -> bool:
+    r = await http.get(f"/sensor/{sensor_id}")
+    return r.status_code == 404 or r.json()["alive"] is False
+
+
+async def test_fleet_sensor_simulate_publishes_a_worlds_field_sensor(router: ZenohBus, client: ZenohBus, endpoint: str,
+                                                                     tmp_path: Path) -> None:
+    pole = destination(LAT, LON, 60, 180)
+    world = tmp_path / "world.yml"
+    world.write_text(yaml.safe_dump({"fields": PLUME, "field_sensor_rate_ms": 100,
+                                     "field_sensors": [{"id": "gas07", "type": "gas", "lat": pole[0], "lon": pole[1]}]}))
+    readings = Collector()
+    client.subscribe(Keys().field_sensor("gas07", "gas"), lambda s: readings(decode_sensor(s.payload)))
+    done = await asyncio.to_thread(
+        subprocess.run, fleet_command("sensor", "simulate", "--world", str(world), "--field", "gas07", "--connect", endpoint, "--count", "3"),
+        capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert done.returncode == 0, done.stderr
+    reading: SensorReading = await readings.wait_for(lambda r: True, 10, "a gas07 reading")
+    assert reading.sensor_id == "gas07" and reading.type == "gas" and reading.position is not None
+    assert reading.fields == {"co_ppm": pytest.approx(43, abs=0.01), "no2_ppb": 12}  # 163 - 160 * 60 / 80
+    assert reading.position.lat == pytest.approx(pole[0])
+    assert len([line for line in done.stdout.splitlines() if line.startswith("gas07 gas")]) == 3, done.stdout
+
+
+async def test_a_carried_type_without_fields_is_announced_without_values_as_fast_time_does() -> None:
+    from dronefleet.bus.memory import MemoryBus, MemoryNetwork
+    from dronefleet.sim.sensors import world_sensor_program
+
+    world = World(drones=[DroneSpec(id="d1", sensors=["sonar"])])
+    program, about = world_sensor_program(world, drone_id="d1", kind="sonar")
+    assert "announced without values" in about
+    bus = MemoryBus(MemoryNetwork())
+    lines: list[str] = []
+    task = asyncio.ensure_future(program(bus, lines.append))
+    try:
+        await until(lambda: lines, 5, "an announced reading")
+    finally:
+        task.cancel()
+    assert lines[0] == "d1 sonar None"
