@@ -245,6 +245,8 @@ class SimField:
         for spec in self.specs:
             assert spec.lat is not None and spec.lon is not None and spec.alt is not None
             vehicle = Vehicle(spec.lat, spec.lon, spec.alt, self.world.params())
+            if spec.battery is not None:
+                vehicle.battery = spec.battery
             self.vehicles[spec.id] = vehicle
             self.tracks[spec.id] = Track()
             fc = SimFlightController(vehicle, self.clock)

@@ -203,11 +203,12 @@ def check(script: Path) -> None:
               help="Enable a plugin before the script's first line, e.g. --enable 'replacement drainage=0.0015' (repeatable).")
 @click.option("--plugins-dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
               help="Also load the plugin scripts in this directory (besides the bundled ones).")
+@click.option("--no-plots", is_flag=True, help="With --out: result.json and the recording only, no PNG plots.")
 @click.option("--radio/--no-radio", default=None,
               help="Fly on the radio model (SPEC §8: links lost with distance, relayed by drones). "
                    "Default: on if the world file has `radio:`.")
 def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int | None, seed: int, out_dir: Path | None,
-             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, radio: bool | None) -> None:
+             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, no_plots: bool, radio: bool | None) -> None:
     """Run SCRIPT against simulated drones in fast time; exit with its outcome.
 
     Plugin inputs go with --enable in one word (--enable 'replacement drainage=0.0015')
@@ -254,6 +255,7 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         result = asyncio.run(run(
             source, field, n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,
             echo=lambda t, message: click.echo(f"[{t:8.1f} s] {message}"), plugins=library, enable=enable,
+            plots=not no_plots,
         ))
     except ScriptError as exc:
         _fail(f"{script}:{exc.line}:{exc.column}: {exc.message}")

@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import AsyncIterator, Awaitable
-from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 import msgspec
@@ -23,18 +22,19 @@ from litestar.datastructures import ResponseHeader
 from litestar.di import Provide
 from litestar.exceptions import HTTPException, ValidationException
 from litestar.openapi import OpenAPIConfig
-from litestar.openapi.spec import Components, OpenAPIMediaType, Operation, RequestBody, SecurityScheme
+from litestar.openapi.spec import Components, SecurityScheme
 from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from dronefleet.bus.port import QueryRefused, Unreachable
-from dronefleet.ground.api_error import ApiError
+from dronefleet.ground.api_error import ApiError, body_operation, text_operation
 from dronefleet.ground.api_error import error_response as _error
 from dronefleet.ground.api_error import error_specs as _errors
 from dronefleet.ground.config import ROLE_RANK, ApiToken
 from dronefleet.ground.dashboard_routes import DashboardAssets, dashboard_config, dashboard_file, index
 from dronefleet.ground.describe import Level
 from dronefleet.ground.eventlog import format_line
+from dronefleet.ground.plan_routes import Planner, check_mission_script, export_mission_plan, simulate_mission
 from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
@@ -75,6 +75,10 @@ class PlanImported(msgspec.Struct, frozen=True, kw_only=True):
     script: str
     left_out: list[str]  # "item N: why", one per item (or fence part) not carried over
     geofence: dict[str, Any] | None  # the plan's inclusion polygon in the ground's `geofence:` form
+    # the same plan as the dashboard's planner edits it (waypoints with alt above home)
+    waypoints: list[dict[str, Any]] = []
+    takeoff_alt: float | None = None
+    end: str = "hold"
 
 
 class MissionView(MissionRecord, kw_only=True):
@@ -111,14 +115,7 @@ def _bundle_body_schema() -> dict[str, Any]:
 _BUNDLE_SCHEMA = _bundle_body_schema()
 
 
-@dataclass
-class _CommandOperation(Operation):
-    def __post_init__(self) -> None:
-        self.request_body = RequestBody(
-            content={"application/json": OpenAPIMediaType(schema=_BODY_SCHEMA)},  # type: ignore[arg-type]
-            required=True,
-            description="A command (SPEC §2) without drone_id and timestamp; the ground adds them and a command_id if absent.",
-        )
+_CommandOperation = body_operation("application/json", _BODY_SCHEMA, "A command (SPEC §2) without drone_id and timestamp; the ground adds them and a command_id if absent.")
 
 
 # ---- handlers ---------------------------------------------------------------------
@@ -204,14 +201,7 @@ async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
     return Response(reply)
 
 
-@dataclass
-class _BundleOperation(Operation):
-    def __post_init__(self) -> None:
-        self.request_body = RequestBody(
-            content={"application/json": OpenAPIMediaType(schema=_BUNDLE_SCHEMA)},  # type: ignore[arg-type]
-            required=True,
-            description="A task bundle (SPEC §6) without drone_id and timestamp; the ground adds them and a bundle_id if absent.",
-        )
+_BundleOperation = body_operation("application/json", _BUNDLE_SCHEMA, "A task bundle (SPEC §6) without drone_id and timestamp; the ground adds them and a bundle_id if absent.")
 
 
 @post(
@@ -233,19 +223,6 @@ async def show_bundle(station: GroundStation, drone_id: str, bundle_id: str) -> 
 # ---- missions ---------------------------------------------------------------------
 
 
-def _text_operation(description: str) -> type[Operation]:
-    """An operation whose body is text (not JSON), as the schema should say."""
-
-    @dataclass
-    class _TextOperation(Operation):
-        def __post_init__(self) -> None:
-            self.request_body = RequestBody(
-                content={"text/plain": OpenAPIMediaType(schema={"type": "string"})},  # type: ignore[arg-type]
-                required=True, description=description,
-            )
-    return _TextOperation
-
-
 async def _text(request: Request[Any, Any, Any], what: str, detail: dict[str, Any] | None = None) -> str | Response[Any]:
     """The body as text, or the 413/400 saying why not."""
     body = await request.body()
@@ -258,7 +235,7 @@ async def _text(request: Request[Any, Any, Any], what: str, detail: dict[str, An
 
 
 @post(
-    "/mission", status_code=201, operation_class=_text_operation("The mission script (Python DSL, SPEC §5), as text."),
+    "/mission", status_code=201, operation_class=text_operation("The mission script (Python DSL, SPEC §5), as text."),
     responses=_errors(400, 413), summary="Submit a mission script; 201 with its id, 400 with line/column when it does not compile",
 )
 async def submit_mission(
@@ -278,7 +255,7 @@ async def submit_mission(
 
 @post(
     "/mission/plan", status_code=200,
-    operation_class=_text_operation("A QGroundControl plan (JSON, `fileType: Plan`, mission version 2), as text."),
+    operation_class=text_operation("A QGroundControl plan (JSON, `fileType: Plan`, mission version 2), as text."),
     responses=_errors(400, 413),
     summary="A QGroundControl plan as a mission script (nothing is submitted); 400 when it is not such a plan",
 )
@@ -293,7 +270,8 @@ async def import_mission_plan(
         imported = import_plan(text, drone or None, "the uploaded plan")
     except NotAPlan as exc:
         return _error(400, str(exc))  # type: ignore[return-value]
-    return Response(PlanImported(script=imported.script, left_out=imported.left_out, geofence=imported.geofence))
+    return Response(PlanImported(script=imported.script, left_out=imported.left_out, geofence=imported.geofence,
+                                 waypoints=imported.waypoints, takeoff_alt=imported.takeoff_alt, end=imported.end))
 
 
 @get("/mission", sync_to_thread=False, summary="Every mission record, oldest first")
@@ -448,17 +426,19 @@ def _authorize(tokens: list[ApiToken]) -> Any:
 
 def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
     assets = DashboardAssets.load()
+    planner = Planner()
     tokens = station.config.api.all_tokens()
     return Litestar(
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
-            import_mission_plan, list_field_sensors, show_field_sensor,
+            import_mission_plan, list_field_sensors, show_field_sensor, check_mission_script, simulate_mission, export_mission_plan,
             cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file,
         ],
         dependencies={
             "station": Provide(lambda: station, sync_to_thread=False),
             "missions": Provide(lambda: missions, sync_to_thread=False),
             "assets": Provide(lambda: assets, sync_to_thread=False),
+            "planner": Provide(lambda: planner, sync_to_thread=False),
         },
         exception_handlers={HTTPException: _http_error, Exception: _internal_error},
         openapi_config=OpenAPIConfig(

@@ -4,11 +4,13 @@ that does not exist)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import msgspec
 from litestar import Response
 from litestar.openapi.datastructures import ResponseSpec
+from litestar.openapi.spec import OpenAPIMediaType, Operation, RequestBody
 
 
 class ApiError(msgspec.Struct, frozen=True, kw_only=True):
@@ -22,6 +24,7 @@ REASONS = {
     409: "the drone cannot run this command now, or the mission already ended (reason given)",
     413: "the script is too large",
     502: "the agent answered with an error",
+    503: "the ground is busy with another simulation, or a simulation ran out of time",
     504: "the drone's agent did not answer (unreachable)",
 }
 
@@ -33,3 +36,39 @@ def error_specs(*codes: int) -> dict[int, ResponseSpec]:
 
 def error_response(status: int, error: str, detail: Any = None) -> Response[ApiError]:
     return Response(ApiError(error=error, detail=detail), status_code=status)
+
+
+def body_operation(media_type: str, schema: dict[str, Any], description: str) -> type[Operation]:
+    """An operation whose handler reads its body itself (to name the field at fault, or
+    take text): what the body is, for the schema."""
+
+    @dataclass
+    class _BodyOperation(Operation):
+        def __post_init__(self) -> None:
+            self.request_body = RequestBody(
+                content={media_type: OpenAPIMediaType(schema=schema)},  # type: ignore[arg-type]
+                required=True, description=description,
+            )
+    return _BodyOperation
+
+
+def text_operation(description: str) -> type[Operation]:
+    """An operation whose body is text (not JSON), as the schema should say."""
+    return body_operation("text/plain", {"type": "string"}, description)
+
+
+def json_operation(kind: type, description: str) -> type[Operation]:
+    """An operation whose body is the msgspec struct `kind` as JSON (its schema inlined)."""
+    full = msgspec.json.schema(kind)
+    defs = full.pop("$defs", {})
+
+    def inline(node: Any) -> Any:
+        if isinstance(node, dict):
+            if "$ref" in node:
+                return inline(defs[node["$ref"].rsplit("/", 1)[1]])
+            return {k: inline(v) for k, v in node.items()}
+        if isinstance(node, list):
+            return [inline(v) for v in node]
+        return node
+
+    return body_operation("application/json", inline(full), description)

@@ -112,6 +112,8 @@ async def run_sim(
         for i, spec in enumerate(specs):
             assert spec.lat is not None and spec.lon is not None and spec.alt is not None
             vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params())
+            if spec.battery is not None:
+                vehicle.battery = spec.battery
             # On the radio every drone has its own 127.0.0.1: PX4's first ports serve all.
             port = base_port + (0 if field else i)
             def on_change(_: object, sv_id: str = spec.id) -> None:

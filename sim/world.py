@@ -50,6 +50,7 @@ class DroneSpec(_Strict, frozen=True):
     faults: list[Fault] = []
     kind: str | None = None  # its agent's `kind` and `roles` (default: the agent's defaults)
     roles: list[Role] | None = None
+    battery: Annotated[float, Meta(ge=0, le=1)] | None = None  # charge at the start (default: full)
 
     @property
     def sensor_types(self) -> list[str]:

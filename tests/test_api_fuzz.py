@@ -72,6 +72,7 @@ def test_generated_requests_never_5xx_and_always_match_the_schema(ground: Ground
         "POST /drone/{drone_id}/bundle", "GET /drone/{drone_id}/bundle/{bundle_id}",
         "POST /mission", "GET /mission", "GET /mission/{mission_id}", "DELETE /mission/{mission_id}",
         "GET /plugin", "POST /mission/plan", "GET /sensor", "GET /sensor/{sensor_id}",
+        "POST /mission/check", "POST /mission/simulate", "POST /mission/plan/export",
     }
     for op in operations:
         for mode in (GenerationMode.POSITIVE, GenerationMode.NEGATIVE):

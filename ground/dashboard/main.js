@@ -6,6 +6,7 @@ import { call } from "./api.js";
 import { DronePanel } from "./drones.js";
 import { MapView, STATE_COLOURS } from "./map.js";
 import { MissionPanel } from "./missions.js";
+import { Planner } from "./planner.js";
 import { Fleet } from "./store.js";
 import { EventStream } from "./stream.js";
 import { View } from "./view.js";
@@ -108,11 +109,13 @@ async function main() {
   let drones = null;
   let missions = null;
   let map = null;
+  let planner = null;
 
   const frames = new Frames(config.event_telemetry_ms, () => {
     map.draw();
     drones.render();
     missions.render();
+    planner.renderDrones();
     fleet.changed.clear();
     fleet.membershipChanged = false;
     fleet.telemetryChanged = false;
@@ -129,6 +132,7 @@ async function main() {
   });
   drones = new DronePanel(fleet, map, { redraw });
   missions = new MissionPanel(fleet, { redraw });
+  planner = new Planner(fleet, map, config, { redraw });
   setupTabs(frames);
   setupLegend();
 
@@ -191,7 +195,7 @@ async function main() {
 
   // For people poking at the page from the console, and for the browser tests.
   window.fleetDashboard = {
-    config, view, fleet, map, drones, missions, stream,
+    config, view, fleet, map, drones, missions, planner, stream,
     get stats() {
       return { ...fleet.stats, frames: frames.stats.frames, work: frames.stats.work, connections: stream.connections };
     },

@@ -37,6 +37,7 @@ export class MapView {
     this.follow = false;
     this.autoFit = true; // until the user pans or zooms
     this.pick = null; // function(lat, lon) while picking a goto target
+    this.overlay = null; // the planner: draw(ctx, view), grab(sx, sy) → drag(lat, lon) | null, click(lat, lon) → bool
     this.tiles = new Map();
     this.drawn = -1;
     this.scaleLabel = document.getElementById("scale-label");
@@ -121,6 +122,7 @@ export class MapView {
     const drones = fleet.sortedIds().map((id) => fleet.drones.get(id));
     this._drawTracks(drones);
     this._drawTarget();
+    this.overlay?.draw(ctx, v);
     this._setDrawn(this._drawDrones(drones));
   }
 
@@ -404,15 +406,9 @@ export class MapView {
 
   // ---- interaction --------------------------------------------------------------------
 
-  startPick(callback) {
-    this.pick = callback;
-    this.canvas.classList.add("picking");
-  }
+  startPick(callback) { this.pick = callback; this.canvas.classList.add("picking"); }
 
-  stopPick() {
-    this.pick = null;
-    this.canvas.classList.remove("picking");
-  }
+  stopPick() { this.pick = null; this.canvas.classList.remove("picking"); }
 
   hit(sx, sy) {
     let best = null;
@@ -438,7 +434,8 @@ export class MapView {
     const c = this.canvas;
     let down = null;
     c.addEventListener("pointerdown", (e) => {
-      down = { x: e.offsetX, y: e.offsetY, lastX: e.offsetX, lastY: e.offsetY, dragging: false };
+      const grab = this.view.origin ? this.overlay?.grab(e.offsetX, e.offsetY) : null; // a waypoint to drag
+      down = { x: e.offsetX, y: e.offsetY, lastX: e.offsetX, lastY: e.offsetY, dragging: false, grab };
       c.setPointerCapture(e.pointerId);
     });
     c.addEventListener("pointermove", (e) => {
@@ -448,10 +445,9 @@ export class MapView {
         this.autoFit = false;
         if (this.follow) this.hooks.followOff();
       }
-      if (down.dragging && this.view.origin) {
-        this.view.panBy(e.offsetX - down.lastX, e.offsetY - down.lastY);
-        this.hooks.redraw();
-      }
+      if (down.dragging && down.grab) down.grab(...this.view.toLatLon(e.offsetX, e.offsetY));
+      else if (down.dragging && this.view.origin) this.view.panBy(e.offsetX - down.lastX, e.offsetY - down.lastY);
+      if (down.dragging) this.hooks.redraw();
       down.lastX = e.offsetX;
       down.lastY = e.offsetY;
     });
@@ -464,7 +460,7 @@ export class MapView {
         const pick = this.pick;
         this.stopPick();
         pick(lat, lon);
-      } else {
+      } else if (!this.overlay?.click(...this.view.toLatLon(e.offsetX, e.offsetY))) {
         const id = this.hit(e.offsetX, e.offsetY);
         if (id) this.hooks.select(id);
       }

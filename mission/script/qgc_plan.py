@@ -41,6 +41,11 @@ class Imported:
     script: str
     geofence: dict[str, Any] | None
     left_out: list[str] = field(default_factory=list)
+    # The same plan as the dashboard's planner edits it: waypoints {lat, lon, alt (m above
+    # home), hold_s, speed}, the takeoff altitude and how it ends (land, return or hold).
+    waypoints: list[dict[str, Any]] = field(default_factory=list)
+    takeoff_alt: float | None = None
+    end: str = "hold"
 
 
 def read_plan(text: str) -> dict[str, Any]:
@@ -75,6 +80,11 @@ class _Script:
         self.left_out: list[str] = []
         self.took_off = False
         self.speed = False  # a change-speed item came: moves pass `speed`
+        self.home_alt: float | None = None  # plannedHomePosition's, for frame-0 altitudes
+        self.waypoints: list[dict[str, Any]] = []
+        self.speed_now: float | None = None
+        self.takeoff_alt: float | None = None
+        self.end = "hold"
 
     def skip(self, number: int, why: str) -> None:
         self.left_out.append(f"item {number}: {why}")
@@ -89,6 +99,9 @@ class _Script:
             self.skip(number, f"{what} without an altitude (terrain-relative altitudes need terrain data)")
             return False
         self.move(number, where, f"launch.alt + {metres:g}*m" if frame == FRAME_RELATIVE else f"{metres:g}*m")
+        relative = metres if frame == FRAME_RELATIVE else round(metres - self.home_alt, 3) if self.home_alt is not None else None
+        if relative is not None:
+            self.waypoints.append({"lat": where[0], "lon": where[1], "alt": relative, "hold_s": 0.0, "speed": self.speed_now})
         return True
 
     def move(self, number: int, where: tuple[float, float], alt: str | None) -> None:
@@ -116,6 +129,8 @@ class _Script:
                 self.took_off = True
             alt = f"{metres:g}*m" if frame == FRAME_RELATIVE else f"{metres:g}*m - launch.alt"
             self.lines.append(f"takeoff(d, {alt})  # item {number}")
+            if frame == FRAME_RELATIVE or self.home_alt is not None:
+                self.takeoff_alt = metres if frame == FRAME_RELATIVE else metres - (self.home_alt or 0.0)
         elif command == CHANGE_SPEED:
             metres_s = _number(params[1])
             if metres_s is None or metres_s <= 0:
@@ -123,6 +138,7 @@ class _Script:
                 return
             self.lines.append(f"speed = {metres_s:g}*m/s  # item {number}")
             self.speed = True
+            self.speed_now = metres_s
         elif command in (NAV_DELAY, CONDITION_DELAY):
             seconds = _number(params[0])
             if seconds is None or seconds < 0:
@@ -133,13 +149,17 @@ class _Script:
             self.take_off_first(number)
             if command == RETURN:
                 self.lines.append(f"home(d)  # item {number}")
+                self.end = "return"
             elif command == LAND:
+                self.end = "land"
                 where = _coords(params)
                 if where is not None:  # PX4 flies there at the altitude it has, then lands
                     self.move(number, where, None)
                 self.lines.append(f"land(d)  # item {number}")
             elif self.goto(number, name, frame, params):
                 hold = _number(params[0]) or 0.0
+                if self.waypoints and hold > 0:
+                    self.waypoints[-1]["hold_s"] = hold
                 if hold > 0:
                     self.lines.append(f"sleep({hold:g}*s)  # item {number}: {'hold' if command == WAYPOINT else 'loiter'}")
 
@@ -148,6 +168,9 @@ def import_plan(text: str, drone_id: str | None = None, source: str = "plan") ->
     """The script for one drone (`drone_id`, or any free drone) flying the plan."""
     plan = read_plan(text)
     script = _Script()
+    home = plan["mission"].get("plannedHomePosition")
+    if isinstance(home, list) and len(home) == 3:
+        script.home_alt = _number(home[2])
     items = plan["mission"]["items"]
     for number, item in enumerate(items, start=1):
         if not isinstance(item, dict):
@@ -167,7 +190,8 @@ def import_plan(text: str, drone_id: str | None = None, source: str = "plan") ->
               f"d = assign({drone_id!r})" if drone_id else "d = assign()",
               "launch = d.home  # where frame-3 altitudes count from (`home` is the return verb)"]
     body = script.lines or ["pass  # nothing of the plan could be carried over"]
-    return Imported(script="\n".join(header + body) + "\n", geofence=fence, left_out=script.left_out + notes)
+    return Imported(script="\n".join(header + body) + "\n", geofence=fence, left_out=script.left_out + notes,
+                    waypoints=script.waypoints, takeoff_alt=script.takeoff_alt, end=script.end)
 
 
 def _section(plan: dict[str, Any], name: str, key: str) -> list[Any]:

@@ -1,0 +1,164 @@
+"""Planning on the map (SPEC §10): a script checked as it is written, *simulated* in fast
+time against a world made from the live fleet, and waypoints exported as a
+QGroundControl plan (SPEC §13).
+
+The prediction runs `fleet mission simulate` in a child process: fast time is a busy
+loop under a virtual clock, which would stall the ground's own event loop (telemetry,
+commands, the flying missions) if it ran there. The world is the fleet as the ground
+knows it: each drone with a position where it is (on the ground, at its home's
+altitude), its battery, kind, roles and sensor types; the ground's geofence; no radio
+(the prediction is of the plan, not of the field's links).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import re
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args
+
+import msgspec
+from msgspec import Meta
+
+from dronefleet.schemas.about import Role
+from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.sim.world import DroneSpec, Spot, World
+
+log = logging.getLogger(__name__)
+SIMULATION_WALL_S = 180.0  # a prediction that takes longer on this machine is stopped
+PATH_POINTS = 600  # per drone at most: the map draws them, the chart the battery
+ROLES = frozenset(get_args(Role))
+
+
+class _Body(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    pass
+
+
+class SimulateBody(_Body, frozen=True):
+    source: str
+    max_s: Annotated[float, Meta(ge=10, le=7200)] = 1800.0  # simulated seconds before it is cancelled
+
+
+class PlanWaypoint(_Body, frozen=True):
+    lat: Annotated[float, Meta(ge=-90, le=90)]
+    lon: Annotated[float, Meta(ge=-180, le=180)]
+    alt: Annotated[float, Meta(ge=0, le=1000)]  # m above home
+    hold_s: Annotated[float, Meta(ge=0, le=3600)] = 0.0
+    speed: Annotated[float, Meta(gt=0, le=30)] | None = None
+
+
+class ExportBody(_Body, frozen=True):
+    waypoints: Annotated[list[PlanWaypoint], Meta(min_length=1)]
+    home: Annotated[list[float], Meta(min_length=3, max_length=3)]  # lat, lon, alt AMSL
+    takeoff_alt: Annotated[float, Meta(gt=0, le=1000)] = 10.0
+    end: Literal["land", "return", "hold"] = "land"
+
+
+class PredictedDrone(msgspec.Struct, frozen=True, kw_only=True):
+    path: list[tuple[float, float, float, float]]  # (t_s, lat, lon, rel_alt), at most PATH_POINTS
+    battery: list[tuple[float, float]]  # (t_s, 0..1)
+    battery_start: float | None
+    battery_end: float | None
+    flying_s: float  # time armed and off the ground
+
+
+class Prediction(msgspec.Struct, frozen=True, kw_only=True):
+    status: str
+    cause: str | None
+    message: str
+    duration_s: float  # simulated, from start to end of the mission
+    wall_s: float
+    drones: dict[str, PredictedDrone]  # the drones the mission used
+    log: list[str]
+
+
+def decode_body(body: bytes, kind: type[Any], what: str) -> Any:
+    """A JSON body as `kind`, or InvalidMessage naming the field at fault."""
+    try:
+        return msgspec.json.decode(body, type=kind)
+    except msgspec.ValidationError as exc:
+        at = re.search(r"at `(\$[^`]*)`", str(exc))
+        raise InvalidMessage(f"{what}: {str(exc).replace('$.', '')}", field=at.group(1) if at else None) from None
+    except msgspec.DecodeError as exc:
+        raise InvalidMessage(f"{what}: not JSON: {exc}") from None
+
+
+def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float, float] | None) -> World:
+    """The world of a prediction from (DroneInfo, Telemetry) pairs: drones without a
+    position are left out (nothing to fly from)."""
+    specs = []
+    for info, telem in drones:
+        pos = telem.position if telem is not None else None
+        if pos is None:
+            continue
+        ground_alt = telem.home.alt if telem.home is not None else pos.alt - pos.rel_alt
+        battery = telem.battery.remaining_percent if telem.battery is not None else None
+        roles = [r for r in (info.roles or []) if r in ROLES]
+        specs.append(DroneSpec(id=info.drone_id, lat=pos.lat, lon=pos.lon, alt=ground_alt,
+                               sensors=list(info.sensors), kind=info.kind, roles=roles or None,
+                               battery=None if battery is None else min(1.0, max(0.0, battery))))
+    if not specs:
+        raise InvalidMessage("no drone with a position to simulate: the ground has heard none yet")
+    origin = Spot(lat=specs[0].lat or 0.0, lon=specs[0].lon or 0.0, alt=specs[0].alt or 0.0)
+    station = Spot(lat=ground[0], lon=ground[1]) if ground else None
+    fence = geofence if geofence is not None and (geofence.polygon or geofence.max_alt_m is not None) else None
+    return World(origin=origin, ground_station=station, drones=specs, geofence=fence)
+
+
+def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -> Prediction:
+    """What the map and the chart draw, from `fleet mission simulate`'s result.json."""
+    record = result["mission"]
+    duration = ((record.get("end") or 0) - (record.get("start") or 0)) / 1000
+    used = record.get("used_drones") or list(result["drones"])
+    drones = {}
+    for drone_id in used:
+        samples = result["drones"].get(drone_id, {}).get("samples") or []
+        step = max(1, -(-len(samples) // PATH_POINTS))
+        picked = samples[::step] + ([samples[-1]] if samples and (len(samples) - 1) % step else [])
+        flying = [s for s in samples if s.get("armed") and s.get("rel_alt", 0) > 0.5]
+        period = samples[1]["t_s"] - samples[0]["t_s"] if len(samples) > 1 else 0.0
+        drones[drone_id] = PredictedDrone(
+            path=[(s["t_s"], s["lat"], s["lon"], s.get("rel_alt", 0.0)) for s in picked],
+            battery=[(s["t_s"], s["battery"]) for s in picked if s.get("battery") is not None],
+            battery_start=samples[0].get("battery") if samples else None,
+            battery_end=samples[-1].get("battery") if samples else None,
+            flying_s=round(len(flying) * period, 1),
+        )
+    return Prediction(status=record["status"], cause=record.get("cause"), message=record.get("message") or "",
+                      duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:])
+
+
+async def predict(source: str, world: World, max_s: float, wall_s: float = SIMULATION_WALL_S) -> Prediction:
+    """Run `fleet mission simulate` on `source` in `world` in a child process."""
+    import yaml
+
+    with tempfile.TemporaryDirectory(prefix="fleet-predict-") as tmp:
+        d = Path(tmp)
+        (d / "plan.py").write_text(source, encoding="utf-8")
+        (d / "world.yml").write_text(yaml.safe_dump(msgspec.to_builtins(world)), encoding="utf-8")
+        args = [sys.executable, "-m", "dronefleet", "mission", "simulate", str(d / "plan.py"), "--world", str(d / "world.yml"),
+                "--out", str(d / "out"), "--max-time", str(max_s), "--no-plots"]
+        started = time.monotonic()
+        proc = await asyncio.create_subprocess_exec(*args, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
+                                                    stderr=asyncio.subprocess.STDOUT)
+        try:
+            out, _ = await asyncio.wait_for(proc.communicate(), wall_s)
+        except TimeoutError:
+            proc.kill()
+            await proc.wait()
+            raise TimeoutError(f"the simulation took longer than {wall_s:g} s on the ground's machine") from None
+        except asyncio.CancelledError:  # the client went: so does the child
+            proc.kill()
+            await proc.wait()
+            raise
+        lines = out.decode("utf-8", "replace").splitlines()
+        result_file = d / "out" / "result.json"
+        if not result_file.exists():  # it did not get to run the mission: say why
+            raise InvalidMessage("the simulation did not run: " + (" / ".join(lines[-3:]) or f"exit {proc.returncode}"))
+        result = json.loads(result_file.read_text())
+        return prediction_of(result, time.monotonic() - started, lines)
