@@ -378,10 +378,14 @@ class SimField:
     def result(self, record: MissionRecord) -> dict[str, Any]:
         assert self.manager is not None
         mission = self.manager.store.log(record.mission_id)
+        lanes = self.manager.lanes(record.mission_id)
         gs = self.world.ground_station or self.world.origin
         return {
             "mission": msgspec.to_builtins(record),
             "log": [msgspec.to_builtins(line) for line in mission],
+            # what each subroutine last did, and the plugins' actions (the dashboard's lanes)
+            "subroutines": [msgspec.to_builtins(a) for a in lanes.subroutines.values()],
+            "marks": [msgspec.to_builtins(a) for a in lanes.marks],
             "seed": self.seed,
             "t0_ms": self.clock.time_ms() - round(self.clock.monotonic() * 1000),  # wall time of t_s = 0
             "ground_station": {"lat": gs.lat, "lon": gs.lon},

@@ -38,7 +38,7 @@ from dronefleet.ground.plan_routes import Planner, check_mission_script, export_
 from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
-from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
+from dronefleet.mission.lifecycle.record import Activity, MissionLogLine, MissionRecord
 from dronefleet.mission.script.plugins import PluginListing
 from dronefleet.mission.script.qgc_plan import NotAPlan, import_plan
 from dronefleet.mission.script.sandbox import ScriptError
@@ -53,7 +53,7 @@ KEEPALIVE_S = 15.0
 LOG_CURSOR = "Fleet-Log-Cursor"
 
 DataParam = Literal["telem", "info", "sensors"]
-EventKind = Literal["telemetry", "status", "drone", "log", "mission", "mission_log", "field_sensor"]
+EventKind = Literal["telemetry", "status", "drone", "log", "mission", "mission_log", "field_sensor", "subroutine"]
 MAX_SCRIPT_BYTES = 1_000_000
 
 
@@ -85,6 +85,9 @@ class MissionView(MissionRecord, kw_only=True):
     """A mission record with its log lines (GET /mission/{id})."""
 
     log: list[MissionLogLine] = msgspec.field(default_factory=list)
+    source: str | None = None  # the script
+    subroutines: list[Activity] = msgspec.field(default_factory=list)  # what each last did (/events `subroutine`)
+    marks: list[Activity] = msgspec.field(default_factory=list)  # its plugins' actions, oldest first
 
 
 # ---- command body: decoded by schemas/, documented as the Command union --------------
@@ -286,7 +289,9 @@ def show_mission(missions: MissionManager, mission_id: str) -> Response[MissionV
         lines = missions.log(mission_id)
     except UnknownMission:
         return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
-    return Response(MissionView(**msgspec.structs.asdict(record), log=lines))
+    lanes = missions.lanes(mission_id)
+    return Response(MissionView(**msgspec.structs.asdict(record), log=lines, source=missions.store.source(mission_id),
+                                subroutines=list(lanes.subroutines.values()), marks=lanes.marks))
 
 
 @delete(
@@ -309,7 +314,7 @@ async def cancel_mission(missions: MissionManager, mission_id: str, request: Req
     summary="Live server-sent events: telemetry (rate-capped per drone), status, drone (registry changes), log",
 )
 def events(station: GroundStation, types: list[EventKind] | None = None) -> ServerSentEvent:
-    wanted: set[str] = set(types or ("telemetry", "status", "drone", "log", "mission", "mission_log"))
+    wanted: set[str] = set(types or ("telemetry", "status", "drone", "log", "mission", "mission_log", "subroutine"))
     return ServerSentEvent(_stream(station, wanted))
 
 

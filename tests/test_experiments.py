@@ -224,6 +224,11 @@ async def test_gas_alarm_sends_the_nearest_gas_survey_drone_and_an_auxiliary_rel
     assert assigned[0] == "drone02", messages
     relays = assigned[1:]
     assert relays and set(relays) <= {"drone04", "drone05"}, messages  # auxiliary drones relay
+    # the relay plugin's actions are the marks of the mission's timeline (the dashboard's lanes)
+    relay_marks = [m for m in result["marks"] if m["plugin"] == "relay"]
+    assert {"assign", "push"} <= {m["verb"] for m in relay_marks}, result["marks"]
+    assert set(relays) <= {d for m in relay_marks for d in m.get("drones", [])}, relay_marks
+    assert {s["name"]: s["status"] for s in result["subroutines"]}["main"] == "finished"
     strongest = next(m for m in messages if m.startswith("strongest"))
     towards = float(strongest.split(" at ")[1].split("°")[0])
     source_bearing = bearing_deg(pole.lat, pole.lon, source.lat, source.lon)

@@ -20,6 +20,7 @@ from playwright.async_api import Page, expect
 from bench.dashboard_frames import DESKTOP, launch_chromium
 from dronefleet.schemas.geo import destination, distance_m
 from tests.harness import GroundFleet, ended
+from tests.helpers import until
 from tests.test_dashboard import UI_S, chromium
 
 pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
@@ -297,3 +298,76 @@ async def test_a_plan_exported_from_the_page_loads_back_to_the_same_waypoints(fl
         await page.locator("#plan-file").set_input_files(Path(__file__).parent / "plans" / "PX4SITL-PX4-MultiRotor.plan")
         await expect(page.locator("#plan-status")).to_contain_text("imported 5 waypoints", timeout=UI_S * 1000)
         await expect(page.locator("#plan-status")).to_contain_text("item 5: MAV_CMD 195 is not carried over")
+
+
+LANES_SCRIPT = '''d1, d2 = assign("drone01", "drone02")
+
+def scout(d):
+    arm(d)
+    takeoff(d, 6*m)
+    channel.ready = True
+    move(d, forward=8*m)
+    land(d)
+
+def follow(d):
+    go = channel.ready
+    arm(d)
+    takeoff(d, 9*m)
+    land(d)
+
+a = run(scout, d1)
+b = run(follow, d2)
+wait(a, b)
+'''
+LINE = {text.strip(): n for n, text in enumerate(LANES_SCRIPT.splitlines(), start=1)}
+
+
+async def test_a_two_drone_mission_with_a_channel_shows_its_lanes_live(fleet: GroundFleet, page: Page, tmp_path: Path) -> None:
+    """Each subroutine's line advancing, the wait on the channel, and both ending — in
+    the page from /events, and in GET /mission/{id} for a page opened later."""
+    async with fleet.client() as http:
+        await open_planner(page, fleet.ground.url, ["drone01", "drone02"])
+        await page.locator("#tab-missions").click()
+        await page.locator("#mission-source").fill(LANES_SCRIPT)
+        await page.locator("#mission-submit").click()
+        await expect(page.locator("#mission-detail")).to_be_visible(timeout=UI_S * 1000)
+
+        seen: dict[str, list[tuple[str, str]]] = {"scout": [], "follow": [], "main": []}
+
+        async def lanes() -> list[dict[str, str]]:
+            return list(await page.evaluate(
+                "() => [...document.querySelectorAll('#lane-rows .lane')].map(r => ({...r.dataset, "
+                "doing: r.querySelector('.lane-doing').textContent, drone: r.querySelector('.lane-drone').textContent, "
+                "code: r.querySelector('.lane-code').textContent}))"))
+
+        async def all_ended() -> bool:
+            rows = await lanes()
+            for row in rows:
+                if row["name"] in seen and (not seen[row["name"]] or seen[row["name"]][-1] != (row["line"], row["doing"])):
+                    seen[row["name"]].append((row["line"], row["doing"]))
+                if row["name"] == "follow" and row["event"] == "waiting":
+                    assert row["code"] == "go = channel.ready", row  # the script's line, shown in the lane
+                    if not (tmp_path / "lanes.png").exists():
+                        await page.locator("#mission-lanes").scroll_into_view_if_needed()
+                        await page.screenshot(path=str(tmp_path / "lanes.png"))
+            return len(rows) == 3 and all(r["event"] == "ended" for r in rows)
+
+        await until(all_ended, 120, "every lane ended")
+        rows = {r["name"]: r for r in await lanes()}
+        assert {r["status"] for r in rows.values()} == {"finished"}, rows
+        assert rows["scout"]["drone"] == "drone01" and rows["follow"]["drone"] == "drone02"
+        # follow waited on the channel at its line, then went on once scout bound it.
+        follow = seen["follow"]
+        assert (str(LINE["go = channel.ready"]), "waiting on channel.ready") in follow, follow
+        waited = follow.index((str(LINE["go = channel.ready"]), "waiting on channel.ready"))
+        assert (str(LINE["takeoff(d, 9*m)"]), "takeoff") in follow[waited:], follow
+        # scout's line advanced through its verbs in order.
+        lines = [int(line) for line, _ in seen["scout"] if line]
+        assert lines == sorted(lines) and {LINE["takeoff(d, 6*m)"], LINE["move(d, forward=8*m)"]} <= set(lines), seen["scout"]
+        assert (str(LINE["wait(a, b)"]), "waiting on subroutine scout (s1), subroutine follow (s2)") in seen["main"], seen["main"]
+        mission_id = await page.locator("#mission-list tr").first.get_attribute("data-mission")
+        record = await ended(http, str(mission_id), 30)
+        assert record["status"] == "finished" and record["source"] == LANES_SCRIPT
+        by_name = {s["name"]: s for s in record["subroutines"]}
+        assert set(by_name) == {"main", "scout", "follow"} and by_name["scout"]["parent"] == "s0"
+        assert all(s["event"] == "ended" and s["status"] == "finished" for s in by_name.values()), by_name

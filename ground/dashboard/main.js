@@ -178,6 +178,7 @@ async function main() {
     mission: (record) => { fleet.stats.events++; fleet.onMission(record); data(); },
     mission_log: (line) => { fleet.stats.events++; fleet.onMissionLog(line); data(); },
     field_sensor: (reading) => { fleet.stats.events++; fleet.onFieldSensor(reading); data(); },
+    subroutine: (activity) => { fleet.stats.events++; fleet.onSubroutine(activity); data(); },
   }, {
     onOpen: async () => {
       showUp();

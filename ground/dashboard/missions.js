@@ -3,6 +3,7 @@
 // mission's live log, and cancel it.
 
 import { call } from "./api.js";
+import { MissionLanes, renderLanes } from "./lanes.js";
 
 const ENDED = new Set(["finished", "failed", "cancelled"]);
 const $ = (id) => document.getElementById(id);
@@ -66,8 +67,10 @@ export class MissionPanel {
     const r = await call("GET", `/mission/${encodeURIComponent(id)}`);
     // As for a drone's log (drones.js loadLog): an older answer arriving last is stale.
     if (!r.ok || this.latestLoad.get(id) !== fetch) return;
-    const { log, ...record } = r.data;
+    const { log, source, subroutines, marks, ...record } = r.data;
     this.fleet.setMissionLog(id, log, sentAt);
+    if (!this.fleet.lanes.has(id)) this.fleet.lanes.set(id, new MissionLanes());
+    this.fleet.lanes.get(id).seed({ source, subroutines, marks });
     this.fleet.onMission(record);
     if (this.selected === id) this.logShown = { id: null, count: 0 };
   }
@@ -179,6 +182,7 @@ export class MissionPanel {
     set($("mission-cause"), record.cause ? `cause: ${record.cause}` : "");
     set($("mission-message"), record.message || "");
     $("mission-cancel").disabled = ENDED.has(record.status);
+    renderLanes(this.fleet.lanes.get(record.mission_id), record);
     const lines = this.fleet.missionLog(record.mission_id);
     const ol = $("mission-log");
     const stick = ol.scrollTop + ol.clientHeight >= ol.scrollHeight - 4;

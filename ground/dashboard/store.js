@@ -3,6 +3,8 @@
 // Events only update this state and note what changed; the page redraws from it in
 // batches (main.js), so a burst of telemetry costs one frame, not one per message.
 
+import { MissionLanes } from "./lanes.js";
+
 const TRACK_POINTS = 240; // per drone, thinned to one per ~0.3 m of movement
 const TRACK_STEP_DEG = 3e-6;
 const DRONE_LOG_LINES = 300;
@@ -24,6 +26,15 @@ export class Fleet {
     this.stats = { events: 0, telemetry: 0 };
     this.fieldSensors = new Map(); // id -> {id, position, alive, readings: Map type -> SensorReading}
     this.fieldSensorsChanged = false;
+    this.lanes = new Map(); // mission id -> MissionLanes (lanes.js), for missions opened or heard running
+  }
+
+  /** A subroutine's activity from /events (SPEC §10 lanes). */
+  onSubroutine(activity) {
+    let lanes = this.lanes.get(activity.mission_id);
+    if (!lanes) this.lanes.set(activity.mission_id, (lanes = new MissionLanes()));
+    lanes.take(activity);
+    this.missionsChanged.add(activity.mission_id);
   }
 
   /** A field sensor's reading from /events (SPEC §2 sensor/<id>/<type>). */

@@ -5,7 +5,7 @@ import { withToken } from "./api.js";
 // HTTP error while the ground restarts); so every error closes it and this opens a
 // new one after a short, growing delay, until the ground answers again.
 
-const KINDS = ["telemetry", "status", "drone", "log", "mission", "mission_log", "field_sensor"];
+const KINDS = ["telemetry", "status", "drone", "log", "mission", "mission_log", "field_sensor", "subroutine"];
 const RETRY_MS = [250, 500, 1000, 2000];
 
 export class EventStream {

@@ -34,7 +34,7 @@ from dronefleet.mission.hosting import worker
 from dronefleet.mission.lifecycle.delivery import leave
 from dronefleet.mission.lifecycle.mission import STOP_GRACE_S
 from dronefleet.mission.lifecycle.port import FleetPort
-from dronefleet.mission.lifecycle.record import CAUSES, MissionLogLine, MissionRecord, mark_ended
+from dronefleet.mission.lifecycle.record import CAUSES, Activity, MissionLogLine, MissionRecord, mark_ended
 from dronefleet.mission.script.plugins import PluginLibrary
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.fleet import CRITICAL_BATTERY, WatchEvent
@@ -75,6 +75,7 @@ class IsolatedMission:
         self.clock = clock
         self._on_change = on_change
         self._on_log = on_log
+        self.on_activity: Callable[[IsolatedMission, Activity], None] = lambda m, activity: None
         self.plugins = plugins
         self.enable = enable
         self._writer: asyncio.StreamWriter | None = None
@@ -180,6 +181,8 @@ class IsolatedMission:
             self._on_change(self)
         elif isinstance(message, worker.Logged):
             self._on_log(self, message.line)
+        elif isinstance(message, worker.Active):
+            self.on_activity(self, msgspec.structs.replace(message.activity, mission_id=self.id))
         elif isinstance(message, worker.Call):
             self._spawn(self._answer(message))
         elif isinstance(message, worker.Release):

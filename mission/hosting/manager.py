@@ -25,7 +25,7 @@ from dronefleet.bus.clock import Clock
 from dronefleet.mission.hosting.isolation import IsolatedMission
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.port import FleetPort
-from dronefleet.mission.lifecycle.record import CommandResult, MissionLogLine, MissionRecord
+from dronefleet.mission.lifecycle.record import Activity, CommandResult, MissionLogLine, MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary
 from dronefleet.mission.script.sandbox import compile_mission
 from dronefleet.mission.script.script import ScriptMission
@@ -115,6 +115,24 @@ class MissionStore:
         return [MissionLogLine(timestamp=t, level=lvl, message=msg) for t, lvl, msg in rows]
 
 
+LANES_KEPT = 50
+MARKS_KEPT = 500
+
+
+class Lanes(msgspec.Struct, kw_only=True):
+    """`GET /mission/{id}`'s `subroutines` (the latest activity of each, in the order
+    they started) and `marks` (what its plugins' subroutines did, oldest first)."""
+
+    subroutines: dict[str, Activity] = msgspec.field(default_factory=dict)
+    marks: list[Activity] = msgspec.field(default_factory=list)
+
+    def take(self, activity: Activity) -> None:
+        self.subroutines[activity.subroutine] = activity
+        if activity.plugin is not None and activity.event == "verb":
+            self.marks.append(activity)
+            del self.marks[:-MARKS_KEPT]
+
+
 class MissionManager:
     def __init__(
         self,
@@ -141,6 +159,7 @@ class MissionManager:
         self._seeds = itertools.count(seed or 0)
         self.commands: list[CommandResult] = []  # every mission's verbs, for simulation results
         self.echo: Callable[[str, MissionLogLine], None] | None = None  # progress printing
+        self._lanes: dict[str, Lanes] = {}  # mission id → what its subroutines last did (the newest LANES_KEPT)
         self._recover()
 
     def _recover(self) -> None:
@@ -180,6 +199,7 @@ class MissionManager:
                 on_change=self._on_change, on_log=self._on_log, plugins=self.plugins, enable=enable,
             )
             mission.commands = self.commands
+        mission.on_activity = self._on_activity
         self.station.log_ground("info", f"Mission {mission_id} submitted" + (f" ({name})" if name else ""))
         task = asyncio.get_running_loop().create_task(self._run(mission), name=f"mission {mission_id}")
         self._running[mission_id] = (mission, task)
@@ -252,6 +272,20 @@ class MissionManager:
             "mission %s - %s", mission.id, line.message,
         )
         self.station.broadcast(WatchEvent("mission_log", {"mission_id": mission.id, **msgspec.to_builtins(line)}))
+
+    def _on_activity(self, mission: Running, activity: Activity) -> None:
+        lanes = self._lanes.get(mission.id)
+        if lanes is None:
+            lanes = self._lanes[mission.id] = Lanes()
+            while len(self._lanes) > LANES_KEPT:
+                del self._lanes[next(iter(self._lanes))]
+        lanes.take(activity)
+        self.station.broadcast(WatchEvent("subroutine", msgspec.to_builtins(activity)))
+
+    def lanes(self, mission_id: str) -> Lanes:
+        """What each subroutine of the mission last did, and its plugins' actions (empty
+        for a mission this ground did not run)."""
+        return self._lanes.get(mission_id) or Lanes()
 
     def _broadcast(self, record: MissionRecord) -> None:
         self.station.broadcast(WatchEvent("mission", json.loads(msgspec.json.encode(record))))

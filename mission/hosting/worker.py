@@ -35,7 +35,7 @@ import msgspec
 from dronefleet.bus.clock import SystemClock
 from dronefleet.bus.port import QueryTimeout, Unreachable
 from dronefleet.mission.lifecycle.mission import Mission
-from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
+from dronefleet.mission.lifecycle.record import Activity, MissionLogLine, MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary
 from dronefleet.mission.script.sandbox import compile_mission
 from dronefleet.mission.script.script import ScriptMission
@@ -112,6 +112,10 @@ class Logged(msgspec.Struct, tag=True, frozen=True):
     line: MissionLogLine
 
 
+class Active(msgspec.Struct, tag=True, frozen=True):
+    activity: Activity
+
+
 class GroundLog(msgspec.Struct, tag=True, frozen=True):
     level: Literal["info", "warn", "error"]
     message: str
@@ -126,7 +130,7 @@ class Done(msgspec.Struct, tag=True, frozen=True):
 
 
 ToWorker = Event | Reply | End
-ToGround = Call | Release | Changed | Logged | GroundLog | Ack | Done
+ToGround = Call | Release | Changed | Logged | Active | GroundLog | Ack | Done
 
 
 class Start(msgspec.Struct, frozen=True, kw_only=True):
@@ -382,6 +386,7 @@ async def _serve(sock: socket.socket, start: Start) -> None:
         on_log=lambda m, line: writer.write(frame(Logged(line))),
         plugins=PluginLibrary.from_sources(start.plugins), enable=start.enable,
     )
+    mission.on_activity = lambda m, activity: writer.write(frame(Active(activity)))
     run = asyncio.ensure_future(mission.run())
     listen = asyncio.ensure_future(_listen(reader, port, mission, writer))
     await asyncio.wait([run, listen], return_when=asyncio.FIRST_COMPLETED)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
-from typing import Literal
+from typing import Any, Literal
 
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
@@ -23,6 +23,7 @@ from dronefleet.mission.lifecycle import assignment as a
 from dronefleet.mission.lifecycle.delivery import CommandDelivery, PendingBundle, SentCommand, leave
 from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import (
+    Activity,
     CommandResult,
     MissionLogLine,
     MissionOver,
@@ -86,6 +87,9 @@ class Mission(CommandDelivery):
         self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
         self._link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
         self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (_catch_up)
+        # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
+        self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
+        self._doing: dict[str, tuple[Any, ...]] = {}  # subroutine → what it last reported
 
     @property
     def id(self) -> str:
@@ -99,6 +103,30 @@ class Mission(CommandDelivery):
 
     def log(self, level: Literal["info", "warn", "error"], message: str) -> None:
         self._on_log(self, MissionLogLine(timestamp=self.clock.time_ms(), level=level, message=message))
+
+    def report(self, sub: Subroutine | None, event: Literal["verb", "waiting"], verb: str, *, line: int | None = None,
+               drones: list[str] | None = None, waiting_on: str | None = None) -> None:
+        """A subroutine calls a verb or waits: reported once until it does something else
+        (a loop of `wait(drone)` is one report)."""
+        if sub is None:
+            return
+        doing = (event, verb, line, tuple(drones or ()), waiting_on)
+        if self._doing.get(sub.sid) == doing:
+            return
+        self._doing[sub.sid] = doing
+        self._activity(sub, event, verb=verb, line=line, drones=drones or [], waiting_on=waiting_on)
+
+    def _started_or_ended(self, event: str, sub: Subroutine) -> None:
+        if event == "started":
+            self._activity(sub, "started")
+        else:
+            self._doing.pop(sub.sid, None)
+            self._activity(sub, "ended", status="failed" if sub._error is not None else "stopped" if sub._stopping else "finished")
+
+    def _activity(self, sub: Subroutine, event: Literal["started", "verb", "waiting", "ended"], **fields: Any) -> None:
+        self.on_activity(self, Activity(
+            mission_id=self.id, timestamp=self.clock.time_ms(), subroutine=sub.sid, name=sub.name, event=event,
+            parent=sub.parent.sid if sub.parent is not None else None, plugin=sub.plugin, **fields))
 
     def changed(self) -> None:
         self.record.active_drones = sorted(self.requests)
@@ -114,6 +142,7 @@ class Mission(CommandDelivery):
         self.log("info", "Mission started")
         self._stop_listening = self.station.listen(self._on_event)
         self.scheduler = Scheduler(self._on_error, deterministic=self.deterministic)
+        self.scheduler.on_activity = self._started_or_ended
         main = self.script_main()
         try:
             self.scheduler.spawn(main, name="main")

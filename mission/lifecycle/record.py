@@ -62,6 +62,26 @@ class MissionLogLine(msgspec.Struct, frozen=True, kw_only=True):
     message: str
 
 
+class Activity(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
+    """What one subroutine of a mission is doing (`/events` kind `subroutine`): it
+    `started`, called a `verb` (at `line` of the mission's script), is `waiting` on
+    something (a channel, a drone, another subroutine, a field sensor), or `ended`
+    (`status` finished, failed or stopped). A plugin's subroutines carry `plugin`."""
+
+    mission_id: str
+    timestamp: int
+    subroutine: str  # s0 is the script itself; s1, s2, … in the order they started
+    name: str  # "main", the function `run` started, or the plugin's monitor
+    event: Literal["started", "verb", "waiting", "ended"]
+    parent: str | None = None  # the subroutine that started it
+    plugin: str | None = None
+    verb: str | None = None
+    line: int | None = None  # in the mission's script; None inside a plugin's
+    drones: list[str] = []
+    waiting_on: str | None = None
+    status: Literal["finished", "failed", "stopped"] | None = None
+
+
 class CommandResult(msgspec.Struct, frozen=True, kw_only=True):
     """What one verb sent and how it ended, for the simulation result."""
 

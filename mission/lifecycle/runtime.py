@@ -51,11 +51,14 @@ class _ScriptGreenlet(greenlet):
 class Subroutine:
     """The handle `run()` returns: `.running`, `.finished`, `.result`."""
 
-    __slots__ = ("_error", "_result", "_stopping", "_task", "_done", "daemon", "name", "owner", "plugin")
+    __slots__ = ("_error", "_result", "_stopping", "_task", "_done", "daemon", "name", "owner", "parent", "plugin", "sid")
 
-    def __init__(self, owner: Scheduler, name: str, daemon: bool = False, plugin: str | None = None) -> None:
+    def __init__(self, owner: Scheduler, name: str, daemon: bool = False, plugin: str | None = None,
+                 sid: str = "", parent: Subroutine | None = None) -> None:
         self.owner = owner
         self.name = name
+        self.sid = sid  # s0, s1, …: in the order the mission's subroutines started
+        self.parent = parent
         self.daemon = daemon  # a plugin's monitor: the mission does not wait for it
         self.plugin = plugin  # the monitoring plugin that started it (or an ancestor), if any
         self._task: asyncio.Task[Any] | None = None
@@ -80,6 +83,7 @@ class Subroutine:
         """Mark the subroutine ended (once: its driver or its task's end, whichever first)."""
         if not self._done.done():
             self._done.set_result(None)
+            self.owner.on_activity("ended", self)
 
     def __repr__(self) -> str:
         return f"<subroutine {self.name} {'running' if self.running else 'finished'}>"
@@ -97,6 +101,8 @@ class Scheduler:
         self._deterministic = deterministic
         self._names = itertools.count()
         self.subroutines: list[Subroutine] = []
+        # hears each subroutine `started` and `ended` (the mission's activity, /events)
+        self.on_activity: Callable[[str, Subroutine], None] = lambda event, sub: None
         self.stopping = False
         self._slice_start = time.perf_counter()
         self._ticks = 0
@@ -107,11 +113,13 @@ class Scheduler:
               plugin: str | None = None) -> Subroutine:
         """Start `fn(*args)` as a subroutine; one started by a plugin's subroutine
         belongs to that plugin too (`plugin`)."""
+        parent = current_subroutine()
         if plugin is None:
-            parent = current_subroutine()
             plugin = parent.plugin if parent is not None else None
-        sub = Subroutine(self, name or f"sub{next(self._names)}", daemon, plugin)
+        sid = f"s{len(self.subroutines)}"
+        sub = Subroutine(self, name or f"sub{next(self._names)}", daemon, plugin, sid, parent)
         self.subroutines.append(sub)
+        self.on_activity("started", sub)
         sub._task = asyncio.get_running_loop().create_task(self._drive(sub, fn, args), name=sub.name)
         # A task cancelled before its first step never runs _drive's `finally`: the
         # subroutine must still finish (a survey stopped right after it was started).

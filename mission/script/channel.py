@@ -7,6 +7,7 @@ import asyncio
 from typing import Any
 
 from dronefleet.mission.lifecycle.mission import Mission
+from dronefleet.mission.script.activity import waiting_on_channel
 from dronefleet.mission.script.drone import call
 
 
@@ -36,6 +37,7 @@ class Channel:
         values: dict[str, Any] = object.__getattribute__(self, "_values")
         if name in values:
             return values[name]
+        waiting_on_channel(object.__getattribute__(self, "_m"), name)
         fut = asyncio.get_running_loop().create_future()
         object.__getattribute__(self, "_waiters").setdefault(name, []).append(fut)
         return call(object.__getattribute__(self, "_m"), fut)

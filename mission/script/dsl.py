@@ -20,6 +20,7 @@ from greenlet import getcurrent
 from dronefleet.mission.lifecycle import assignment as a
 from dronefleet.mission.lifecycle.runtime import Subroutine
 from dronefleet.mission.script import units
+from dronefleet.mission.script.activity import reported
 from dronefleet.mission.script.channel import Channel
 from dronefleet.mission.script.drone import COMPLETED, MIN_HANDOVER_HEIGHT_M, Drone, any_drone, call, guarded
 from dronefleet.mission.script.field import FieldSensor, field_sensors_of
@@ -242,7 +243,7 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         if not callable(fn):
             raise TypeError(f"run: expected a function, got {fn!r}")
         assert m.scheduler is not None
-        return m.scheduler.spawn(fn, *args)
+        return m.scheduler.spawn(fn, *args, name=getattr(fn, "__name__", None))
 
     def wait(*things: Any) -> None:
         for thing in things:
@@ -279,7 +280,7 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         m.plugins.disable(plugin_id, namespace)
 
     defined = locals()
-    verbs: dict[str, Any] = {name: guarded(defined[name]) for name in VERBS}
+    verbs: dict[str, Any] = {name: reported(m, name, guarded(defined[name])) for name in VERBS}
     base = common_names(guards)  # what a plugin enabled by this mission sees
     base.update(verbs)
     base.update(channel=Channel(m), mission_id=m.id, step=Steps(), when=When(),
