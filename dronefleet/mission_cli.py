@@ -265,5 +265,5 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     click.echo(outcome(record))
     click.echo(f"simulated {duration:.1f} s in {wall:.2f} s of wall time ({duration / max(wall, 1e-9):.0f}x)")
     if out_dir is not None:
-        click.echo(f"wrote result.json, recording.mcap and plots in {out_dir}")
+        click.echo(f"wrote result.json, recording.mcap{'' if no_plots else ' and plots'} in {out_dir}")
     raise SystemExit(EXIT_CODES[record["status"]])
