@@ -23,7 +23,7 @@ from dronefleet.mission.script.qgc_plan import NotAPlan, Waypoint, export_plan, 
 from dronefleet.mission.script.sandbox import check_mission
 from dronefleet.schemas.config import load_config
 from dronefleet.schemas.geo import destination, distance_m
-from dronefleet.sim.world import World
+from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import fleet_command
 
 PLANS = Path(__file__).parent / "plans"
@@ -104,6 +104,30 @@ async def test_an_imported_plan_flies_through_every_waypoint_in_fast_time() -> N
         assert distance_m(nearest["lat"], nearest["lon"], lat, lon) < 2.0, (lat, lon)
         assert nearest["rel_alt"] == pytest.approx(above_home, abs=1.0)
     assert samples[-1]["rel_alt"] < 0.5 and distance_m(samples[-1]["lat"], samples[-1]["lon"], ORIGIN.lat, ORIGIN.lon) < 2
+
+
+async def test_qgroundcontrols_own_plan_flies_to_its_end_through_every_waypoint_it_carried_over() -> None:
+    """PX4SITL-PX4-MultiRotor.plan (QGroundControl's test plans): 2 km legs around
+    Zurich, a loiter, AMSL and relative altitudes; the three items it cannot carry over
+    are named, and the drone passes every other waypoint within 2 m, at its altitude."""
+    plan = json.loads(QGC_PLAN.read_text())
+    lat, lon, alt = plan["mission"]["plannedHomePosition"]
+    imported = import_plan(QGC_PLAN.read_text(), "drone01")
+    assert [line.split(":")[0] for line in imported.left_out] == ["item 5", "item 6", "item 8"]
+    assert len(imported.waypoints) == 5 and imported.end == "land"
+    field = SimField(World(origin=Spot(lat=lat, lon=lon, alt=alt), drones=[DroneSpec(id="drone01")]), 1)
+    await field.start()
+    try:
+        record = await field.run_mission(imported.script, max_s=3600)
+        samples = field.result(record)["drones"]["drone01"]["samples"]
+    finally:
+        await field.close()
+    assert (record.status, record.cause) == ("finished", "success"), record.message
+    for w in imported.waypoints:
+        nearest = min(samples, key=lambda s: distance_m(s["lat"], s["lon"], w["lat"], w["lon"]))
+        assert distance_m(nearest["lat"], nearest["lon"], w["lat"], w["lon"]) < 2.0, w
+        assert nearest["rel_alt"] == pytest.approx(w["alt"], abs=1.5), (w, nearest["rel_alt"])
+    assert samples[-1]["rel_alt"] < 0.5
 
 
 @pytest.mark.integration
