@@ -121,6 +121,15 @@ export class Planner {
       ctx.setLineDash([5, 4]);
       strokePath(ctx, predicted.path.map(([, lat, lon]) => view.toScreen(lat, lon)));
       ctx.setLineDash([]);
+      const last = predicted.path[predicted.path.length - 1];
+      if (last) { // where it ends: the time flying and the battery left
+        const [x, y] = view.toScreen(last[1], last[2]);
+        const left = predicted.battery_end == null ? "" : ` · ${Math.round(predicted.battery_end * 100)} %`;
+        ctx.fillStyle = "#1d2129";
+        ctx.font = "11px sans-serif";
+        ctx.textAlign = "left";
+        ctx.fillText(`${drone} ${predicted.flying_s.toFixed(0)} s${left}`, x + 9, y - 9);
+      }
     }
     this.map.canvas.dataset.planPoints = String([...this.plans.values()].reduce((n, p) => n + p.length, 0));
     this.map.canvas.dataset.predicted = String(Object.keys(this.prediction?.drones || {}).length);
