@@ -48,6 +48,7 @@ class Outcome:
     relays: int
     lower_bound: int
     enough: int
+    enough_min_quality: int  # the corpus's first bound (hops at the plugin's min_quality)
     spares: int
     separation_m: float  # least 3-D distance between two flying drones (inf: never two)
     battery: float
@@ -63,6 +64,10 @@ class Outcome:
     @property
     def suffices(self) -> bool:
         return self.spares >= self.enough
+
+    @property
+    def suffices_at_min_quality(self) -> bool:
+        return self.spares >= self.enough_min_quality
 
 
 async def fly(world: CorpusWorld, mode: str, seed: int | None = None, max_s: float = MAX_S) -> dict[str, Any]:
@@ -80,7 +85,8 @@ def judge(world: CorpusWorld, mode: str, result: dict[str, Any]) -> Outcome:
         seed=world.seed, mode=mode, status=record["status"], cause=record["cause"], message=record.get("message") or "",
         longest_gap_s=round(max(rx.longest_gap(result, d) for d in workers), 2),
         relays=len(rx.relays_flown(result, workers)),
-        lower_bound=world.needs.lower_bound, enough=world.needs.enough, spares=len(world.spares),
+        lower_bound=world.needs.lower_bound, enough=world.needs.enough,
+        enough_min_quality=world.needs.enough_min_quality, spares=len(world.spares),
         separation_m=rx.least_distance(result, itertools.combinations(sorted(result["drones"]), 2)),
         battery=round(rx.battery_spent(result), 3),
     )
@@ -109,6 +115,8 @@ class Summary:
     connected: float  # share of worlds finished with every worker's gap < 3 s
     connected_where_enough: float  # the same among worlds whose spares suffice
     enough_worlds: int
+    connected_where_enough_mq: float  # … where they suffice by the first bound (hops at min_quality)
+    enough_worlds_mq: int
     gap_p50: float
     gap_p95: float
     gap_max: float
@@ -122,6 +130,7 @@ class Summary:
 def summary(outcomes: Sequence[Outcome]) -> Summary:
     gaps = [o.longest_gap_s for o in outcomes]
     enough = [o for o in outcomes if o.suffices]
+    enough_mq = [o for o in outcomes if o.suffices_at_min_quality]
     causes: dict[str, int] = {}
     for o in outcomes:
         causes[o.cause] = causes.get(o.cause, 0) + 1
@@ -129,6 +138,7 @@ def summary(outcomes: Sequence[Outcome]) -> Summary:
         mode=outcomes[0].mode if outcomes else "-", worlds=len(outcomes),
         finished=_share(o.finished for o in outcomes), connected=_share(o.connected for o in outcomes),
         connected_where_enough=_share(o.connected for o in enough), enough_worlds=len(enough),
+        connected_where_enough_mq=_share(o.connected for o in enough_mq), enough_worlds_mq=len(enough_mq),
         gap_p50=statistics.median(gaps) if gaps else math.nan, gap_p95=_pct(gaps, 0.95), gap_max=max(gaps, default=math.nan),
         relays_over_bound=statistics.fmean(o.relays - o.lower_bound for o in outcomes) if outcomes else math.nan,
         separation_min=min((o.separation_m for o in outcomes), default=math.inf),
@@ -144,13 +154,14 @@ def _share(flags: Any) -> float:
 
 
 def table(summaries: Sequence[Summary]) -> str:
-    lines = ["| mode | worlds | finished | connected (gap < 3 s) | where spares suffice | longest gap p50 / p95 / max "
-             "| relays over the lower bound | least separation | < 5 m | battery spent (mean) | causes |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| mode | worlds | finished | connected (gap < 3 s) | where spares suffice | … by hops at min_quality "
+             "| longest gap p50 / p95 / max | relays over the lower bound | least separation | < 5 m "
+             "| battery spent (mean) | causes |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for s in summaries:
         sep = "-" if math.isinf(s.separation_min) else f"{s.separation_min:.1f} m"
         causes = ", ".join(f"{k} {v}" for k, v in s.causes.items())
         lines.append(f"| {s.mode} | {s.worlds} | {s.finished:.0%} | {s.connected:.0%} | {s.connected_where_enough:.0%} "
-                     f"of {s.enough_worlds} | {s.gap_p50:.1f} / {s.gap_p95:.1f} / {s.gap_max:.1f} s "
+                     f"of {s.enough_worlds} | {s.connected_where_enough_mq:.0%} of {s.enough_worlds_mq} | {s.gap_p50:.1f} / {s.gap_p95:.1f} / {s.gap_max:.1f} s "
                      f"| {s.relays_over_bound:+.1f} | {sep} | {s.too_close} | {s.battery_mean:.2f} | {causes} |")
     return "\n".join(lines)
