@@ -98,6 +98,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/dashboard_frames.py
 	$(BIN)/python bench/zenoh_modes.py
 	$(BIN)/python bench/relay_experiments.py
+	$(BIN)/python bench/relay_hop.py --seeds 2
 	$(BIN)/python bench/relay_corpus.py --worlds 4
 	$(BIN)/python bench/mesh.py  # needs CAP_NET_ADMIN (root), as fleet sim --radio
 	$(BIN)/python bench/mesh_stall.py --runs 1  # root too
