@@ -30,6 +30,7 @@ from dronefleet.sim.corpus import CorpusWorld, generate
 MODES = {
     "measured": 'enable("relay", ground=[{lat:.7f}, {lon:.7f}])',
     "distance": 'enable("relay", mode="distance", ground=[{lat:.7f}, {lon:.7f}])',
+    "chain": 'enable("relay", mode="chain", ground=[{lat:.7f}, {lon:.7f}])',
     "none": None,
 }
 CONNECTED_GAP_S = 3.0  # issue 32: a worker counts as connected while the ground hears it this often

@@ -27,11 +27,14 @@ mission's failure (the mission's `setback`).
 duty = {}  # relay id -> {"target": position, "alt": metres above home, "serving": bool, "ready": bool}
 crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
-state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {}}
+state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {},
+         "duty": None, "until": {}, "lanes": {}}
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
 steps = step  # the bundle steps' builder: the input `step` (a length) takes its name once enabled
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
 RENEW_S = 60  # ... and is renewed when less than this is left
+CHAIN_DUTY_S = 600  # mode="chain": a relay's bundle holds its spot this long (renewed too)
+TRANSIT_M = 6  # mode="chain": each relay flies out and home on a level of its own, this far apart above the duty level
 
 
 def ground_spot(drone):
@@ -192,6 +195,86 @@ def follow(other):
     send_home(me)
 
 
+def chain(drone):
+    """mode="chain" (relay/chain.py): a probe relay measures the hop that holds, then a
+    chain per drone on that hop; the drones' gotos wait at the chain's edge."""
+    if drone.id not in state["round"]:
+        state["round"].append(drone.id)
+        return
+    state["round"] = [drone.id]
+    if state.get("duty") is None:
+        if not any(d.state in ("active", "hold") for d in served.values()):
+            return  # the levels are set above the served drones' flights, once they fly
+        # Relays hover above the drones they serve and fly to their spots on one of two
+        # levels above that (by turns: two sent at once do not share one), home above
+        # those: no relay ever crosses a level another drone flies or hovers at.
+        state["duty"] = relays.above_flights(list(served.values()), min_separation + 1)
+    plan = relays.chain(list(served.values()), crew, ground_spot(drone), state["duty"], good_m=good_m)
+    for note in plan.notes:
+        print(note)
+    for rid, spot, hold in plan.moves:
+        run(chain_go, crew[rid], spot, hold)
+    for spot, hold, key in plan.dispatch:
+        run(chain_dispatch, key, spot, hold)
+    for rid in plan.home:
+        run(chain_home, crew[rid])
+    for rid in list(crew):  # duty bundles that run out soon are renewed where they stand
+        until = state["until"].get(rid)
+        if until is not None and until - relays.now() < RENEW_S:
+            state["until"][rid] = None
+            run(chain_go, crew[rid], crew[rid].position, 0)
+
+
+def levels(relay, alt):
+    return relay.home.alt + alt
+
+
+def outbound(relay):
+    """The level a relay flies to its spots at: its own, above the duty level."""
+    if relay.id not in state["lanes"]:
+        state["lanes"][relay.id] = len(state["lanes"]) + 1
+    return state["duty"] + state["lanes"][relay.id] * TRANSIT_M
+
+
+def chain_dispatch(key, spot, hold):
+    relay = assign(any_relay)
+    crew[relay.id] = relay
+    relays.chain_joined(key, relay)
+    print(f"{relay.id}: relay duty at {state['duty']:g} m ({key})")
+    arm(relay)
+    takeoff(relay, outbound(relay) * m)
+    chain_go(relay, spot, hold)
+
+
+def chain_go(relay, spot, hold):
+    """Climb to the transit level where it is, fly over the spot, come down to duty;
+    a probe (`hold` > 0) comes back to the last proven spot after its window."""
+    if relay.id not in crew:
+        return
+    duty, up = state["duty"], outbound(relay)
+    plan = [steps.move(to=relay.position, alt=levels(relay, up) * m),
+            steps.move(to=spot, alt=levels(relay, up) * m, speed=10 * m / s),
+            steps.move(to=spot, alt=levels(relay, duty) * m)]
+    safe = relays.probe_safe()
+    if hold > 0 and safe is not None:
+        plan += [steps.wait(hold * s), steps.move(to=spot, alt=levels(relay, up) * m),
+                 steps.move(to=safe, alt=levels(relay, up) * m, speed=10 * m / s),
+                 steps.move(to=safe, alt=levels(relay, duty) * m)]
+    plan.append(steps.wait(CHAIN_DUTY_S * s))
+    state["until"][relay.id] = relays.now() + CHAIN_DUTY_S
+    push(relay, plan, on_link_loss="continue", timeout=(CHAIN_DUTY_S + 300) * s)
+
+
+def chain_home(relay):
+    relays.chain_dropped(relay.id)
+    state["until"].pop(relay.id, None)
+    print(f"{relay.id}: relay no longer needed, returning")
+    home(relay, outbound(relay) * m)
+    if relay.id in crew:
+        del crew[relay.id]
+        revoke(relay)
+
+
 def main(drone):
     if drone.id in crew:
         if mode == "distance":
@@ -200,6 +283,8 @@ def main(drone):
     served[drone.id] = drone
     if mode == "distance":
         distance(drone)
+    elif mode == "chain":
+        chain(drone)
     else:
         measured(drone)
 

@@ -21,6 +21,7 @@ from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
 from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import CONFLICT
 from dronefleet.schemas.fence import REASON as FENCE
+from dronefleet.schemas.geo import distance_m
 from dronefleet.schemas.status import CommandStatus, ended_by_failsafe
 
 log = logging.getLogger(__name__)
@@ -44,6 +45,9 @@ RETRY_WAIT_S = 2.0  # between them: the drone is heard again within this, or cou
 RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
 RESUME_TRIES = 3
 HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
+ARRIVED_M, ARRIVED_S = 1.0, 10.0  # a goto whose drone stands this close to its target this long has ended
+LEASH_LIMIT_S = 120.0  # a goto held this long with no drone free for the relays it needs ends the mission
+LEASH_STEP_M = 2.0  # a held goto is sent on when the edge moves this far
 
 
 class CommandDelivery:
@@ -60,6 +64,9 @@ class CommandDelivery:
     _bundles: dict[str, PendingBundle]
     _pushed: int
     _link_back_at: dict[str, asyncio.Future[None]]
+    plugin_drones: dict[str, str]
+    leash: Callable[[str, float, float, float | None], tuple[float, float, str | None] | None] | None
+    leashed: dict[str, tuple[float, float, float | None]]
 
     if TYPE_CHECKING:
         @property
@@ -80,6 +87,8 @@ class CommandDelivery:
         status or no answer → cmd_exec, anything else → unexpected.
         """
         name = str(body["cmd"])
+        if name == "goto" and self.leash is not None and drone_id not in self.plugin_drones and "lat" in body:
+            await self._on_leash(drone_id, body)
         for interrupted in range(RESUME_TRIES + 1):
             status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
@@ -92,6 +101,47 @@ class CommandDelivery:
             # still wants this done, so it is sent again once the drone can hear it.
             self.log("warn", f"{drone_id}: {name} was interrupted by the drone's lost-link failsafe; sending it again")
         return status
+
+    async def _on_leash(self, drone_id: str, body: dict[str, Any]) -> None:
+        """A goto beyond what the relays cover goes as far as they do, and on as they
+        arrive (`leash`); held with no drone free for the relays it needs, for
+        LEASH_LIMIT_S, the mission ends `requirements` naming them."""
+        goal = (float(body["lat"]), float(body["lon"]), float(body["alt"]) if "alt" in body else None)
+        sent: tuple[float, float] | None = None
+        said = False
+        stuck_since: float | None = None
+        try:
+            while self.leash is not None and (verdict := self.leash(drone_id, *goal)) is not None:
+                lat, lon, stuck = verdict
+                self.leashed[drone_id] = goal
+                now = self.clock.monotonic()
+                if not said:
+                    said = True
+                    short = distance_m(lat, lon, goal[0], goal[1])
+                    self.log("info", f"{drone_id}: held at the edge of its relay chain, {short:.0f} m short of its goal, "
+                                     "until relays are there")
+                stuck_since = (stuck_since or now) if stuck else None
+                if stuck and stuck_since is not None and now - stuck_since >= LEASH_LIMIT_S:
+                    raise self.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
+                if (sent is None or distance_m(lat, lon, *sent) > LEASH_STEP_M) and \
+                        await self._leash_step(drone_id, {**body, "lat": lat, "lon": lon}):
+                    sent = (lat, lon)
+                await self.next_telemetry(drone_id)
+        finally:
+            self.leashed.pop(drone_id, None)
+        if said:
+            self.log("info", f"{drone_id}: its relay chain reaches the goal; going on")
+
+    async def _leash_step(self, drone_id: str, body: dict[str, Any]) -> bool:
+        """One leg of a held goto, not waited for. Refused (another drone's spot, say) or
+        unanswered, the drone stays where it is and the leg is tried again as it reports."""
+        payload = json.dumps({**body, "command_id": self.station.new_command_id()}).encode()
+        try:
+            await self.station.command(drone_id, payload, self.id)
+        except (CommandRejected, InvalidMessage, Unreachable) as exc:
+            log.info("mission %s: %s: a leg toward the chain's edge was not taken (%s)", self.id, drone_id, exc)
+            return False
+        return True
 
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
                             wait_clear: bool) -> CommandStatus | None:
@@ -109,7 +159,10 @@ class CommandDelivery:
                 if not wait:
                     return None
                 self._sent[command_id].accepted = self.clock.monotonic()
-                status = await self._outcome(fut, drone_id)
+                if name == "goto" and "lat" in body:
+                    status = await self._outcome_or_there(fut, drone_id, command_id, body)
+                else:
+                    status = await self._outcome(fut, drone_id)
         except (asyncio.CancelledError, MissionOver):
             raise
         except Exception as exc:  # noqa: BLE001
@@ -245,6 +298,40 @@ class CommandDelivery:
             self.log("info", f"{start.drone_id}: {earlier.name} {reason}")
             earlier.outcome.set_result(CommandStatus(drone_id=start.drone_id, timestamp=start.timestamp, command_id=command_id,
                                          command=earlier.name, state="cancel", reason=reason))
+
+    async def _outcome_or_there(self, fut: asyncio.Future[CommandStatus], drone_id: str, command_id: str,
+                                body: dict[str, Any]) -> CommandStatus:
+        """A goto's end, or — its `finish` lost on the way (a reliable publication goes
+        down with a link that closes under it) — the drone heard standing at its target
+        for ARRIVED_S: the end the agent would have reported."""
+        watch: asyncio.Future[Any] = asyncio.ensure_future(self._there(drone_id, body))
+        either: list[asyncio.Future[Any]] = [fut, watch]
+        try:
+            await asyncio.wait(either, return_when=asyncio.FIRST_COMPLETED)
+        except asyncio.CancelledError:  # as _outcome: a stopped subroutine stops its goto
+            watch.cancel()
+            if not self.ending:
+                await asyncio.shield(self._cancel_quietly(drone_id))
+            raise
+        watch.cancel()
+        if fut.done():
+            return fut.result()
+        self.log("warn", f"{drone_id}: the end of its goto was not heard; it stands at its target, going on")
+        return CommandStatus(drone_id=drone_id, timestamp=self.clock.time_ms(), command_id=command_id,
+                             command="goto", state="finish")
+
+    async def _there(self, drone_id: str, body: dict[str, Any]) -> None:
+        since: float | None = None
+        while True:
+            await self.next_telemetry(drone_id)
+            t = self.station.registry.telemetry(drone_id)
+            p = t.position
+            close = p is not None and distance_m(p.lat, p.lon, float(body["lat"]), float(body["lon"])) <= ARRIVED_M \
+                and ("alt" not in body or abs(p.alt - float(body["alt"])) <= ARRIVED_M) and t.speed <= 0.3
+            now = self.clock.monotonic()
+            since = (since or now) if close else None
+            if since is not None and now - since >= ARRIVED_S:
+                return
 
     async def _outcome(self, fut: asyncio.Future[T], drone_id: str) -> T:
         """Wait for a command's or bundle's end. A stopped subroutine stops what it

@@ -90,6 +90,11 @@ class Mission(CommandDelivery):
         # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
         self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
         self._doing: dict[str, tuple[Any, ...]] = {}  # subroutine → what it last reported
+        self._heard_at: dict[str, float] = {}  # drone id → when its telemetry last came (mission clock)
+        # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
+        # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on, or None).
+        self.leash: Callable[[str, float, float, float | None], tuple[float, float, str | None] | None] | None = None
+        self.leashed: dict[str, tuple[float, float, float | None]] = {}  # drone → the goal of its held goto
 
     @property
     def id(self) -> str:
@@ -263,7 +268,13 @@ class Mission(CommandDelivery):
             self._pulse(f"{FIELD_PULSE}{data.sensor_id}")
 
     def _on_telemetry(self, telem: Telemetry) -> None:
+        self._heard_at[telem.drone_id] = self.clock.monotonic()
         self._pulse(telem.drone_id)
+
+    def heard_within(self, drone_id: str, seconds: float) -> bool:
+        """Whether the drone's telemetry came in the last `seconds`."""
+        at = self._heard_at.get(drone_id)
+        return at is not None and self.clock.monotonic() - at <= seconds
 
     def _pulse(self, key: str) -> None:
         waiters = self._pulses.pop(key, None)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 from dronefleet.mission.script import units
 from dronefleet.mission.script.geo import Position, as_position
+from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
 from dronefleet.relay import planner
 from dronefleet.sim.projection import LocalFrame
@@ -78,6 +79,9 @@ class Relays:
 
     def __init__(self, mission: Mission | None = None) -> None:
         self._mission = mission
+        self._chains: chains.Chains | None = None
+        self._frame: Frame | None = None
+        self._served: dict[str, Any] = {}
 
     def now(self) -> float:
         """Seconds on the mission's clock (monotonic; virtual in fast time)."""
@@ -96,6 +100,12 @@ class Relays:
         base_alt, …), lifted clear of the altitudes the `served` drones fly at."""
         flying = [a for a in map(flight_altitude, served) if a is not None]
         return planner.duty_altitude(index, self.params(**inputs), flying)
+
+    def above_flights(self, served: Sequence[Any], margin: Any) -> float:
+        """Metres above home that clear every served drone's flight altitude by `margin`
+        (the agents' default takeoff altitude, 15 m, for a drone not flying yet)."""
+        flying = [a for a in map(flight_altitude, served) if a is not None] or [15.0]
+        return round(max(flying) + units.length(margin, "margin"), 1)
 
     def params(self, **inputs: Any) -> planner.Params:
         lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
@@ -160,3 +170,92 @@ class Relays:
                     near.append((frame.local(there), there.alt if there.alt is not None else near[-1][1]))
             to = baseline.keep_clear(to, alt, near, units.length(min_separation, "min_separation"))
         return frame.world(to), baseline.new_speed(other.speed), baseline.new_bearing(o, g, m), baseline.returning(o, g, td)
+
+    # ---- chains on proven hops (mode="chain", relay/chain.py) -----------------------
+
+    def chain(self, served: Sequence[Any], drones: Mapping[str, Any], ground: Any, duty_alt: float,
+              good_m: float | None = None, heard_s: float = 2.5) -> RelayPlan:
+        """One plan of `mode="chain"`: `served` the mission's drones, `drones` relay id →
+        wrapper for every relay on duty, `duty_alt` the relays' altitude above the ground
+        station, `good_m` the radio model's good range (the first hop tried). Leashes the
+        served drones' gotos to what the chains cover (see `leash`)."""
+        if self._chains is None:
+            self._chains = chains.Chains(duty_alt, good_m)
+            self._frame = Frame(ground)
+            if self._mission is not None:
+                self._mission.leash = self.leash
+        frame = self._frame
+        assert frame is not None
+        now = self.now()
+        self._served = {d.id: d for d in served}
+        workers = []
+        for d in served:
+            goal = _goal(d)
+            held = self._mission.leashed.get(d.id) if self._mission is not None else None
+            if held is not None:
+                goal = Position(held[0], held[1], held[2])
+            workers.append(chains.Worker(d.id, frame.local(d.position), _above(d, d.position.alt) or 0.0,
+                                         frame.local(goal) if goal is not None else None))
+        seen = {}
+        for rid, d in drones.items():
+            t = d._telem()
+            link = d.link
+            fresh = t is not None and self._mission is not None and self._mission.heard_within(rid, heard_s)
+            seen[rid] = chains.Seen(frame.local(d.position), _above(d, d.position.alt) or 0.0,
+                                    link.loss if link is not None else None, link.rtt_ms if link is not None else None,
+                                    fresh)
+        result = self._chains.plan(now, workers, seen, self.spare(), self._mesh_nodes(frame, set(seen) | set(self._served)))
+        return RelayPlan(
+            moves=[(rid, frame.world(pt), hold) for rid, pt, hold in result.moves],
+            dispatch=[(frame.world(pt), hold, key) for key, pt, hold in result.dispatch],  # type: ignore[misc]
+            home=result.home, scale=1.0, steady=0, notes=result.notes,
+        )
+
+    def _mesh_nodes(self, frame: Frame, besides: set[str]) -> list[tuple[chains.Point, float]]:
+        """Every other drone the ground knows (spot, metres above field level): all route."""
+        if self._mission is None:
+            return []
+        registry = self._mission.station.registry
+        out = []
+        for drone_id in registry.ids():
+            t = registry.telemetry(drone_id)
+            if drone_id not in besides and t is not None and t.position is not None:
+                out.append((frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt)))
+        return out
+
+    def chain_joined(self, key: str, relay: Any) -> None:
+        if self._chains is not None:
+            self._chains.joined(key, relay.id)
+
+    def chain_dropped(self, relay_id: str) -> None:
+        if self._chains is not None:
+            self._chains.dropped(relay_id)
+
+    def probe_safe(self) -> Position | None:
+        """Where the chain's probe comes back to after a trial."""
+        if self._chains is None or self._chains.safe is None or self._frame is None:
+            return None
+        return self._frame.world(self._chains.safe)
+
+    def leash(self, drone_id: str, lat: float, lon: float, alt: float | None) -> tuple[float, float, str | None] | None:
+        """Where a served drone's goto to (lat, lon, alt AMSL) may go now: None for all
+        the way, else (lat, lon) of the edge of what its chain covers and, when no drone
+        is free for the relays it needs, why it cannot go on."""
+        ch, frame, d = self._chains, self._frame, self._served.get(drone_id)
+        if ch is None or frame is None or d is None or drone_id not in ch.covered:
+            return None
+        above = _above(d, alt) if alt is not None else _above(d, d.position.alt)
+        goal = frame.local(Position(lat, lon))
+        allowed = ch.allowed(drone_id, frame.local(d.position), above or 0.0, goal)
+        if chains.dist(allowed, goal) < 0.5:
+            return None
+        edge = frame.world(allowed)
+        return edge.lat, edge.lon, ch.stuck.get(drone_id)
+
+
+def _above(drone: Any, alt: float | None) -> float | None:
+    """An altitude (AMSL) as metres above the drone's home (the field's level)."""
+    home = drone.home
+    if alt is None or home is None or home.alt is None:
+        return None
+    return alt - home.alt

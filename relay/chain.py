@@ -1,0 +1,401 @@
+"""Relay chains on hops the relays proved (issue 32): pure code, no I/O and no clock.
+
+The measured mode of ADR 0006 places relays by a radio model whose range it corrects;
+this one places them only on hops a relay measured to hold (`mode="chain"`). Why: a
+hop holds a 3-s gap only while it loses at most ~10 % of its packets, and the quality
+a moving drone reports is blind below ~30 % (`bench/relay_hop.py`). A hop is therefore
+proven by a relay that *stays*: on its spot for a whole probe window (DWELL_S) with
+no probe lost and no retransmission in its round trips (mean RTT within SPIKE_MS of
+the best seen).
+
+- **Learning the hop** (`Reach`): `lo` is the longest hop a relay proved, `hi` the
+  shortest one that did not hold. One probe relay flies out along the first worker's
+  way to a trial hop (GROWTH x lo, then halving [lo, hi]), dwells, and comes back to
+  the last proven spot by itself (its task bundle says so), so a trial beyond the
+  radio's reach costs a detour, never a drone. Until `hi / lo` <= CONVERGED the
+  workers are held near the laptop; the radio model (`good_m`) is only the first trial.
+- **Chains**: then every worker gets its own chain from the laptop toward where the
+  script sends it, a relay every proven hop (3-D: relays hover at the duty altitude,
+  the laptop stands on the ground), added as the worker's goal needs them and sent home
+  from the far end when the worker no longer needs them.
+- **The leash**: a worker's goto goes at most as far as a proven node covers (the laptop
+  or a relay on its spot, within `lo` in 3-D); the rest of the way is flown as relays
+  arrive. A worker held while its chain needs a relay and no drone is free is `stuck`,
+  named with the relays missing.
+
+Everything is in a local frame in metres (north, east) around the ground station.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+Point = tuple[float, float]
+ORIGIN: Point = (0.0, 0.0)
+PROBE = "probe"
+
+FLOOR_M = 20.0  # every radio is taken to hold this far (the corpus's shortest is good to 25 m)
+GROWTH = 1.5  # a probe with no failed hop yet tries this much beyond the longest proven
+CONVERGED = 1.06  # hi / lo this close: the hop is known
+MAX_TRIALS = 8  # … or after this many trials
+MARGIN = 0.97  # chains are laid at this share of the proven hop
+DWELL_S = 11.0  # on its spot this long: a whole 10-probe window measured there
+ON_SPOT_M = 3.0
+PARKED_CLEAR_M = 6.0  # a held drone is not held over a drone on the ground (across)
+MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node before it
+SPIKE_MS = 15.0  # a window's mean RTT this far above the best seen held a retransmission (+200 ms / 10)
+RELEASE_AFTER = 5  # plans in a row without need before a relay goes home
+DISPATCH_TIMEOUT_S = 30.0  # a relay asked for and not assigned by then is asked for again
+RESEND_S = 45.0  # a probe heard but not on its trial spot by then is sent there again
+
+
+def dist(a: Point, b: Point) -> float:
+    return math.hypot(a[0] - b[0], a[1] - b[1])
+
+
+def toward(a: Point, b: Point, d: float) -> Point:
+    """`d` metres from `a` toward `b` (not beyond it); `a` itself if they coincide."""
+    length = dist(a, b)
+    if length == 0:
+        return a
+    f = min(1.0, d / length)
+    return a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f
+
+
+def flat(hop: float, dz: float) -> float:
+    """The horizontal length of a 3-D hop of `hop` metres across `dz` metres of height."""
+    return math.sqrt(max(0.0, hop * hop - dz * dz))
+
+
+@dataclass(frozen=True)
+class Worker:
+    id: str
+    at: Point
+    alt: float  # metres above the ground station it flies at
+    goal: Point | None  # where the script wants it now (a held goto's goal too)
+
+
+@dataclass(frozen=True)
+class Seen:
+    """What the plugin sees of a relay on duty."""
+
+    at: Point
+    alt: float  # metres above the ground station
+    loss: float | None  # its link window to the ground (None: no window yet)
+    rtt_ms: float | None
+    fresh: bool = True  # heard lately (else where it is and its window are old news)
+
+
+@dataclass
+class Slot:
+    spot: Point
+    relay: str | None = None  # None: asked for, no drone yet
+    asked_at: float = 0.0  # when it was asked for, or sent to this spot
+    on_spot_since: float | None = None
+    hop: float = 0.0  # a probe's trial hop (0: measured, the next one not sent yet)
+
+
+@dataclass
+class Reach:
+    lo: float = FLOOR_M
+    hi: float | None = None
+    first_tried: bool = False
+
+    trials: int = 0
+
+    @property
+    def known(self) -> bool:
+        """Bracketed closely enough, or tried often enough (drones standing by the laptop
+        can keep the proofs shorter than the trials: the chains then use what was proven)."""
+        return (self.hi is not None and self.hi <= self.lo * CONVERGED) or self.trials >= MAX_TRIALS
+
+    def trial(self, first: float | None = None) -> float:
+        """The next hop to try: the radio model's (`first`) while nothing failed and it
+        is longer than what held, else GROWTH beyond what held, else halfway to what failed."""
+        if self.hi is None:
+            if first is not None and not self.first_tried and first > self.lo * 1.01:
+                self.first_tried = True
+                return first
+            return self.lo * GROWTH
+        return (self.lo + self.hi) / 2
+
+    def held(self, hop: float) -> None:
+        self.trials += 1
+        self.lo = max(self.lo, hop)
+        if self.hi is not None and self.hi <= self.lo:
+            self.hi = self.lo * CONVERGED
+
+    def failed(self, hop: float) -> None:
+        self.trials += 1
+        if hop > self.lo:
+            self.hi = hop if self.hi is None else min(self.hi, hop)
+
+
+@dataclass
+class ChainPlan:
+    dispatch: list[tuple[str, Point, float]] = field(default_factory=list)  # (slot key, spot, hold seconds or 0)
+    moves: list[tuple[str, Point, float]] = field(default_factory=list)  # (relay, spot, seconds to dwell before coming back; 0: stay)
+    home: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+class Chains:
+    """The state of `mode="chain"` across plans (one per mission)."""
+
+    def __init__(self, duty_alt: float, first_trial: float | None = None) -> None:
+        self.duty_alt = duty_alt
+        self.first_trial = first_trial
+        self.reach = Reach()
+        self.probe: Slot | None = None
+        self.safe: Point | None = None  # where the probe waits between trials (its last proven spot)
+        self.chains: dict[str, list[Slot]] = {}
+        self.idle: list[str] = []  # relays on duty with no spot (the probe, once the hop is known)
+        self.base_rtt: float | None = None
+        self.leaving: dict[str, int] = {}
+        self.stuck: dict[str, str] = {}
+        self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
+        self.parked: list[Point] = []  # where a relay may take off through the served drones' level
+
+    # ---- what the plugin asks -------------------------------------------------------
+
+    def joined(self, key: str, relay: str) -> None:
+        """The plugin assigned `relay` to the slot it was asked for under `key`."""
+        slot = self._slot(key)
+        if slot is not None and slot.relay is None:
+            slot.relay = relay
+
+    def dropped(self, relay: str) -> None:
+        """A relay the plugin lost (its assignment failed, it was revoked)."""
+        if self.probe is not None and self.probe.relay == relay:
+            self.probe = None
+        for chain in self.chains.values():
+            chain[:] = [s for s in chain if s.relay != relay]
+        if relay in self.idle:
+            self.idle.remove(relay)
+
+    def allowed(self, worker: str, at: Point, alt: float, goal: Point) -> Point:
+        """How far toward `goal` the worker may fly now: the last point of the straight
+        way there that a proven node covers (the goal itself when all of it is)."""
+        nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
+        reach = self.reach.lo * MARGIN
+        parked = self.parked
+
+        def inside(p: Point) -> bool:  # covered, and not over a drone that may take off
+            return (any(math.hypot(dist(p, n), alt - z) <= reach for n, z in nodes)
+                    and all(dist(p, q) >= PARKED_CLEAR_M for q in parked))
+
+        length = dist(at, goal)
+        if not inside(at):  # drifted out (or its nodes went): back toward the nearest node
+            n, z = min(nodes, key=lambda nz: dist(at, nz[0]))
+            return toward(n, at, flat(reach, alt - z) * 0.95)
+        best = at
+        for k in range(1, int(length) + 1):
+            p = toward(at, goal, float(k))
+            if not inside(p):
+                return best
+            best = p
+        return goal if inside(goal) else best
+
+    # ---- one plan ---------------------------------------------------------------------
+
+    def plan(self, now: float, workers: Sequence[Worker], seen: Mapping[str, Seen], spare: int,
+             others: Sequence[tuple[Point, float]] = ()) -> ChainPlan:
+        """`workers`: the mission's drones to keep connected; `seen`: the relays on duty
+        (by id); `spare`: drones free to be sent as relays; `others`: every other node
+        of the mesh (spot, altitude), which a probe's traffic may pass through."""
+        out = ChainPlan()
+        # drones on the ground, and relays climbing from it through the served drones' level
+        self.parked = [at for at, alt in others if alt < 1.0] + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
+        for s in seen.values():
+            if s.fresh and s.rtt_ms is not None and (self.base_rtt is None or s.rtt_ms < self.base_rtt):
+                self.base_rtt = s.rtt_ms
+        self._expire(now)
+        self.stuck.clear()
+        if not self.reach.known:
+            nodes = [(w.at, w.alt) for w in workers] + list(others)
+            self._learn(now, nodes, seen, out)
+            if not self.reach.known:
+                self._probe(now, workers, nodes, spare, out)
+                for w in workers:
+                    self.covered[w.id] = [(ORIGIN, 0.0)]
+                return out
+        if self.probe is not None:  # the hop is known: the probe waits for a spot
+            if self.probe.relay is not None:
+                self.idle.append(self.probe.relay)
+            out.notes.append(f"the radio holds hops of {self.reach.lo:.0f} m (fails at {self.reach.hi:.0f} m)")
+            self.probe = None
+        free = spare
+        for w in workers:
+            free = self._extend(now, w, seen, free, out)
+        self._release(workers, out)
+        return out
+
+    def _slot(self, key: str) -> Slot | None:
+        if key == PROBE:
+            return self.probe
+        worker, _, index = key.rpartition("#")
+        chain = self.chains.get(worker, [])
+        i = int(index) if index.isdigit() else -1
+        return chain[i] if 0 <= i < len(chain) else None
+
+    def _expire(self, now: float) -> None:
+        if self.probe is not None and self.probe.relay is None and now - self.probe.asked_at > DISPATCH_TIMEOUT_S:
+            self.probe = None
+        for chain in self.chains.values():
+            while chain and chain[-1].relay is None and now - chain[-1].asked_at > DISPATCH_TIMEOUT_S:
+                chain.pop()
+
+    def _learn(self, now: float, nodes: Sequence[tuple[Point, float]], seen: Mapping[str, Seen], out: ChainPlan) -> None:
+        """The probe on its spot for a whole window proves the bottleneck of its best
+        path to the laptop, or, failing, that its own hop to the laptop does not hold
+        (were that link lossless it would be up and, one hop being fewest, taken)."""
+        slot = self.probe
+        if slot is None or slot.relay is None or slot.hop == 0.0 or slot.relay not in seen:
+            return
+        s = seen[slot.relay]
+        lost = not s.fresh and now - slot.asked_at > DISPATCH_TIMEOUT_S
+        there = s.fresh and dist(s.at, slot.spot) <= ON_SPOT_M and abs(s.alt - self.duty_alt) <= 2.0
+        if there and slot.on_spot_since is None:
+            slot.on_spot_since = now
+        elif not there and not lost:
+            if not s.fresh and slot.on_spot_since is not None and now - slot.on_spot_since >= DWELL_S:
+                lost = True  # gone silent on its spot
+            else:
+                slot.on_spot_since = None if s.fresh else slot.on_spot_since
+                if s.fresh and now - slot.asked_at > RESEND_S:  # its move was refused or lost: again
+                    slot.asked_at = now
+                    out.moves.append((slot.relay, slot.spot, DWELL_S + 4.0))
+                return
+        if not lost and (slot.on_spot_since is None or now - slot.on_spot_since < DWELL_S):
+            return
+        own = math.hypot(dist(slot.spot, ORIGIN), self.duty_alt)
+        clean = (not lost and s.loss == 0.0 and s.rtt_ms is not None
+                 and s.rtt_ms <= (self.base_rtt or 0.0) + SPIKE_MS)
+        if clean:
+            others = list(nodes) + [(o.at, o.alt) for rid, o in seen.items() if rid != slot.relay]
+            proven = bottleneck((s.at, s.alt), others)
+            self.reach.held(proven)
+            self.safe = slot.spot
+            out.notes.append(f"probe {slot.relay}: a hop of {proven:.0f} m held")
+        else:
+            self.reach.failed(own)
+            out.notes.append(f"probe {slot.relay}: a hop of {own:.0f} m did not hold "
+                             f"({'not heard' if lost else f'loss {s.loss}, rtt {s.rtt_ms} ms'})")
+        slot.on_spot_since = None
+        slot.hop = 0.0
+
+    def _probe(self, now: float, workers: Sequence[Worker], nodes: Sequence[tuple[Point, float]], spare: int,
+               out: ChainPlan) -> None:
+        """Send the probe to the next trial hop, in the direction where a clean window
+        would prove the most (away from the other nodes, which its traffic could take)."""
+        if not any(w.goal is not None and dist(ORIGIN, w.goal) > flat(self.reach.lo, w.alt) for w in workers):
+            return  # nobody needs to go beyond what is known to hold
+        if self.probe is not None and (self.probe.relay is None or self.probe.hop != 0.0):
+            return  # asked for, or out on a trial
+        if self.probe is None and spare <= 0:
+            for w in workers:
+                self.stuck[w.id] = "no free drone to measure the radio with"
+            return
+        trial = self.reach.trial(self.first_trial)
+        spot = self._trial_spot(trial, nodes)
+        if self.safe is None:
+            self.safe = toward(ORIGIN, spot, flat(self.reach.lo, self.duty_alt))
+        if self.probe is None:
+            self.probe = Slot(spot, None, now, None, trial)
+            out.dispatch.append((PROBE, spot, DWELL_S + 4.0))
+            out.notes.append(f"probe: trying a hop of {trial:.0f} m")
+        else:
+            assert self.probe.relay is not None
+            self.probe.spot, self.probe.hop, self.probe.asked_at = spot, trial, now
+            out.moves.append((self.probe.relay, spot, DWELL_S + 4.0))
+            out.notes.append(f"probe {self.probe.relay}: trying a hop of {trial:.0f} m")
+
+    def _trial_spot(self, trial: float, nodes: Sequence[tuple[Point, float]]) -> Point:
+        """`trial` from the laptop (3-D), in the direction where a clean window proves the
+        most: its best path's longest hop, whichever node its traffic takes."""
+        r = flat(trial, self.duty_alt)
+        spots = [(r * math.cos(math.radians(b)), r * math.sin(math.radians(b))) for b in range(0, 360, 15)]
+        return max(spots, key=lambda p: bottleneck((p, self.duty_alt), nodes))
+
+    def _nodes(self, now: float, chain: Sequence[Slot], seen: Mapping[str, Seen]) -> list[tuple[Point, float]]:
+        """The laptop and the relays of the chain on their spots, in order, up to the first gap."""
+        nodes = [(ORIGIN, 0.0)]
+        gap = False
+        for s in chain:
+            o = seen.get(s.relay) if s.relay is not None else None
+            there = o is not None and dist(o.at, s.spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
+            s.on_spot_since = (s.on_spot_since or now) if there else None
+            gap = gap or not there
+            if not gap:
+                nodes.append((s.spot, self.duty_alt))
+        return nodes
+
+    def _extend(self, now: float, w: Worker, seen: Mapping[str, Seen], free: int, out: ChainPlan) -> int:
+        chain = self.chains.setdefault(w.id, [])
+        self.covered[w.id] = self._nodes(now, chain, seen)
+        goal = w.goal or w.at
+        hop = self.reach.lo * MARGIN
+        planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
+        if any(math.hypot(dist(n, goal), w.alt - z) <= hop for n, z in planned):
+            return free  # the chain (once its relays are there) reaches the goal
+        if chain and chain[-1].relay is None:
+            return free  # one asked for, not assigned yet
+        last, last_z = planned[-1]
+        spot = toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z)))
+        key = f"{w.id}#{len(chain)}"
+        if self.idle:
+            relay = self.idle.pop(0)
+            chain.append(Slot(spot, relay, now))
+            out.moves.append((relay, spot, 0.0))
+            return free
+        if free <= 0:
+            need, at = 0, last
+            while math.hypot(dist(at, goal), w.alt - self.duty_alt) > hop and need < 50:
+                at = toward(at, goal, hop)
+                need += 1
+            self.stuck[w.id] = f"{w.id} needs {need} more relay(s) to reach its goal and no drone is free"
+            return free
+        chain.append(Slot(spot, None, now))
+        out.dispatch.append((key, spot, 0.0))
+        return free - 1
+
+    def _release(self, workers: Iterable[Worker], out: ChainPlan) -> None:
+        hop = self.reach.lo * MARGIN
+        for w in workers:
+            chain = self.chains.get(w.id, [])
+            if not chain or chain[-1].relay is None:
+                continue
+            before = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain[:-1]]
+            places = [w.at] + ([w.goal] if w.goal is not None else [])
+            needed = not all(any(math.hypot(dist(p, n), w.alt - z) <= hop for n, z in before) for p in places)
+            rid = chain[-1].relay
+            if needed:
+                self.leaving.pop(rid, None)
+                continue
+            self.leaving[rid] = self.leaving.get(rid, 0) + 1
+            if self.leaving[rid] >= RELEASE_AFTER:
+                del self.leaving[rid]
+                chain.pop()
+                out.home.append(rid)
+
+
+def bottleneck(start: tuple[Point, float], others: Sequence[tuple[Point, float]]) -> float:
+    """The least, over every path from `start` to the laptop through `others`, of its
+    longest hop (3-D): what a clean window at `start` proves the radio holds."""
+    nodes = [start, *others, (ORIGIN, 0.0)]
+    goal = len(nodes) - 1
+    best = [math.inf] * len(nodes)
+    best[0] = 0.0
+    done = [False] * len(nodes)
+    for _ in range(len(nodes)):
+        i = min((k for k in range(len(nodes)) if not done[k]), key=lambda k: best[k])
+        done[i] = True
+        if i == goal:
+            break
+        for j in range(len(nodes)):
+            if not done[j]:
+                (a, za), (b, zb) = nodes[i], nodes[j]
+                best[j] = min(best[j], max(best[i], math.hypot(dist(a, b), za - zb)))
+    return best[goal]
