@@ -49,6 +49,7 @@ SPIKE_MS = 15.0  # a window's mean RTT this far above the best seen held a retra
 RELEASE_AFTER = 5  # plans in a row without need before a relay goes home
 DISPATCH_TIMEOUT_S = 30.0  # a relay asked for and not assigned by then is asked for again
 RESEND_S = 45.0  # a probe heard but not on its trial spot by then is sent there again
+SLOT_RESEND_S = 90.0  # … a chain relay, by then
 
 
 def dist(a: Point, b: Point) -> float:
@@ -180,23 +181,28 @@ class Chains:
         way there that a proven node covers (the goal itself when all of it is)."""
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
         reach = self.reach.lo * MARGIN
-        parked = self.parked
 
-        def inside(p: Point) -> bool:  # covered, and not over a drone that may take off
-            return (any(math.hypot(dist(p, n), alt - z) <= reach for n, z in nodes)
-                    and all(dist(p, q) >= PARKED_CLEAR_M for q in parked))
+        def inside(p: Point) -> bool:
+            return any(math.hypot(dist(p, n), alt - z) <= reach for n, z in nodes)
 
-        length = dist(at, goal)
+        def clear(p: Point) -> bool:  # not held over a drone that may take off there
+            return all(dist(p, q) >= PARKED_CLEAR_M for q in self.parked)
+
         if not inside(at):  # drifted out (or its nodes went): back toward the nearest node
             n, z = min(nodes, key=lambda nz: dist(at, nz[0]))
             return toward(n, at, flat(reach, alt - z) * 0.95)
         best = at
-        for k in range(1, int(length) + 1):
+        for k in range(1, int(dist(at, goal)) + 1):
             p = toward(at, goal, float(k))
             if not inside(p):
-                return best
+                break
             best = p
-        return goal if inside(goal) else best
+        else:
+            if inside(goal):
+                return goal
+        while not clear(best) and dist(best, at) > 0.5:  # held short of a parked drone, not over it
+            best = toward(best, at, 1.0)
+        return best
 
     # ---- one plan ---------------------------------------------------------------------
 
@@ -227,8 +233,10 @@ class Chains:
             out.notes.append(f"the radio holds hops of {self.reach.lo:.0f} m (fails at {self.reach.hi:.0f} m)")
             self.probe = None
         free = spare
+        self.resend: list[tuple[str, Point, float]] = []
         for w in workers:
             free = self._extend(now, w, seen, free, out)
+        out.moves.extend(self.resend)
         self._release(workers, out)
         return out
 
@@ -327,6 +335,9 @@ class Chains:
             o = seen.get(s.relay) if s.relay is not None else None
             there = o is not None and dist(o.at, s.spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
             s.on_spot_since = (s.on_spot_since or now) if there else None
+            if o is not None and s.relay is not None and not there and o.fresh and now - s.asked_at > SLOT_RESEND_S:
+                s.asked_at = now  # heard, and not there long after it was sent: its move went wrong
+                self.resend.append((s.relay, s.spot, 0.0))
             gap = gap or not there
             if not gap:
                 nodes.append((s.spot, self.duty_alt))

@@ -34,7 +34,8 @@ steps = step  # the bundle steps' builder: the input `step` (a length) takes its
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
 RENEW_S = 60  # ... and is renewed when less than this is left
 CHAIN_DUTY_S = 600  # mode="chain": a relay's bundle holds its spot this long (renewed too)
-TRANSIT_M = 6  # mode="chain": each relay flies out and home on a level of its own, this far apart above the duty level
+TRANSIT_M = 6  # mode="chain": relays fly out and home on levels this far apart above the duty level …
+MAX_LANES = 4  # … at most this many (fewer on a short radio), taken in turns
 
 
 def ground_spot(drone):
@@ -230,9 +231,11 @@ def levels(relay, alt):
 
 
 def outbound(relay):
-    """The level a relay flies to its spots at: its own, above the duty level."""
+    """The level a relay flies to its spots at, above the duty level: relays take the
+    levels in turn, as many as stay within the proven hop of the ground."""
     if relay.id not in state["lanes"]:
-        state["lanes"][relay.id] = len(state["lanes"]) + 1
+        levels = max(1, min(MAX_LANES, int((0.8 * relays.chain_hop() - state["duty"]) // TRANSIT_M)))
+        state["lanes"][relay.id] = len(state["lanes"]) % levels + 1
     return state["duty"] + state["lanes"][relay.id] * TRANSIT_M
 
 
@@ -242,17 +245,17 @@ def chain_dispatch(key, spot, hold):
     relays.chain_joined(key, relay)
     print(f"{relay.id}: relay duty at {state['duty']:g} m ({key})")
     arm(relay)
-    takeoff(relay, outbound(relay) * m)
-    chain_go(relay, spot, hold)
+    chain_go(relay, spot, hold, [steps.takeoff(outbound(relay) * m)])
 
 
-def chain_go(relay, spot, hold):
+def chain_go(relay, spot, hold, first=None):
     """Climb to the transit level where it is, fly over the spot, come down to duty;
-    a probe (`hold` > 0) comes back to the last proven spot after its window."""
+    a probe (`hold` > 0) comes back to the last proven spot after its window. One bundle
+    (from the takeoff on, `first`): the relay's own lost-link failsafe never interrupts it."""
     if relay.id not in crew:
         return
     duty, up = state["duty"], outbound(relay)
-    plan = [steps.move(to=relay.position, alt=levels(relay, up) * m),
+    plan = (first or []) + [steps.move(to=relay.position, alt=levels(relay, up) * m),
             steps.move(to=spot, alt=levels(relay, up) * m, speed=10 * m / s),
             steps.move(to=spot, alt=levels(relay, duty) * m)]
     safe = relays.probe_safe()

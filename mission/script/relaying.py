@@ -223,6 +223,10 @@ class Relays:
                 out.append((frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt)))
         return out
 
+    def chain_hop(self) -> float:
+        """The hop mode "chain" has proven to hold (metres, 3-D)."""
+        return self._chains.reach.lo if self._chains is not None else chains.FLOOR_M
+
     def chain_joined(self, key: str, relay: Any) -> None:
         if self._chains is not None:
             self._chains.joined(key, relay.id)
