@@ -1,0 +1,152 @@
+"""Relay mode "chain" as pure logic (issue 32, relay/chain.py): the hop a probe proves,
+the chains laid on it, and the leash on the drones they serve."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from dronefleet.relay.chain import (
+    CONVERGED,
+    DWELL_S,
+    FLOOR_M,
+    GROWTH,
+    MARGIN,
+    PROBE,
+    ChainPlan,
+    Chains,
+    Reach,
+    Seen,
+    Worker,
+    bottleneck,
+    dist,
+    flat,
+)
+
+DUTY = 21.0  # relays' altitude above the laptop; the worker flies at 15 m
+
+
+def at(metres: float, bearing_deg: float = 0.0) -> tuple[float, float]:
+    b = math.radians(bearing_deg)
+    return metres * math.cos(b), metres * math.sin(b)
+
+
+def test_the_reach_tries_the_model_first_then_grows_and_halves_until_bracketed() -> None:
+    r = Reach()
+    assert r.trial(60.0) == 60.0 and r.lo == FLOOR_M
+    r.held(60.0)
+    assert r.trial(60.0) == pytest.approx(60.0 * GROWTH)  # the model's figure is tried once
+    r.failed(90.0)
+    assert r.trial() == pytest.approx(75.0)
+    r.held(75.0)
+    r.failed(78.0)
+    assert r.known and r.lo == 75.0 and r.hi == 78.0
+    assert Reach(lo=50.0, hi=60.0).known is False and Reach(lo=50.0, hi=50.0 * CONVERGED).known
+
+
+def test_a_failure_shorter_than_what_held_teaches_nothing() -> None:
+    r = Reach(lo=50.0)
+    r.failed(40.0)
+    assert r.hi is None
+
+
+def test_the_bottleneck_is_the_least_longest_hop_to_the_laptop() -> None:
+    # straight to the laptop, 50 m; through a drone standing 20 m out, the longest hop is 30 m
+    assert bottleneck((at(50), 0.0), []) == pytest.approx(50.0)
+    assert bottleneck((at(50), 0.0), [(at(20), 0.0)]) == pytest.approx(30.0)
+    assert bottleneck((at(50), 0.0), [(at(20, 180), 0.0)]) == pytest.approx(50.0)  # behind the laptop: no help
+    assert bottleneck((at(40), 30.0), []) == pytest.approx(50.0)  # 3-D
+
+
+def seen(where: tuple[float, float], alt: float = DUTY, loss: float | None = 0.0, rtt: float | None = 4.0,
+         fresh: bool = True) -> Seen:
+    return Seen(where, alt, loss, rtt, fresh)
+
+
+def probe_round(c: Chains, now: float, worker: Worker, **window: object) -> ChainPlan:
+    """One measured trial: the probe reports from its spot for a whole window; the plan
+    that measured it (and sent the next trial, if any)."""
+    assert c.probe is not None and c.probe.relay is not None
+    relay, spot = c.probe.relay, c.probe.spot
+    c.plan(now, [worker], {relay: seen(spot, **window)}, spare=3)  # type: ignore[arg-type]
+    return c.plan(now + DWELL_S + 1, [worker], {relay: seen(spot, **window)}, spare=3)  # type: ignore[arg-type]
+
+
+def test_a_probe_measures_the_hop_then_chains_are_laid_on_it_and_the_worker_is_leashed() -> None:
+    c = Chains(DUTY, first_trial=60.0)
+    w = Worker("d1", at(10), 15.0, at(200))
+    out = c.plan(0.0, [w], {}, spare=3)
+    assert [k for k, _, _ in out.dispatch] == [PROBE] and c.stuck == {}
+    assert math.hypot(dist(out.dispatch[0][1], (0, 0)), DUTY) == pytest.approx(60.0)  # the model's range, in 3-D
+    # held near the laptop meanwhile: at most the floor from it
+    edge = c.allowed("d1", w.at, w.alt, w.goal)  # type: ignore[arg-type]
+    assert math.hypot(dist(edge, (0, 0)), 15.0) <= FLOOR_M * MARGIN + 0.5
+    c.joined(PROBE, "r1")
+    out = probe_round(c, 10.0, w)  # 60 m held
+    assert c.reach.lo == pytest.approx(60.0)
+    (relay, spot, back), = out.moves  # the next trial, coming back to the proven spot after its window
+    assert relay == "r1" and back > DWELL_S and math.hypot(dist(spot, (0, 0)), DUTY) == pytest.approx(90.0)
+    probe_round(c, 40.0, w, loss=0.2, rtt=300.0)  # 90 m does not hold
+    assert c.reach.hi == pytest.approx(90.0)
+    for now, ok in ((70.0, True), (100.0, False), (130.0, True), (160.0, False), (190.0, True)):
+        probe_round(c, now, w, **({} if ok else {"loss": 0.1}))
+        if c.reach.known:
+            break
+    assert c.reach.known and 70.0 < c.reach.lo < 90.0
+    hop = c.reach.lo * MARGIN
+    # the probe becomes the chain's first relay; the next one is asked for at once
+    out = c.plan(250.0, [w], {"r1": seen(c.safe or (0, 0))}, spare=3)
+    (relay, first, back), = out.moves
+    (key, second, _), = out.dispatch
+    assert relay == "r1" and back == 0 and math.hypot(dist(first, (0, 0)), DUTY) == pytest.approx(hop, abs=0.5)
+    assert key == "d1#1" and dist(first, second) == pytest.approx(hop, abs=0.5)
+    c.joined(key, "r2")
+    assert c.plan(251.0, [w], {"r1": seen(first)}, spare=2).dispatch == []  # r2 flies there; the goal is covered
+    # while r2 flies, the worker may go as far as r1 covers, not to the goal
+    edge = c.allowed("d1", w.at, w.alt, w.goal)  # type: ignore[arg-type]
+    assert math.hypot(dist(edge, first), 15.0 - DUTY) <= hop + 0.5 and dist(edge, w.goal) > 50  # type: ignore[arg-type]
+    c.plan(280.0, [w], {"r1": seen(first), "r2": seen(second)}, spare=2)
+    assert c.allowed("d1", w.at, w.alt, at(150)) == at(150)  # covered all the way: no leash
+
+
+def test_no_free_drone_for_the_chain_is_named_with_the_relays_missing() -> None:
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0)
+    w = Worker("d1", at(10), 15.0, at(300))
+    out = c.plan(0.0, [w], {}, spare=0)
+    assert out.dispatch == [] and "d1 needs" in c.stuck["d1"] and "no drone is free" in c.stuck["d1"]
+    needed = int(c.stuck["d1"].split("needs ")[1].split()[0])
+    assert needed == math.ceil((300 - 0) / (50 * MARGIN)) - 1 or needed == math.ceil(300 / (50 * MARGIN))
+
+
+def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() -> None:
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0)
+    far = Worker("d1", at(100), 15.0, at(120))
+    out = c.plan(0.0, [far], {}, spare=5)
+    c.joined(out.dispatch[0][0], "r1")
+    spots = [out.dispatch[0][1]]
+    for k in range(2, 5):
+        o = c.plan(float(k), [far], {f"r{i + 1}": seen(s) for i, s in enumerate(spots)}, spare=5)
+        if not o.dispatch:
+            break
+        c.joined(o.dispatch[0][0], f"r{k}")
+        spots.append(o.dispatch[0][1])
+    views = {f"r{i + 1}": seen(s) for i, s in enumerate(spots)}
+    home = Worker("d1", at(5), 15.0, at(5))
+    sent: list[str] = []
+    for k in range(20):
+        sent += c.plan(100.0 + k, [home], views, spare=0).home
+    assert sent == [f"r{i}" for i in range(len(spots), 0, -1)]  # the far end first
+
+
+def test_a_held_drone_is_not_held_over_a_drone_that_may_take_off() -> None:
+    c = Chains(DUTY)
+    c.reach = Reach(lo=40.0, hi=41.0)
+    w = Worker("d1", at(0.0), 15.0, at(300))
+    parked = at(30)
+    c.plan(0.0, [w], {}, spare=0, others=[(parked, 0.0)])
+    edge = c.allowed("d1", w.at, w.alt, w.goal)  # type: ignore[arg-type]
+    assert dist(edge, parked) >= 6.0 and dist(edge, (0, 0)) > 10
+    assert flat(40.0 * MARGIN, 15.0) >= dist(edge, (0, 0))
