@@ -372,3 +372,28 @@ async def test_an_unanswered_command_is_sent_again_once_the_drone_is_heard_not_a
     assert len(tries) == failures
     assert all(b > a for a, b in itertools.pairwise(tries)), tries  # not all at once
     assert sum("no answer to goto, sending it again" in line for line in lines) == 2, lines
+
+
+async def test_a_goto_whose_end_is_lost_ends_once_the_drone_stands_at_its_target(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A reliable publication goes down with a link that closes under it; a goto's
+    `finish` lost with no probe missed (so the agent repeats nothing) hung its verb until
+    the time limit (corpus world 3, relay mode chain). The verb now ends once the drone
+    is heard standing at its target for 10 s, and says so."""
+    from dronefleet.agent.runtime import Agent
+    from dronefleet.schemas.status import CommandStatus
+
+    publish = Agent._publish_status
+    dropped: list[CommandStatus] = []
+
+    def lossy(self: Agent, status: Any) -> None:
+        if isinstance(status, CommandStatus) and status.command == "goto" and status.state == "finish" and not dropped:
+            dropped.append(status)  # lost on the way: never published, never repeated
+            return
+        publish(self, status)
+
+    monkeypatch.setattr(Agent, "_publish_status", lossy)
+    record, _, log = await fly('d = assign("drone01")\narm(d)\ntakeoff(d)\nmove(d, forward=20*m)\n'
+                               'move(d, forward=10*m)\nland(d)\n', max_s=300)
+    assert dropped, "the scenario never lost a goto's finish"
+    assert cause(record) == ("finished", "success"), (record, log)
+    assert any("the end of its goto was not heard; it stands at its target" in line for line in log), log
