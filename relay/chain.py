@@ -43,6 +43,7 @@ MAX_TRIALS = 8  # … or after this many trials
 MARGIN = 0.97  # chains are laid at this share of the proven hop
 DWELL_S = 11.0  # on its spot this long: a whole 10-probe window measured there
 ON_SPOT_M = 3.0
+LAUNCH_CLEAR_M = 15.0  # a relay is sent when the last one has flown this far from the drones on the ground
 PARKED_CLEAR_M = 6.0  # a held drone is not held over a drone on the ground (across)
 MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node before it
 SPIKE_MS = 15.0  # a window's mean RTT this far above the best seen held a retransmission (+200 ms / 10)
@@ -325,7 +326,8 @@ class Chains:
         most: its best path's longest hop, whichever node its traffic takes."""
         r = flat(trial, self.duty_alt)
         spots = [(r * math.cos(math.radians(b)), r * math.sin(math.radians(b))) for b in range(0, 360, 15)]
-        return max(spots, key=lambda p: bottleneck((p, self.duty_alt), nodes))
+        clear = [p for p in spots if all(dist(p, q) >= PARKED_CLEAR_M for q in self.parked)] or spots
+        return max(clear, key=lambda p: bottleneck((p, self.duty_alt), nodes))
 
     def _nodes(self, now: float, chain: Sequence[Slot], seen: Mapping[str, Seen]) -> list[tuple[Point, float]]:
         """The laptop and the relays of the chain on their spots, in order, up to the first gap."""
@@ -346,6 +348,8 @@ class Chains:
     def _extend(self, now: float, w: Worker, seen: Mapping[str, Seen], free: int, out: ChainPlan) -> int:
         chain = self.chains.setdefault(w.id, [])
         self.covered[w.id] = self._nodes(now, chain, seen)
+        if w.alt < 1.0 and w.goal is None:
+            return free  # on the ground, going nowhere: nothing to keep it connected for
         goal = w.goal or w.at
         hop = self.reach.lo * MARGIN
         planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
@@ -354,23 +358,45 @@ class Chains:
         if chain and chain[-1].relay is None:
             return free  # one asked for, not assigned yet
         last, last_z = planned[-1]
-        spot = toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z)))
+        spot = self._off_parked(last, toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z))))
         key = f"{w.id}#{len(chain)}"
         if self.idle:
             relay = self.idle.pop(0)
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
             return free
+        if not self._launch_clear(seen):
+            return free  # the last relay sent is still climbing out over the others' takeoff spots
         if free <= 0:
-            need, at = 0, last
-            while math.hypot(dist(at, goal), w.alt - self.duty_alt) > hop and need < 50:
-                at = toward(at, goal, hop)
-                need += 1
-            self.stuck[w.id] = f"{w.id} needs {need} more relay(s) to reach its goal and no drone is free"
+            need, at, z = 0, last, last_z
+            while math.hypot(dist(at, goal), w.alt - z) > hop and need < 100:
+                at, z, need = toward(at, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - z))), self.duty_alt, need + 1
+            self.stuck[w.id] = (f"{w.id} needs {need} more relay(s) to reach its goal and no drone is free" if need < 100 else
+                                f"the radio holds hops of {self.reach.lo:.0f} m, too short to reach relays hovering "
+                                f"{self.duty_alt:g} m up: relays cannot bring {w.id} to its goal")
             return free
         chain.append(Slot(spot, None, now))
         out.dispatch.append((key, spot, 0.0))
         return free - 1
+
+    def _off_parked(self, back: Point, spot: Point) -> Point:
+        """`spot`, or nearer `back`, until it is not over a drone on the ground (which would
+        climb into the relay hovering there when it takes off)."""
+        def clear(p: Point) -> bool:
+            return all(dist(p, q) >= PARKED_CLEAR_M for q in self.parked)
+
+        length = dist(back, spot)
+        along = [toward(back, spot, length - k) for k in range(int(length - MIN_STEP_M) + 1)]
+        ux, uy = ((spot[0] - back[0]) / length, (spot[1] - back[1]) / length) if length else (1.0, 0.0)
+        aside = [(spot[0] - uy * k * sign, spot[1] + ux * k * sign) for k in range(1, 13) for sign in (1, -1)]
+        return next((p for p in along + aside if clear(p)), spot)
+
+    def _launch_clear(self, seen: Mapping[str, Seen]) -> bool:
+        """No relay in the air near the drones on the ground: one taking off there climbs
+        through every lower level (relays fly out on levels of their own, ADR 0006)."""
+        asked = any(s.relay is None for c in self.chains.values() for s in c)
+        return not asked and all(abs(o.alt - self.duty_alt) <= 2.0
+                                 or all(dist(o.at, q) >= LAUNCH_CLEAR_M for q in self.parked) for o in seen.values())
 
     def _release(self, workers: Iterable[Worker], out: ChainPlan) -> None:
         hop = self.reach.lo * MARGIN

@@ -34,8 +34,7 @@ steps = step  # the bundle steps' builder: the input `step` (a length) takes its
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
 RENEW_S = 60  # ... and is renewed when less than this is left
 CHAIN_DUTY_S = 600  # mode="chain": a relay's bundle holds its spot this long (renewed too)
-TRANSIT_M = 6  # mode="chain": relays fly out and home on levels this far apart above the duty level …
-MAX_LANES = 4  # … at most this many (fewer on a short radio), taken in turns
+TRANSIT_M = 6  # mode="chain": relays fly out and home on levels this far apart above the duty level
 
 
 def ground_spot(drone):
@@ -231,11 +230,11 @@ def levels(relay, alt):
 
 
 def outbound(relay):
-    """The level a relay flies to its spots at, above the duty level: relays take the
-    levels in turn, as many as stay within the proven hop of the ground."""
+    """The level a relay flies to and from its spots at, above the duty level: one of its
+    own, higher for each relay sent after it. Relays are sent to farther spots later, so
+    one coming down to its spot never crosses the level of one flying over it."""
     if relay.id not in state["lanes"]:
-        levels = max(1, min(MAX_LANES, int((0.8 * relays.chain_hop() - state["duty"]) // TRANSIT_M)))
-        state["lanes"][relay.id] = len(state["lanes"]) % levels + 1
+        state["lanes"][relay.id] = len(state["lanes"]) + 1
     return state["duty"] + state["lanes"][relay.id] * TRANSIT_M
 
 

@@ -194,7 +194,9 @@ class Relays:
             held = self._mission.leashed.get(d.id) if self._mission is not None else None
             if held is not None:
                 goal = Position(held[0], held[1], held[2])
-            workers.append(chains.Worker(d.id, frame.local(d.position), _above(d, d.position.alt) or 0.0,
+            level = flight_altitude(d)  # where it flies, not the levels it climbs or lands through
+            workers.append(chains.Worker(d.id, frame.local(d.position),
+                                         level if level is not None else (_above(d, d.position.alt) or 0.0),
                                          frame.local(goal) if goal is not None else None))
         seen = {}
         for rid, d in drones.items():
@@ -222,10 +224,6 @@ class Relays:
             if drone_id not in besides and t is not None and t.position is not None:
                 out.append((frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt)))
         return out
-
-    def chain_hop(self) -> float:
-        """The hop mode "chain" has proven to hold (metres, 3-D)."""
-        return self._chains.reach.lo if self._chains is not None else chains.FLOOR_M
 
     def chain_joined(self, key: str, relay: Any) -> None:
         if self._chains is not None:
