@@ -49,7 +49,8 @@ MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node b
 SPIKE_MS = 15.0  # a window's mean RTT this far above the best seen held a retransmission (+200 ms / 10)
 RELEASE_AFTER = 5  # plans in a row without need before a relay goes home
 DISPATCH_TIMEOUT_S = 30.0  # a relay asked for and not assigned by then is asked for again
-RESEND_S = 45.0  # a probe heard but not on its trial spot by then is sent there again
+RESEND_S = 45.0  # a probe heard but not on its trial spot by then is sent there again …
+MAX_RESENDS = 2  # … this many times; then the trial counts as failed
 SLOT_RESEND_S = 90.0  # … a chain relay, by then
 
 
@@ -97,6 +98,7 @@ class Slot:
     asked_at: float = 0.0  # when it was asked for, or sent to this spot
     on_spot_since: float | None = None
     hop: float = 0.0  # a probe's trial hop (0: measured, the next one not sent yet)
+    resends: int = 0  # a probe's trial sent again (its move refused, or it came back unmeasured)
 
 
 @dataclass
@@ -273,10 +275,14 @@ class Chains:
                 lost = True  # gone silent on its spot
             else:
                 slot.on_spot_since = None if s.fresh else slot.on_spot_since
-                if s.fresh and now - slot.asked_at > RESEND_S:  # its move was refused or lost: again
-                    slot.asked_at = now
+                if s.fresh and now - slot.asked_at > RESEND_S and slot.resends < MAX_RESENDS:
+                    slot.asked_at = now  # its move was refused or lost: again
+                    slot.resends += 1
                     out.moves.append((slot.relay, slot.spot, DWELL_S + 4.0))
-                return
+                    return
+                if not (s.fresh and now - slot.asked_at > RESEND_S):
+                    return
+                lost = True  # sent again and again and never measured there: that hop does not hold
         if not lost and (slot.on_spot_since is None or now - slot.on_spot_since < DWELL_S):
             return
         own = math.hypot(dist(slot.spot, ORIGIN), self.duty_alt)
@@ -293,7 +299,7 @@ class Chains:
             out.notes.append(f"probe {slot.relay}: a hop of {own:.0f} m did not hold "
                              f"({'not heard' if lost else f'loss {s.loss}, rtt {s.rtt_ms} ms'})")
         slot.on_spot_since = None
-        slot.hop = 0.0
+        slot.hop, slot.resends = 0.0, 0
 
     def _probe(self, now: float, workers: Sequence[Worker], nodes: Sequence[tuple[Point, float]], spare: int,
                out: ChainPlan) -> None:
