@@ -120,6 +120,8 @@ CAUSES = {
     "missing_input": ('enable("needs")\n', "plugin_param", "needs input 'level'"),
     "twice": ('enable("counter")\nenable("counter")\n', "plugin_param", "already enabled"),
     "callback_fails": ('enable("faulty")\nd = assign()\nsleep(5)\n', "plugin_error", "ZeroDivisionError"),
+    "relay_mode": ('enable("relay", mode="chains")\nd = assign()\nsleep(5)\n', "plugin_error",
+                   "relay: mode must be one of measured, distance, chain, not 'chains'"),
 }
 
 
@@ -130,7 +132,7 @@ async def test_plugin_failure_causes(tmp_path: Path, name: str) -> None:
     [(record, _)] = await run(lib, script)
     assert (record.status, record.cause) == ("failed", expected), record.message
     assert message in (record.message or "")
-    if expected == "plugin_error":
+    if name == "callback_fails":
         assert "faulty.py line 3" in (record.message or "")  # where in the plugin
 
 

@@ -29,6 +29,7 @@ crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
 state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {},
          "duty": None, "until": {}, "lanes": {}}
+MODES = ("measured", "distance", "chain")
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
 steps = step  # the bundle steps' builder: the input `step` (a length) takes its name once enabled
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
@@ -278,6 +279,8 @@ def chain_home(relay):
 
 
 def main(drone):
+    if mode not in MODES:
+        raise ValueError(f"relay: mode must be one of {', '.join(MODES)}, not {mode!r}")
     if drone.id in crew:
         if mode == "distance":
             distance(drone)  # relays are followed in turn: chains
