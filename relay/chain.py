@@ -182,6 +182,8 @@ class Chains:
     def allowed(self, worker: str, at: Point, alt: float, goal: Point) -> Point:
         """How far toward `goal` the worker may fly now: the last point of the straight
         way there that a proven node covers (the goal itself when all of it is)."""
+        if not self.reach.known:
+            return at  # while the probe measures, each drone waits where it took off (none crosses another's way)
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
         reach = self.reach.lo * MARGIN
 
