@@ -32,7 +32,8 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
-Point = tuple[float, float]
+from dronefleet.relay.planner import Point, dist, toward
+
 ORIGIN: Point = (0.0, 0.0)
 PROBE = "probe"
 
@@ -54,22 +55,14 @@ MAX_RESENDS = 2  # … this many times; then the trial counts as failed
 SLOT_RESEND_S = 90.0  # … a chain relay, by then
 
 
-def dist(a: Point, b: Point) -> float:
-    return math.hypot(a[0] - b[0], a[1] - b[1])
-
-
-def toward(a: Point, b: Point, d: float) -> Point:
-    """`d` metres from `a` toward `b` (not beyond it); `a` itself if they coincide."""
-    length = dist(a, b)
-    if length == 0:
-        return a
-    f = min(1.0, d / length)
-    return a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f
-
-
 def flat(hop: float, dz: float) -> float:
     """The horizontal length of a 3-D hop of `hop` metres across `dz` metres of height."""
     return math.sqrt(max(0.0, hop * hop - dz * dz))
+
+
+def covers(nodes: Iterable[tuple[Point, float]], p: Point, alt: float, reach: float) -> bool:
+    """Whether a drone at `p`, `alt` metres up, is within `reach` (3-D) of one of `nodes`."""
+    return any(math.hypot(dist(p, n), alt - z) <= reach for n, z in nodes)
 
 
 @dataclass(frozen=True)
@@ -106,7 +99,6 @@ class Reach:
     lo: float = FLOOR_M
     hi: float | None = None
     first_tried: bool = False
-
     trials: int = 0
 
     @property
@@ -188,10 +180,7 @@ class Chains:
         reach = self.reach.lo * MARGIN
 
         def inside(p: Point) -> bool:
-            return any(math.hypot(dist(p, n), alt - z) <= reach for n, z in nodes)
-
-        def clear(p: Point) -> bool:  # not held over a drone that may take off there
-            return all(dist(p, q) >= PARKED_CLEAR_M for q in self.parked)
+            return covers(nodes, p, alt, reach)
 
         if not inside(at):  # drifted out (or its nodes went): back toward the nearest node
             n, z = min(nodes, key=lambda nz: dist(at, nz[0]))
@@ -205,7 +194,7 @@ class Chains:
         else:
             if inside(goal):
                 return goal
-        while not clear(best) and dist(best, at) > 0.5:  # held short of a parked drone, not over it
+        while not self._clear(best) and dist(best, at) > 0.5:  # held short of a parked drone, not over it
             best = toward(best, at, 1.0)
         return best
 
@@ -238,10 +227,8 @@ class Chains:
             out.notes.append(f"the radio holds hops of {self.reach.lo:.0f} m (fails at {self.reach.hi:.0f} m)")
             self.probe = None
         free = spare
-        self.resend: list[tuple[str, Point, float]] = []
         for w in workers:
             free = self._extend(now, w, seen, free, out)
-        out.moves.extend(self.resend)
         self._release(workers, out)
         return out
 
@@ -269,7 +256,7 @@ class Chains:
             return
         s = seen[slot.relay]
         lost = not s.fresh and now - slot.asked_at > DISPATCH_TIMEOUT_S
-        there = s.fresh and dist(s.at, slot.spot) <= ON_SPOT_M and abs(s.alt - self.duty_alt) <= 2.0
+        there = s.fresh and self._on_spot(s, slot.spot)
         if there and slot.on_spot_since is None:
             slot.on_spot_since = now
         elif not there and not lost:
@@ -334,20 +321,29 @@ class Chains:
         most: its best path's longest hop, whichever node its traffic takes."""
         r = flat(trial, self.duty_alt)
         spots = [(r * math.cos(math.radians(b)), r * math.sin(math.radians(b))) for b in range(0, 360, 15)]
-        clear = [p for p in spots if all(dist(p, q) >= PARKED_CLEAR_M for q in self.parked)] or spots
+        clear = [p for p in spots if self._clear(p)] or spots
         return max(clear, key=lambda p: bottleneck((p, self.duty_alt), nodes))
 
-    def _nodes(self, now: float, chain: Sequence[Slot], seen: Mapping[str, Seen]) -> list[tuple[Point, float]]:
-        """The laptop and the relays of the chain on their spots, in order, up to the first gap."""
+    def _on_spot(self, o: Seen, spot: Point) -> bool:
+        return dist(o.at, spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
+
+    def _clear(self, p: Point, gap: float = PARKED_CLEAR_M) -> bool:
+        """Not over (within `gap` across of) a drone on the ground, which may take off there."""
+        return all(dist(p, q) >= gap for q in self.parked)
+
+    def _nodes(self, now: float, chain: Sequence[Slot], seen: Mapping[str, Seen],
+               out: ChainPlan) -> list[tuple[Point, float]]:
+        """The laptop and the relays of the chain on their spots, in order, up to the first
+        gap; a relay heard elsewhere long after it was sent is sent again."""
         nodes = [(ORIGIN, 0.0)]
         gap = False
         for s in chain:
             o = seen.get(s.relay) if s.relay is not None else None
-            there = o is not None and dist(o.at, s.spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
+            there = o is not None and self._on_spot(o, s.spot)
             s.on_spot_since = (s.on_spot_since or now) if there else None
             if o is not None and s.relay is not None and not there and o.fresh and now - s.asked_at > SLOT_RESEND_S:
-                s.asked_at = now  # heard, and not there long after it was sent: its move went wrong
-                self.resend.append((s.relay, s.spot, 0.0))
+                s.asked_at = now  # its move went wrong
+                out.moves.append((s.relay, s.spot, 0.0))
             gap = gap or not there
             if not gap:
                 nodes.append((s.spot, self.duty_alt))
@@ -355,13 +351,13 @@ class Chains:
 
     def _extend(self, now: float, w: Worker, seen: Mapping[str, Seen], free: int, out: ChainPlan) -> int:
         chain = self.chains.setdefault(w.id, [])
-        self.covered[w.id] = self._nodes(now, chain, seen)
+        self.covered[w.id] = self._nodes(now, chain, seen, out)
         if w.alt < 1.0 and w.goal is None:
             return free  # on the ground, going nowhere: nothing to keep it connected for
         goal = w.goal or w.at
         hop = self.reach.lo * MARGIN
         planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
-        if any(math.hypot(dist(n, goal), w.alt - z) <= hop for n, z in planned):
+        if covers(planned, goal, w.alt, hop):
             return free  # the chain (once its relays are there) reaches the goal
         if chain and chain[-1].relay is None:
             return free  # one asked for, not assigned yet
@@ -377,7 +373,7 @@ class Chains:
             return free  # the last relay sent is still climbing out over the others' takeoff spots
         if free <= 0:
             need, at, z = 0, last, last_z
-            while math.hypot(dist(at, goal), w.alt - z) > hop and need < 100:
+            while not covers([(at, z)], goal, w.alt, hop) and need < 100:
                 at, z, need = toward(at, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - z))), self.duty_alt, need + 1
             self.stuck[w.id] = (f"{w.id} needs {need} more relay(s) to reach its goal and no drone is free" if need < 100 else
                                 f"the radio holds hops of {self.reach.lo:.0f} m, too short to reach relays hovering "
@@ -390,21 +386,18 @@ class Chains:
     def _off_parked(self, back: Point, spot: Point) -> Point:
         """`spot`, or nearer `back`, until it is not over a drone on the ground (which would
         climb into the relay hovering there when it takes off)."""
-        def clear(p: Point) -> bool:
-            return all(dist(p, q) >= PARKED_CLEAR_M for q in self.parked)
-
         length = dist(back, spot)
         along = [toward(back, spot, length - k) for k in range(int(length - MIN_STEP_M) + 1)]
         ux, uy = ((spot[0] - back[0]) / length, (spot[1] - back[1]) / length) if length else (1.0, 0.0)
         aside = [(spot[0] - uy * k * sign, spot[1] + ux * k * sign) for k in range(1, 13) for sign in (1, -1)]
-        return next((p for p in along + aside if clear(p)), spot)
+        return next((p for p in along + aside if self._clear(p)), spot)
 
     def _launch_clear(self, seen: Mapping[str, Seen]) -> bool:
         """No relay in the air near the drones on the ground: one taking off there climbs
         through every lower level (relays fly out on levels of their own, ADR 0006)."""
         asked = any(s.relay is None for c in self.chains.values() for s in c)
-        return not asked and all(abs(o.alt - self.duty_alt) <= 2.0
-                                 or all(dist(o.at, q) >= LAUNCH_CLEAR_M for q in self.parked) for o in seen.values())
+        return not asked and all(abs(o.alt - self.duty_alt) <= 2.0 or self._clear(o.at, LAUNCH_CLEAR_M)
+                                 for o in seen.values())
 
     def _release(self, workers: Iterable[Worker], out: ChainPlan) -> None:
         hop = self.reach.lo * MARGIN
@@ -414,7 +407,7 @@ class Chains:
                 continue
             before = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain[:-1]]
             places = [w.at] + ([w.goal] if w.goal is not None else [])
-            needed = not all(any(math.hypot(dist(p, n), w.alt - z) <= hop for n, z in before) for p in places)
+            needed = not all(covers(before, p, w.alt, hop) for p in places)
             rid = chain[-1].relay
             if needed:
                 self.leaving.pop(rid, None)

@@ -206,9 +206,8 @@ def chain(drone):
     if state.get("duty") is None:
         if not any(d.state in ("active", "hold") for d in served.values()):
             return  # the levels are set above the served drones' flights, once they fly
-        # Relays hover above the drones they serve and fly to their spots on one of two
-        # levels above that (by turns: two sent at once do not share one), home above
-        # those: no relay ever crosses a level another drone flies or hovers at.
+        # Relays hover above the drones they serve and fly to and from their spots on
+        # levels of their own above that (outbound): none crosses a served drone's level.
         state["duty"] = relays.above_flights(list(served.values()), min_separation + 1)
     plan = relays.chain(list(served.values()), crew, ground_spot(drone), state["duty"], good_m=good_m)
     for note in plan.notes:

@@ -52,6 +52,16 @@ class RelayPlan:
     notes: list[str]
 
 
+@dataclass(frozen=True)
+class ChainOrders:
+    """One plan of mode "chain": what the plugin does now."""
+
+    moves: list[tuple[str, Position, float]]  # (relay, spot, seconds a probe dwells there before coming back; 0: stays)
+    dispatch: list[tuple[Position, float, str]]  # (spot, dwell as above, the slot's key for `chain_joined`)
+    home: list[str]
+    notes: list[str]
+
+
 def _goal(drone: Any) -> Position | None:
     cmd = drone.cmd
     return cmd.target if cmd is not None and cmd.name in ("goto", "move") and isinstance(cmd.target, Position) else None
@@ -174,7 +184,7 @@ class Relays:
     # ---- chains on proven hops (mode="chain", relay/chain.py) -----------------------
 
     def chain(self, served: Sequence[Any], drones: Mapping[str, Any], ground: Any, duty_alt: float,
-              good_m: float | None = None, heard_s: float = 2.5) -> RelayPlan:
+              good_m: float | None = None, heard_s: float = 2.5) -> ChainOrders:
         """One plan of `mode="chain"`: `served` the mission's drones, `drones` relay id →
         wrapper for every relay on duty, `duty_alt` the relays' altitude above the ground
         station, `good_m` the radio model's good range (the first hop tried). Leashes the
@@ -200,17 +210,16 @@ class Relays:
                                          frame.local(goal) if goal is not None else None))
         seen = {}
         for rid, d in drones.items():
-            t = d._telem()
             link = d.link
-            fresh = t is not None and self._mission is not None and self._mission.heard_within(rid, heard_s)
+            fresh = self._mission is not None and self._mission.heard_within(rid, heard_s)
             seen[rid] = chains.Seen(frame.local(d.position), _above(d, d.position.alt) or 0.0,
                                     link.loss if link is not None else None, link.rtt_ms if link is not None else None,
                                     fresh)
         result = self._chains.plan(now, workers, seen, self.spare(), self._mesh_nodes(frame, set(seen) | set(self._served)))
-        return RelayPlan(
+        return ChainOrders(
             moves=[(rid, frame.world(pt), hold) for rid, pt, hold in result.moves],
-            dispatch=[(frame.world(pt), hold, key) for key, pt, hold in result.dispatch],  # type: ignore[misc]
-            home=result.home, scale=1.0, steady=0, notes=result.notes,
+            dispatch=[(frame.world(pt), hold, key) for key, pt, hold in result.dispatch],
+            home=result.home, notes=result.notes,
         )
 
     def _mesh_nodes(self, frame: Frame, besides: set[str]) -> list[tuple[chains.Point, float]]:
