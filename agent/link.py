@@ -58,6 +58,10 @@ class LinkWindow:
     def add(self, rtt_ms: float | None) -> None:
         self._outcomes.append(rtt_ms)
 
+    def outcomes(self) -> list[float | None]:
+        """The window's probe outcomes, oldest first."""
+        return list(self._outcomes)
+
     def summary(self) -> LinkSummary:
         answered = [r for r in self._outcomes if r is not None]
         loss = 1.0 - len(answered) / len(self._outcomes) if self._outcomes else 1.0

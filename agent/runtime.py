@@ -31,6 +31,7 @@ from dronefleet.agent.neighbours import Neighbours, new_bridge_zids
 from dronefleet.agent.prober import LinkProber
 from dronefleet.agent.telemetry import to_telemetry
 from dronefleet.bus.clock import Clock, SystemClock
+from dronefleet.bus.mesh_policy import unsure
 from dronefleet.bus.port import Bus, Sample, echo
 from dronefleet.schemas.about import About
 from dronefleet.schemas.auth import verifier_of
@@ -40,7 +41,7 @@ from dronefleet.schemas.commands import Cancel, CommandReply, Land, Return, deco
 from dronefleet.schemas.errors import InvalidMessage
 from dronefleet.schemas.keys import Keys, check_id
 from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
-from dronefleet.schemas.telemetry import Telemetry
+from dronefleet.schemas.telemetry import GROUND_PEER, Telemetry
 
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
@@ -107,6 +108,11 @@ class Agent:
     def ground_silent(self) -> bool:
         """No answer from the ground for two probe periods."""
         return self.lost_link.silent(self.clock.monotonic())
+
+    def ground_unsure(self) -> bool:
+        """The ground silent, or one of its last probes lost or retransmitted: the
+        drone links through good neighbours before its direct link is lost (ADR 0003)."""
+        return self.ground_silent() or unsure(self.prober.windows[GROUND_PEER].outcomes())
 
     def _on_ground_contact(self, now: float) -> None:
         now_ms = self.clock.time_ms()
@@ -393,20 +399,27 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
     try:
         log.info("%s: flight controller %s connected; router on %s joins the mesh via %s",
                  drone_id, config.fc, ", ".join(config.listen) or "(no listener)", ", ".join(config.connect))
-        bus = await ZenohBus.open("router", config.connect, config.listen, mesh_interface=config.mesh_interface,
-                                  extra=secured)
+        # On a radio the drone's link to the ground is its agent's uplink (agent/neighbours.py),
+        # which it may let go; elsewhere its router dials the ground itself.
+        bus = await ZenohBus.open("router", [] if config.mesh_interface else config.connect, config.listen,
+                                  mesh_interface=config.mesh_interface, extra=secured)
         try:
-            await _join(bus, Keys(config.namespace), drone_id)
-            agent = Agent(drone_id, config, fc, bus, clock)
             if config.mesh_interface is None:
-                await agent.run()
+                await _join(bus, Keys(config.namespace), drone_id)
+                await Agent(drone_id, config, fc, bus, clock).run()
             else:
-                async with asyncio.TaskGroup() as tg:
-                    tg.create_task(agent.run(), name=f"{drone_id} agent")
-                    neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
-                                            own_endpoint(config.listen) or "", agent.ground_silent, extra=secured,
-                                            zids=bridge_zids)
-                    tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
+                neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
+                                        own_endpoint(config.listen) or "", lambda: agent.ground_unsure(),
+                                        ground_silent=lambda: agent.ground_silent(), extra=secured, zids=bridge_zids)
+                await neighbours.start()
+                try:
+                    await _join(bus, Keys(config.namespace), drone_id)
+                    agent = Agent(drone_id, config, fc, bus, clock)
+                    async with asyncio.TaskGroup() as tg:
+                        tg.create_task(agent.run(), name=f"{drone_id} agent")
+                        tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
+                finally:
+                    await neighbours.close()
         finally:
             await bus.close()
     finally:

@@ -1,8 +1,10 @@
 """Which neighbours a drone links through, and when (ADR 0003): the pure decisions of
-agent/neighbours.py, kept apart from its I/O (and below `sim`, so the fast-time radio
-can follow them too; ADR 0003 says why it does not yet)."""
+agent/neighbours.py, kept apart from its I/O and below `sim`, so the fast-time radio (sim/radio_air.py)
+follows the same decisions."""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
 GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
@@ -10,25 +12,42 @@ KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers thi
 MAX_BRIDGES = 2
 DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
 START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
+UNSURE_PROBES = 3  # the last probes to the ground that must have come back clean …
+RETRANSMITTED_MS = 150.0  # … each within this (TCP's first retransmission is 200 ms)
 
 
 def choose(rates: dict[str, float], bridged: set[str]) -> set[str]:
     """Which neighbours to hold a bridge to, when the drone needs one (pure).
 
-    Open bridges are kept while their neighbour answers at least `KEEP_RATE`; new ones
-    go to neighbours answering `GOOD_RATE`, best first, up to `MAX_BRIDGES`; when no
-    neighbour is good and none is kept, the best ones answering at least `KEEP_RATE`
-    (a drone in a chain of relays hears the next one up and the one it carries about
-    equally, and cannot tell which leads to the ground). Never one answering less: a
-    bridge over a hop that bad carried nothing through, and stalled the neighbour's
-    router for seconds (bench/mesh_stall.py, frozen: 9.4 s)."""
-    keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: -rates[z])
-    good = sorted((z for z, r in rates.items() if r >= GOOD_RATE and z not in keep), key=lambda z: (-rates[z], z))
-    chosen = (keep + good)[:MAX_BRIDGES]
-    if not chosen:
-        heard = sorted((z for z, r in rates.items() if r >= KEEP_RATE), key=lambda z: (-rates[z], z))
-        chosen = heard[:MAX_BRIDGES]
-    return set(chosen)
+    Good neighbours (answering at least `GOOD_RATE`) first, those already bridged
+    before others, then best first, up to `MAX_BRIDGES`. Only when no neighbour is
+    good: the open bridges answering at least `KEEP_RATE` stay, or else the best ones
+    answering that often are tried (a drone in a chain of relays hears the next one up
+    and the one it carries about equally, and cannot tell which leads to the ground).
+    A fair bridge gives way as soon as a good neighbour is heard: routing takes the
+    fewest hops, so a fair hop back down a chain (a worker passing its relays) carried
+    the drone's traffic over a lossy link while a clean path was there (fast-time
+    corpus, ADR 0006). Never one answering under `KEEP_RATE`: a bridge over a hop that
+    bad carried nothing through, and stalled the neighbour's router for seconds
+    (bench/mesh_stall.py, frozen: 9.4 s)."""
+    good = sorted((z for z, r in rates.items() if r >= GOOD_RATE), key=lambda z: (z not in bridged, -rates[z], z))
+    if good:
+        return set(good[:MAX_BRIDGES])
+    keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: (-rates[z], z))
+    if keep:
+        return set(keep[:MAX_BRIDGES])
+    heard = sorted((z for z, r in rates.items() if r >= KEEP_RATE), key=lambda z: (-rates[z], z))
+    return set(heard[:MAX_BRIDGES])
+
+
+def unsure(last_rtts_ms: Sequence[float | None]) -> bool:
+    """Whether the ground link is in trouble, from the last probes' round trips (None:
+    unanswered): one of the last UNSURE_PROBES lost or retransmitted. The drone then
+    takes bridges to good neighbours *before* its direct link is lost, so that when its
+    lease runs out (2 s of silence) the traffic has a way at once: waiting for the loss
+    first, then a round to choose and a handshake, left a worker crossing the edge of
+    the laptop's range unheard for 4 s (fast-time corpus, world 6; ADR 0006)."""
+    return any(r is None or r > RETRANSMITTED_MS for r in list(last_rtts_ms)[-UNSURE_PROBES:])
 
 
 class NeedWatch:
@@ -54,3 +73,37 @@ class NeedWatch:
             if now >= self.grace_until or self.needed:
                 self.needed = True
         return self.needed
+
+
+class DirectWatch:
+    """Whether the drone holds its own link to the ground (pure; times monotonic).
+
+    Routing takes the fewest hops, so a direct link that is lossy but up carries the
+    drone's traffic even while a clean way through a neighbour is open: a relay 40 m
+    from the laptop on a radio good to 31 m routed a whole chain over its 31 %-loss
+    direct link (fast-time corpus, world 123; ADR 0003). So while the drone needs
+    bridges, its direct link is let go when the laptop's echo (one datagram a round,
+    never retransmitted, like a scout) comes back less than GOOD_RATE and a bridge to
+    a good neighbour is up - unless a neighbour's traffic comes through this drone
+    (`carrying`): a relay cannot tell whether its good neighbours lead to the laptop or
+    hang on it (the thesis's relay let go for the worker it carried, and the worker lost
+    the ground 3.4 s). It is held again as soon as any of that changes, or when the
+    ground has gone silent with it let go (the neighbour led nowhere: then it is held
+    for HOLD_S whatever the echo says). A laptop that never echoes (`rate` None: no
+    echo service, a wired bench) keeps the link held."""
+
+    HOLD_S = 15.0
+
+    def __init__(self) -> None:
+        self.held = True
+        self._hold_until = 0.0
+
+    def update(self, now: float, *, needed: bool, rate: float | None, good_bridge: bool, carrying: bool,
+               silent: bool) -> bool:
+        if not self.held and silent:
+            self._hold_until = now + self.HOLD_S
+        if now < self._hold_until:
+            self.held = True
+        else:
+            self.held = not needed or carrying or rate is None or rate >= GOOD_RATE or not good_bridge
+        return self.held

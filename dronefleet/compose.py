@@ -38,6 +38,7 @@ from dronefleet.agent.config import AgentConfig
 from dronefleet.agent.fc_sim import SimFlightController
 from dronefleet.agent.runtime import Agent
 from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.echo import serve_echoes
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.mesh_security import mesh_security
 from dronefleet.bus.zenoh_bus import ZenohBus
@@ -130,6 +131,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     try:
         bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
             config.security, "ground", config.listen, router=True, namespace=config.namespace))
+        echoes = await serve_echoes(list(config.listen))  # drones measure their hop to the laptop (ADR 0003)
         try:
             station = GroundStation(config, bus, events)
             station.record_missions(data_dir / "missions")
@@ -153,6 +155,8 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
                     await asyncio.wait([http_task])
                     station_task.cancel()
         finally:
+            for echo in echoes:
+                echo.close()
             await bus.close()
     finally:
         store.close()
@@ -199,7 +203,8 @@ class SimField:
         self.vehicles: dict[str, Vehicle] = {}
         # The radio (world `radio:` or the argument): links follow the vehicles.
         radio = radio or world.radio
-        self.air = RadioAir(radio, self._where, self.clock, seed) if radio is not None else None
+        self._agent_runtimes: dict[str, Agent] = {}
+        self.air = RadioAir(radio, self._where, self.clock, seed, agent=self._agent_runtimes.get) if radio is not None else None
         self.network = MemoryNetwork(medium=self.air)
         self._tmp = tempfile.TemporaryDirectory(prefix="fleet-sim-") if data_dir is None else None
         self.data_dir = data_dir or Path(self._tmp.name)  # type: ignore[union-attr]
@@ -255,6 +260,7 @@ class SimField:
             if self.air is not None:
                 self.air.tick()  # the new drone's links
             agent = Agent(spec.id, self._agent_config(spec), fc, self._bus(spec.id), self.clock)
+            self._agent_runtimes[spec.id] = agent
             self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
             self._tasks.append(self._agents[spec.id])
             for fault in spec.faults:

@@ -15,6 +15,8 @@ from dronefleet.schemas.telemetry import Position
 FAILSAFE_ID_PREFIX = "failsafe-"  # command ids of what an agent sends itself when it loses the ground
 FAILSAFE_REASON = "lost-link failsafe"  # starts the reason of a command its failsafe ended
 GEOFENCE_OUTSIDE = "outside the geofence"  # a failsafe's reason after "return: " (SPEC §11)
+RETURNING = "returning"  # why a goto is refused while a return (the failsafe's too) runs
+
 
 
 def ended_by_failsafe(status: CommandStatus) -> bool:

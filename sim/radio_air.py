@@ -1,7 +1,11 @@
 """The radio in fast time: the Medium of the in-process bus (bus/memory.py), SPEC §8.
 
 The same RadioModel as the emulated network, and the same mesh shape as the real one
-(ADR 0003): every pair of nodes in range may hold a link; a link lives while something
+(ADR 0003): every drone may hold a link to the ground; a drone holds links to other
+drones only as the agents' bridges (bus/mesh_policy.py, the same decisions as
+agent/neighbours.py): while its direct link is not working (down, or its agent unsure
+of the ground: a probe lost or retransmitted), to the neighbours its scouts hear best,
+until the direct link has worked a while. A link lives while something
 crosses it within the lease and is re-opened by the agents' connect retries; messages
 travel the fewest-hop path over live links, each hop losing packets with the model's
 loss, which a reliable transport turns into retransmission delay, and a message that
@@ -22,8 +26,10 @@ import random
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.mesh_policy import ANSWER_WINDOW, GOOD_RATE, DirectWatch, NeedWatch, choose
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
 LEASE_S = 2.0  # a link with nothing through it for this long is closed
@@ -31,6 +37,7 @@ KEEPALIVE_S = LEASE_S / 4  # how often each link shows it is alive
 RETRY_S = 1.0  # agents retry a closed link this often
 HANDSHAKE_PACKETS = 4  # what must cross to open a link
 RTO_S = 0.2  # first retransmission; doubles on each further loss
+ROUND_S = 1.0  # agents scout their neighbours and choose bridges once a round (agent/neighbours.py)
 
 
 @dataclass
@@ -42,12 +49,20 @@ class _Link:
     retry_at: float = 0.0
 
 
+class GroundView(Protocol):
+    """What an agent makes of the ground from its probes (agent/runtime.py)."""
+
+    def ground_unsure(self) -> bool: ...
+    def ground_silent(self) -> bool: ...
+
+
 class RadioAir:
     """Links between the nodes of a simulated field, following where they are."""
 
     def __init__(self, model: RadioModel, where: Callable[[], Mapping[str, Spot3]],
-                 clock: VirtualClock, seed: int = 0) -> None:
+                 clock: VirtualClock, seed: int = 0, agent: Callable[[str], GroundView | None] | None = None) -> None:
         self.model = model
+        self.agent = agent or (lambda drone: None)  # what a drone's agent makes of the ground (its probes)
         self.where = where
         self.clock = clock
         self.seed = seed
@@ -57,6 +72,11 @@ class RadioAir:
         self._paths: dict[tuple[str, str], list[str] | None] = {}
         self._in_flight: dict[tuple[str, str], tuple[float, float]] = {}  # per directed hop: (last entry, its arrival)
         self._listeners: list[Callable[[], None]] = []
+        self.bridges: dict[str, set[str]] = {}  # per drone: the neighbours it holds a bridge to
+        self._needs: dict[str, NeedWatch] = {}
+        self._answers: dict[tuple[str, str], deque[bool]] = {}  # per drone and neighbour: its scouts answered
+        self._next_round = 0.0
+        self._direct: dict[str, DirectWatch] = {}
         self.tick()
 
     # Medium ------------------------------------------------------------------
@@ -144,18 +164,26 @@ class RadioAir:
 
     def tick(self) -> None:
         """Follow the nodes: each link's loss from their distance; links close when
-        their lease runs out and open again when a retry's handshake gets through."""
+        their lease runs out, or when no drone holds them as a bridge any more, and
+        open again when a retry's handshake gets through."""
         where = dict(self.where())
         now = self.clock.monotonic()
         names = sorted(where)
         changed = set(names) != set(self._neighbours)
+        if now >= self._next_round:
+            self._next_round = now + ROUND_S
+            self._round(where, now)
         for i, a in enumerate(names):
             for b in names[i + 1:]:
                 link = self.links.setdefault((a, b), _Link())
                 d = distance_3d(where[a], where[b])
                 link.loss, link.delay_s = self.model.loss(d), self.model.delay(d) / 1000
                 rng = self._rng("link", a, b)
-                if link.up:
+                if not self._held(a, b):
+                    if link.up:
+                        link.up, changed = False, True
+                    link.retry_at = now  # a bridge chosen later dials at once
+                elif link.up:
                     if rng.random() >= link.loss:
                         link.heard = now
                     elif now - link.heard >= LEASE_S:
@@ -174,6 +202,42 @@ class RadioAir:
         self._paths.clear()
         for callback in self._listeners:
             callback()
+
+    def _held(self, a: str, b: str) -> bool:
+        """A drone's link to the ground while its agent holds it (DirectWatch); a link
+        between two drones while one of them holds it as a bridge."""
+        if GROUND in (a, b):
+            watch = self._direct.get(b if a == GROUND else a)
+            return watch is None or watch.held
+        return b in self.bridges.get(a, ()) or a in self.bridges.get(b, ())
+
+    def _round(self, where: Mapping[str, Spot3], now: float) -> None:
+        """Each drone's agent scouts once and echoes the laptop once (a datagram and its
+        answer must both cross, no retransmission), decides its bridges from the answer
+        rates while its direct link is not working, and whether to hold that link
+        (agent/neighbours.py)."""
+        drones = sorted(n for n in where if n != GROUND)
+        for a in drones:
+            rates: dict[str, float] = {}
+            for b in [*drones, GROUND]:  # the laptop: its echo (agent/neighbours.py), like a scout
+                if b == a:
+                    continue
+                answered = self._answers.setdefault((a, b), deque(maxlen=ANSWER_WINDOW))
+                loss = self.model.loss(distance_3d(where[a], where[b]))
+                answered.append(self._rng("scout", a, b).random() < (1.0 - loss) ** 2)
+                rates[b] = sum(answered) / len(answered)
+            ground = rates.pop(GROUND)
+            need = self._needs.setdefault(a, NeedWatch(now))
+            direct = self.links.get(_pair(a, GROUND))
+            agent = self.agent(a)
+            unsure = agent is not None and agent.ground_unsure()
+            needed = need.update(direct is not None and direct.up and not unsure, now)
+            self.bridges[a] = choose(rates, self.bridges.get(a, set())) if needed else set()
+            good_bridge = any(rates[b] >= GOOD_RATE and self.links[_pair(a, b)].up for b in self.bridges[a])
+            carrying = any(a in self.bridges.get(d, ()) and self.links[_pair(a, d)].up for d in drones if d != a)
+            self._direct.setdefault(a, DirectWatch()).update(
+                now, needed=needed, rate=ground, good_bridge=good_bridge, carrying=carrying,
+                silent=agent is not None and agent.ground_silent())
 
 
 def _pair(a: str, b: str) -> tuple[str, str]:

@@ -446,6 +446,31 @@ print(f"moved {start.distance(d.position):.0f} m")
     assert abs(float(moved.split()[1]) - 60) < 3, log
 
 
+async def test_a_goto_its_lost_link_return_interrupted_takes_the_drone_back_when_the_link_is_back() -> None:
+    """As above with the failsafe's action `return`: the drone turns home, and a goto
+    sent again is refused while a return runs ("returning"); the mission stops the
+    return (cancel) once the drone hears it and sends the goto again (before, the
+    mission ended cmd_exec "goto drone01 refused: returning": corpus worlds 63, 95, 123)."""
+    def twenty_metres_out(sim: SimField) -> None:
+        home = first_home(sim)
+        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 20, 7.0)
+
+    sim, (record, log), _ = await fly("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+start = d.position
+move(d, forward=60*m, speed=5*m/s)
+print(f"moved {start.distance(d.position):.0f} m")
+""", fire_world(RadioModel()), max_s=200, prepare=twenty_metres_out,
+        lost_link=LostLinkPolicy(timeout_s=3, action="return", return_after_s=60))
+    assert record.status == "finished", (record, log)
+    assert "drone01: its lost-link failsafe is flying it home; stopping that to send goto again, as it hears " \
+           "the ground" in log, log
+    moved = next(line for line in log if line.startswith("moved"))
+    assert abs(float(moved.split()[1]) - 60) < 3, log
+
+
 async def test_a_lost_link_hold_does_not_stop_a_drone_on_its_way_home(caplog: pytest.LogCaptureFixture) -> None:
     """A 6 s radio shadow (the lost-link timeout is 3 s, action hold) hits drone01 while
     it returns: the hold would stop it in the air, out of reach; the agent lets the

@@ -64,7 +64,10 @@ class Field:
         return self.sim.clock
 
     def state(self, drone_id: str) -> str:
-        return self.sim.station.registry.info(drone_id).state
+        """Its state at the ground; "unheard" before the ground first heard it (a drone out of
+        the laptop's reach comes in through a neighbour once its agent bridges to one)."""
+        registry = self.sim.station.registry
+        return registry.info(drone_id).state if drone_id in registry else "unheard"
 
     async def until(self, predicate: Callable[[], bool], max_s: float, what: str) -> float:
         """Advance virtual time in 0.1 s steps until `predicate` holds; the time it did."""

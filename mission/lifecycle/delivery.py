@@ -22,11 +22,17 @@ from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected, InvalidMes
 from dronefleet.schemas.fence import CONFLICT
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.geo import distance_m
-from dronefleet.schemas.status import CommandStatus, ended_by_failsafe
+from dronefleet.schemas.status import RETURNING, CommandStatus, ended_by_failsafe
 
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
+
+
+class _TakenBack(Exception):  # noqa: N818 - a signal, not an error
+    """A drone's failsafe return was stopped to send a command again (`_deliver`)."""
+
+
 BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
 
 
@@ -65,7 +71,7 @@ class CommandDelivery:
     _pushed: int
     _link_back_at: dict[str, asyncio.Future[None]]
     plugin_drones: dict[str, str]
-    leash: Callable[[str, float, float, float | None], tuple[float, float, str | None] | None] | None
+    leash: Callable[[str, float, float, float | None], tuple[float, float, str | None, str] | None] | None
     leashed: dict[str, tuple[float, float, float | None]]
 
     if TYPE_CHECKING:
@@ -90,7 +96,11 @@ class CommandDelivery:
         if name == "goto" and self.leash is not None and drone_id not in self.plugin_drones and "lat" in body:
             await self._on_leash(drone_id, body)
         for interrupted in range(RESUME_TRIES + 1):
-            status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
+            try:
+                status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear,
+                                                  take_back=interrupted > 0)
+            except _TakenBack:
+                status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
                 break
             if interrupted == RESUME_TRIES:
@@ -108,18 +118,17 @@ class CommandDelivery:
         LEASH_LIMIT_S, the mission ends `requirements` naming them."""
         goal = (float(body["lat"]), float(body["lon"]), float(body["alt"]) if "alt" in body else None)
         sent: tuple[float, float] | None = None
-        said = False
+        said: str | None = None
         stuck_since: float | None = None
         try:
             while self.leash is not None and (verdict := self.leash(drone_id, *goal)) is not None:
-                lat, lon, stuck = verdict
+                lat, lon, stuck, why = verdict
                 self.leashed[drone_id] = goal
                 now = self.clock.monotonic()
-                if not said:
-                    said = True
+                if said != why:
+                    said = why
                     short = distance_m(lat, lon, goal[0], goal[1])
-                    self.log("info", f"{drone_id}: held at the edge of its relay chain, {short:.0f} m short of its goal, "
-                                     "until relays are there")
+                    self.log("info", f"{drone_id}: held {why}, {short:.0f} m short of its goal")
                 stuck_since = (stuck_since or now) if stuck else None
                 if stuck and stuck_since is not None and now - stuck_since >= LEASH_LIMIT_S:
                     raise self.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
@@ -130,7 +139,7 @@ class CommandDelivery:
         finally:
             self.leashed.pop(drone_id, None)
         if said:
-            self.log("info", f"{drone_id}: its relay chain reaches the goal; going on")
+            self.log("info", f"{drone_id}: nothing holds it any more; going on to its goal")
 
     async def _leash_step(self, drone_id: str, body: dict[str, Any]) -> bool:
         """One leg of a held goto, not waited for. Refused (another drone's spot, say) or
@@ -144,7 +153,7 @@ class CommandDelivery:
         return True
 
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
-                            wait_clear: bool) -> CommandStatus | None:
+                            wait_clear: bool, take_back: bool = False) -> CommandStatus | None:
         self.check_assigned(drone_id)
         if self._out_of_reach(drone_id):  # the ground would refuse it (unknown)
             await self._heard_again(drone_id, name)
@@ -155,7 +164,8 @@ class CommandDelivery:
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
-                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode(), wait_clear)
+                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode(), wait_clear,
+                                    take_back)
                 if not wait:
                     return None
                 self._sent[command_id].accepted = self.clock.monotonic()
@@ -163,7 +173,7 @@ class CommandDelivery:
                     status = await self._outcome_or_there(fut, drone_id, command_id, body)
                 else:
                     status = await self._outcome(fut, drone_id)
-        except (asyncio.CancelledError, MissionOver):
+        except (asyncio.CancelledError, MissionOver, _TakenBack):
             raise
         except Exception as exc:  # noqa: BLE001
             log.exception("mission %s: %s %s", self.id, name, drone_id)
@@ -178,14 +188,18 @@ class CommandDelivery:
             raise self.setback("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
 
-    async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False) -> None:
+    async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False,
+                       take_back: bool = False) -> None:
         """Send a command; with no answer, send it again (same command id: the agent
         runs it once) each time the drone is heard, before the mission gives up on it
         (cmd_exec after DELIVERY_TRIES heard and unanswered). A drone not heard either
         is out of reach, whatever the ground's liveliness says yet: tried again for
         mission.link_grace_s, then the mission ends link_lost. With `wait_clear`, a
         target another drone holds (409 conflict) is tried again each time that drone
-        reports, for up to mission.clear_wait_s."""
+        reports, for up to mission.clear_wait_s. With `take_back` (a command sent again
+        after the drone's lost-link failsafe interrupted it), a drone its failsafe is
+        flying home (a goto is refused while it returns) is stopped first, once: it hears
+        the ground again, and the mission still wants it where it was going."""
         attempt, waited_for, unheard_since = 1, None, None
         give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
         while True:
@@ -218,6 +232,13 @@ class CommandDelivery:
                 if exc.code == STATE_UNKNOWN:  # the ground stopped hearing it before the mission heard so
                     await self._heard_again(drone_id, name)
                     continue
+                if take_back and exc.reason == RETURNING:
+                    take_back = False
+                    self.log("warn", f"{drone_id}: its lost-link failsafe is flying it home; stopping that to send "
+                                     f"{name} again, as it hears the ground")
+                    await self.station.command(drone_id, json.dumps(
+                        {"cmd": "cancel", "command_id": self.station.new_command_id()}).encode(), self.id)
+                    raise _TakenBack from None  # sent again under a new id: the agent answers an id it saw as before
                 if not (wait_clear and exc.code == CONFLICT and exc.other) or self.clock.monotonic() > give_up:
                     raise
                 if waited_for != exc.other:

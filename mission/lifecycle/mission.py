@@ -92,8 +92,8 @@ class Mission(CommandDelivery):
         self._doing: dict[str, tuple[Any, ...]] = {}  # subroutine → what it last reported
         self._heard_at: dict[str, float] = {}  # drone id → when its telemetry last came (mission clock)
         # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
-        # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on, or None).
-        self.leash: Callable[[str, float, float, float | None], tuple[float, float, str | None] | None] | None = None
+        # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
+        self.leash: Callable[[str, float, float, float | None], tuple[float, float, str | None, str] | None] | None = None
         self.leashed: dict[str, tuple[float, float, float | None]] = {}  # drone → the goal of its held goto
 
     @property

@@ -18,8 +18,12 @@ from dronefleet.mission.script import units
 from dronefleet.mission.script.geo import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
-from dronefleet.relay import planner
+from dronefleet.relay import planner, ways
 from dronefleet.sim.projection import LocalFrame
+
+# Where a held goto may go now: (lat, lon, why no drone is free for the relays it needs
+# or None, what holds it: "at the edge of its relay chain" or "out of drone02's way").
+Leash = tuple[float, float, str | None, str]
 
 if TYPE_CHECKING:
     from dronefleet.mission.lifecycle.mission import Mission
@@ -92,6 +96,7 @@ class Relays:
         self._chains: chains.Chains | None = None
         self._frame: Frame | None = None
         self._served: dict[str, Any] = {}
+        self._ways = ways.Ways()
 
     def now(self) -> float:
         """Seconds on the mission's clock (monotonic; virtual in fast time)."""
@@ -224,15 +229,7 @@ class Relays:
 
     def _mesh_nodes(self, frame: Frame, besides: set[str]) -> list[tuple[chains.Point, float]]:
         """Every other drone the ground knows (spot, metres above field level): all route."""
-        if self._mission is None:
-            return []
-        registry = self._mission.station.registry
-        out = []
-        for drone_id in registry.ids():
-            t = registry.telemetry(drone_id)
-            if drone_id not in besides and t is not None and t.position is not None:
-                out.append((frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt)))
-        return out
+        return [((x, y), alt) for drone_id, (x, y, alt) in self._everyone(frame).items() if drone_id not in besides]
 
     def chain_joined(self, key: str, relay: Any) -> None:
         if self._chains is not None:
@@ -248,20 +245,39 @@ class Relays:
             return None
         return self._frame.world(self._chains.safe)
 
-    def leash(self, drone_id: str, lat: float, lon: float, alt: float | None) -> tuple[float, float, str | None] | None:
+    def leash(self, drone_id: str, lat: float, lon: float, alt: float | None) -> Leash | None:
         """Where a served drone's goto to (lat, lon, alt AMSL) may go now: None for all
-        the way, else (lat, lon) of the edge of what its chain covers and, when no drone
-        is free for the relays it needs, why it cannot go on."""
+        the way, else (lat, lon) of where it may go and why not further: the edge of
+        what its chain covers (with, when no drone is free for the relays it needs,
+        `stuck` naming them) or another drone's way (relay/ways.py)."""
         ch, frame, d = self._chains, self._frame, self._served.get(drone_id)
         if ch is None or frame is None or d is None or drone_id not in ch.covered:
             return None
-        above = _above(d, alt) if alt is not None else _above(d, d.position.alt)
+        here = _above(d, d.position.alt) or 0.0
+        above = _above(d, alt) if alt is not None else here
         goal = frame.local(Position(lat, lon))
-        allowed = ch.allowed(drone_id, frame.local(d.position), above or 0.0, goal)
-        if chains.dist(allowed, goal) < 0.5:
+        at = frame.local(d.position)
+        allowed = ch.allowed(drone_id, at, above or 0.0, goal)
+        end, other = self._ways.clear(drone_id, (*at, here), (*allowed, above or here), self._everyone(frame),
+                                      set(self._served), self.now())
+        if chains.dist(end[:2], goal) < 0.5:
             return None
-        edge = frame.world(allowed)
-        return edge.lat, edge.lon, ch.stuck.get(drone_id)
+        cut = other is not None and chains.dist(end[:2], allowed) >= 0.5  # short of the chain's edge: another's way
+        edge = frame.world(end[:2])
+        return (edge.lat, edge.lon, None if cut else ch.stuck.get(drone_id),
+                f"out of {other}'s way" if cut else "at the edge of its relay chain")
+
+    def _everyone(self, frame: Frame) -> dict[str, tuple[float, float, float]]:
+        """Where every drone the ground knows is (local metres, metres above field level)."""
+        if self._mission is None:
+            return {}
+        registry = self._mission.station.registry
+        out = {}
+        for drone_id in registry.ids():
+            t = registry.telemetry(drone_id)
+            if t is not None and t.position is not None:
+                out[drone_id] = (*frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt))
+        return out
 
 
 def _above(drone: Any, alt: float | None) -> float | None:

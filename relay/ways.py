@@ -1,0 +1,134 @@
+"""Keeping leashed drones out of each other's way (issue 32): pure code, no I/O.
+
+The leash (relay/chain.py) decides how far a worker's goto may go for its radio link;
+this decides how far it may go without passing another drone. Workers of one mission
+take off side by side and set out in different directions, so their straight ways
+crossed near the laptop: in the corpus, 20 of 200 worlds had two flying drones closer
+than 5 m, most of them two workers setting out. A way is declared when it is flown:
+
+- a worker's next leg (from where it is, toward where the leash lets it go) is cut
+  short where it would come within CLEAR_M (3-D) of another worker's remaining declared
+  leg or of the column above a worker that has not taken off yet (it will climb
+  there), or within AROUND_M of where any other drone is now (relays keep their own
+  levels: relay/chain.py);
+- cut to nothing, the worker waits where it is; the other drone's way clears as it
+  flies (its remaining leg is from where it is now);
+- a worker already closer than that to another (they take off side by side) may fly
+  any way that does not bring it closer still;
+- two workers each waiting on the other: the first by name goes; a worker kept waiting
+  YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+Point3 = tuple[float, float, float]  # metres north, east, up (above the laptop's level)
+
+CLEAR_M = 8.0  # from another worker's way: the 5 m the drones must keep, plus a second of flight before a hold takes effect
+AROUND_M = 5.5  # from where another drone (a relay) is: relays hover 6 m above the workers' level, over their ways
+AIRBORNE_M = 1.0
+YIELD_LIMIT_S = 20.0
+SEARCH_STEPS = 12  # halvings of the leg when looking for its clear part
+
+
+def _sub(a: Point3, b: Point3) -> Point3:
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _dot(a: Point3, b: Point3) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _along(a: Point3, b: Point3, t: float) -> Point3:
+    return (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2]))
+
+
+def segment_distance(p1: Point3, q1: Point3, p2: Point3, q2: Point3) -> float:
+    """The least distance between segments p1-q1 and p2-q2 (either may be a point)."""
+    d1, d2, r = _sub(q1, p1), _sub(q2, p2), _sub(p1, p2)
+    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
+    eps = 1e-9
+    if a <= eps and e <= eps:
+        return math.dist(p1, p2)
+    if a <= eps:
+        s, t = 0.0, min(1.0, max(0.0, f / e))
+    else:
+        c = _dot(d1, r)
+        if e <= eps:
+            s, t = min(1.0, max(0.0, -c / a)), 0.0
+        else:
+            b = _dot(d1, d2)
+            denom = a * e - b * b
+            s = min(1.0, max(0.0, (b * f - c * e) / denom)) if denom > eps else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                s, t = min(1.0, max(0.0, -c / a)), 0.0
+            elif t > 1.0:
+                s, t = min(1.0, max(0.0, (b - c) / a)), 1.0
+    return math.dist(_along(p1, q1, s), _along(p2, q2, t))
+
+
+@dataclass
+class Ways:
+    legs: dict[str, tuple[Point3, Point3]] = field(default_factory=dict)  # drone → its declared leg
+    flown: set[str] = field(default_factory=set)  # workers seen in the air
+    waiting: dict[str, float] = field(default_factory=dict)  # worker → since when it waits for another
+
+    def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
+              now: float) -> tuple[Point3, str | None]:
+        """How far `drone` may fly from `at` toward `to`: the end of its clear part, and
+        the drone it gives way to (None when it may fly all of it). `others`: where
+        every other drone is; `workers`: the leashed drones (their legs are declared)."""
+        obstacles: list[tuple[str, Point3, Point3, float, bool]] = []  # (drone, from, to, clearance, a way)
+        for o, p in others.items():
+            if o == drone:
+                continue
+            if p[2] > AIRBORNE_M:
+                obstacles.append((o, p, p, CLEAR_M if o in workers else AROUND_M, False))
+                if o in workers:
+                    self.flown.add(o)
+                    leg = self.legs.get(o)
+                    if leg is not None:
+                        obstacles.append((o, p, leg[1], CLEAR_M, True))  # what is left of its leg
+            elif o in workers and o not in self.flown:
+                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], max(at[2], to[2])), CLEAR_M, False))
+            else:
+                self.legs.pop(o, None)  # landed: its way is flown
+        # Already closer than that (workers take off side by side): not closer still.
+        near = [min(clear, segment_distance(at, at, a, b) - 0.01) for _, a, b, clear, _ in obstacles]
+
+        def blocker(t: float, relaxed: bool) -> str | None:
+            end = _along(at, to, t)
+            for (o, a, b, _, way), clear in zip(obstacles, near, strict=True):
+                if relaxed and way:
+                    continue
+                if segment_distance(at, end, a, b) < (min(clear, AROUND_M) if relaxed else clear):
+                    return o
+            return None
+
+        first = blocker(1.0, False)
+        if first is None:
+            self.waiting.pop(drone, None)
+            self.legs[drone] = (at, to)
+            return to, None
+        # Two drones each waiting on the other: the first by name goes; anyone kept
+        # waiting YIELD_LIMIT_S goes too. Either keeps AROUND_M from where others are.
+        since = self.waiting.setdefault(drone, now)
+        relaxed = (first in self.waiting and drone < first) or now - since >= YIELD_LIMIT_S
+        if relaxed and blocker(1.0, True) is None:
+            self.waiting.pop(drone, None)
+            self.legs[drone] = (at, to)
+            return to, first
+        lo, hi = 0.0, 1.0
+        for _ in range(SEARCH_STEPS):
+            mid = (lo + hi) / 2
+            if blocker(mid, relaxed) is None:
+                lo = mid
+            else:
+                hi = mid
+        end = _along(at, to, lo)
+        self.legs[drone] = (at, end)
+        return end, first

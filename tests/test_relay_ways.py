@@ -1,0 +1,94 @@
+"""Leashed workers keep out of each other's way (relay/ways.py): pure, no I/O."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from dronefleet.relay.ways import CLEAR_M, YIELD_LIMIT_S, Point3, Ways, segment_distance
+
+
+@pytest.mark.parametrize(("a", "b", "c", "d", "expected"), [
+    ((0, 0, 0), (10, 0, 0), (5, -5, 3), (5, 5, 3), 3.0),  # crossing, 3 m apart in height
+    ((0, 0, 0), (10, 0, 0), (12, 0, 0), (20, 0, 0), 2.0),  # in line, end to end
+    ((0, 0, 0), (10, 0, 0), (3, 4, 0), (3, 4, 0), 4.0),  # a point beside
+    ((0, 0, 0), (0, 0, 0), (3, 4, 0), (3, 4, 0), 5.0),  # two points
+    ((0, 0, 0), (10, 0, 0), (0, 2, 0), (10, 2, 0), 2.0),  # parallel
+])
+def test_segment_distance(a: Point3, b: Point3, c: Point3, d: Point3, expected: float) -> None:
+    assert segment_distance(a, b, c, d) == pytest.approx(expected)
+    assert segment_distance(c, d, a, b) == pytest.approx(expected)
+
+
+def test_a_worker_waits_short_of_another_workers_way_and_goes_on_once_it_has_flown() -> None:
+    ways = Ways()
+    workers = {"drone01", "drone02"}
+    # drone01 sets out east; its way is declared
+    end, other = ways.clear("drone01", (0, 0, 15), (0, 100, 15), {"drone02": (50, 50, 15)}, workers, now=0.0)
+    assert end == (0, 100, 15) and other is None
+    # drone02, hovering 50 m north, wants to fly south across it: it stops short
+    end, other = ways.clear("drone02", (50, 50, 15), (-50, 50, 15), {"drone01": (0, 10, 15)}, workers, now=1.0)
+    assert other == "drone01"
+    assert end[0] > 0 and segment_distance((50, 50, 15), end, (0, 10, 15), (0, 100, 15)) >= CLEAR_M - 0.1
+    assert segment_distance((50, 50, 15), end, (0, 10, 15), (0, 100, 15)) < CLEAR_M + 1.0  # as far as it may
+    # drone01 has flown past the crossing: what is left of its way no longer crosses
+    end, other = ways.clear("drone02", end, (-50, 50, 15), {"drone01": (0, 70, 15)}, workers, now=5.0)
+    assert end == (-50, 50, 15) and other is None
+
+
+def test_a_worker_does_not_fly_over_one_that_has_not_taken_off_but_may_over_one_that_landed() -> None:
+    ways = Ways()
+    workers = {"drone01", "drone02"}
+    end, other = ways.clear("drone01", (0, 0, 15), (0, 40, 15), {"drone02": (0, 10, 0)}, workers, now=0.0)
+    assert other == "drone02" and math.dist(end, (0, 10, 15)) >= CLEAR_M - 0.1 and end[1] < 10
+    ways.clear("drone02", (0, 10, 15), (0, 10, 15), {"drone01": end}, workers, now=1.0)  # it flies …
+    ways.clear("drone01", end, end, {"drone02": (30, 10, 15)}, workers, now=2.0)
+    end, other = ways.clear("drone01", end, (0, 40, 15), {"drone02": (0, 10, 0)}, workers, now=3.0)  # … and lands
+    assert end == (0, 40, 15) and other is None
+
+
+def test_relays_hovering_above_the_workers_level_are_not_in_the_way() -> None:
+    end, other = Ways().clear("drone01", (0, 0, 15), (0, 100, 15), {"drone05": (0, 50, 21)},
+                              {"drone01"}, now=0.0)
+    assert end == (0, 100, 15) and other is None
+
+
+def test_two_workers_each_waiting_on_the_others_way_do_not_wait_for_ever() -> None:
+    ways = Ways()
+    workers = {"drone01", "drone02"}
+    # drone01 has declared its way east; drone02, hovering 7 m beside it, wants across
+    ways.legs["drone01"] = ((0, 0, 15), (100, 0, 15))
+    end, other = ways.clear("drone02", (50, 7, 15), (50, -20, 15), {"drone01": (0, 0, 15)}, workers, now=0.0)
+    assert other == "drone01" and end[1] > 6.9
+    # drone01 is blocked by where drone02 waits (7 m from its way), and drone02 waits on
+    # drone01: drone01, first by name, goes, keeping AROUND_M
+    end, other = ways.clear("drone01", (0, 0, 15), (100, 0, 15), {"drone02": (50, 7, 15)}, workers, now=1.0)
+    assert end == (100, 0, 15) and other == "drone02"
+    # drone02 still waits for drone01 to pass
+    end, other = ways.clear("drone02", (50, 7, 15), (50, -20, 15), {"drone01": (10, 0, 15)}, workers, now=2.0)
+    assert other == "drone01" and end[1] > 6.9
+    end, other = ways.clear("drone02", (50, 7, 15), (50, -20, 15), {"drone01": (90, 0, 15)}, workers, now=9.0)
+    assert end == (50, -20, 15) and other is None
+
+
+def test_a_worker_kept_waiting_goes_but_never_through_where_another_drone_is() -> None:
+    ways = Ways()
+    workers = {"drone01", "drone02"}
+    ways.legs["drone02"] = ((50, 20, 15), (50, -20, 15))
+    others = {"drone02": (50, 20, 15)}
+    end, other = ways.clear("drone01", (0, 0, 15), (100, 0, 15), others, workers, now=0.0)
+    assert other == "drone02" and end[0] < 50
+    end, other = ways.clear("drone01", (0, 0, 15), (100, 0, 15), others, workers, now=YIELD_LIMIT_S)
+    assert end == (100, 0, 15) and other == "drone02"  # past its way, 20 m from where it is
+    end, other = ways.clear("drone01", (0, 0, 15), (100, 0, 15), {"drone02": (50, 3, 15)}, workers,
+                            now=2 * YIELD_LIMIT_S)
+    assert other == "drone02" and end[0] < 50  # … never through it
+
+
+def test_workers_that_took_off_side_by_side_may_part_but_not_close_in() -> None:
+    workers = {"drone01", "drone02"}
+    end, other = Ways().clear("drone01", (0, 0, 15), (0, -100, 15), {"drone02": (0, 6, 15)}, workers, now=0.0)
+    assert end == (0, -100, 15) and other is None
+    end, other = Ways().clear("drone01", (0, 0, 15), (100, 30, 15), {"drone02": (0, 6, 15)}, workers, now=0.0)
+    assert other == "drone02" and math.dist(end, (0, 0, 15)) < 1.0
