@@ -16,13 +16,7 @@ multicast autoconnect on the radio), and this task decides:
   its own router (loopback) and to the neighbour's, so link-state routing carries the
   drone's traffic through that neighbour. Neighbours answering well are preferred,
   and none answering under `bus.mesh_policy.KEEP_RATE` is ever used;
-- once the direct link has worked for `DIRECT_STEADY_S`, the bridges close;
-- the direct link itself is an *uplink*: a router session of this process linked to
-  its own router and to the ground, so that it can be let go (`DirectWatch`): while
-  bridges are needed, the laptop's echo (bus/echo.py: one datagram a round, like a
-  scout) comes back less than `GOOD_RATE` and a bridge to a good neighbour is up.
-  Routing takes the fewest hops, so a lossy direct link that stayed up carried the
-  drone's traffic past a clean way through its neighbours.
+- once the direct link has worked for `DIRECT_STEADY_S`, the bridges close.
 
 A bridge is closed by closing its session, which the Zenoh API allows (a transport of
 the main session cannot be closed, nor an endpoint added to it after open).
@@ -44,16 +38,7 @@ from typing import Any
 
 import zenoh
 
-from dronefleet.bus.echo import ECHO_MAX, ECHO_TAG, echo_address
-from dronefleet.bus.mesh_policy import (
-    ANSWER_WINDOW,
-    DIRECT_STEADY_S,
-    GOOD_RATE,
-    MAX_BRIDGES,
-    DirectWatch,
-    NeedWatch,
-    choose,
-)
+from dronefleet.bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, MAX_BRIDGES, NeedWatch, choose
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from dronefleet.schemas.endpoints import ip_endpoint, plain_endpoint
 
@@ -103,98 +88,38 @@ class Heard:
         return sum(self.answers) / len(self.answers) if self.answers else 0.0
 
 
-class _EchoReplies(asyncio.DatagramProtocol):
-    """The laptop's echoes: the round numbers that came back."""
-
-    def __init__(self, replies: set[int]) -> None:
-        self.replies = replies
-
-    def datagram_received(self, data: bytes, addr: tuple[str | Any, ...]) -> None:
-        if data.startswith(ECHO_TAG):
-            try:
-                self.replies.add(int(data[len(ECHO_TAG):].split()[-1]))
-            except (ValueError, IndexError):
-                pass
-
-
 class Neighbours:
     """The scouting rounds and the bridges of one agent; `run()` until cancelled."""
 
     def __init__(
         self, drone_id: str, bus: ZenohBus, interface: str, ground_endpoints: Sequence[str],
-        own_endpoint: str, ground_unsure: Callable[[], bool], *, ground_silent: Callable[[], bool] = lambda: False,
-        extra: dict[str, Any] | None = None,
+        own_endpoint: str, ground_unsure: Callable[[], bool], *, extra: dict[str, Any] | None = None,
         zids: frozenset[str] = frozenset(),
     ) -> None:
         self.drone_id = drone_id
         self.bus = bus
         self.interface = interface
         self.ground_endpoints = {plain_endpoint(e) for e in ground_endpoints}
-        self._ground_connect = list(ground_endpoints)
         self.own_endpoint = own_endpoint
         self.ground_unsure = ground_unsure
-        self.ground_silent = ground_silent
         self.extra = extra or {}
         self.free_zids = sorted(zids)  # the bridges' own ZIDs, which this drone's router trusts (secured mesh)
         self._zid_of: dict[str, str] = {}
         self.heard: dict[str, Heard] = {}
         self.bridges: dict[str, zenoh.Session] = {}
-        self.uplink: zenoh.Session | None = None
-        self._uplink_zid: str | None = None
-        self.direct = DirectWatch()
-        self._echo_to = [a for a in map(echo_address, ground_endpoints) if a is not None]
-        self._echoes: collections.deque[bool] = collections.deque(maxlen=ANSWER_WINDOW)
-        self._echoed = False  # the laptop answered an echo once: it echoes
-        self._echo_replies: set[int] = set()
-        self._echo_seq = 0
 
     def direct_link(self) -> bool:
-        """The uplink holds a link it dialled to one of the ground's endpoints."""
-        uplink = self.uplink
-        return uplink is not None and any(plain_endpoint(str(link.dst)) in self.ground_endpoints
-                                          for link in uplink.info.links())
-
-    def carrying(self, network: ipaddress.IPv4Network) -> bool:
-        """A neighbour's bridge is linked to this drone's router (over the radio)."""
-        own = {self._uplink_zid, *self._zid_of.values()}
-        for link in self.bus.session.info.links():
-            if str(link.zid) in own:
-                continue
-            for locator in (str(link.src), str(link.dst)):
-                parsed = ip_endpoint(locator)
-                try:
-                    if parsed is not None and ipaddress.IPv4Address(parsed[1]) in network:
-                        return True
-                except ValueError:
-                    continue
-        return False
-
-    @property
-    def echo_rate(self) -> float | None:
-        """The share of the last rounds the laptop's echo came back (None: it never has)."""
-        return sum(self._echoes) / len(self._echoes) if self._echoed and self._echoes else None
-
-    async def start(self) -> None:
-        """The uplink, before anything is published: the drone's link to the ground."""
-        await self._hold_direct()
+        """The agent's router holds a link it dialled to one of the ground's endpoints."""
+        return any(plain_endpoint(str(link.dst)) in self.ground_endpoints for link in self.bus.session.info.links())
 
     async def run(self) -> None:
         network = interface_network(self.interface).network
         own = {str(self.bus.session.info.zid())}
         loop = asyncio.get_running_loop()
         need = NeedWatch(loop.time())
-        echo, _ = await loop.create_datagram_endpoint(lambda: _EchoReplies(self._echo_replies), local_addr=("0.0.0.0", 0))
         try:
             while True:
-                self._echo_replies.clear()
-                self._echo_seq += 1
-                for address in self._echo_to:
-                    echo.sendto(ECHO_TAG + f"{self.drone_id} {self._echo_seq}".encode()[:ECHO_MAX - len(ECHO_TAG)], address)
                 hellos = await self._scout_round()
-                if self._echo_to:
-                    back = self._echo_seq in self._echo_replies
-                    self._echoed = self._echoed or back
-                    self._echoes.append(back)
                 answered: dict[str, str] = {}
                 for zid, locators in hellos:
                     if zid in own or zid in answered:
@@ -220,54 +145,9 @@ class Neighbours:
                     await self._close(zid)
                 for zid in wanted - set(self.bridges):
                     await self._open(zid)
-                good = any(self.heard[z].rate >= GOOD_RATE for z in self.bridges if z in self.heard)
-                was_held = self.direct.held
-                carrying = await asyncio.to_thread(self.carrying, network)  # a Zenoh call, as above
-                if self.direct.update(loop.time(), needed=needed, rate=self.echo_rate, good_bridge=good,
-                                      carrying=carrying, silent=self.ground_silent()) != was_held:
-                    if self.direct.held:
-                        await self._hold_direct()
-                    else:
-                        await self._let_go_direct()
         finally:
-            echo.close()
-            await self.close()
-
-    async def close(self) -> None:
-        """Every link this agent holds besides its router's: the bridges, the uplink."""
-        for zid in list(self.bridges):
-            await self._close(zid)
-        if self.uplink is not None:
-            await self._let_go_direct(say=False)
-
-    async def _hold_direct(self) -> None:
-        """Open the uplink: linked to this drone's router and to the ground, retried
-        for ever while the ground is not there (as a router's `connect`)."""
-        if self.uplink is not None:
-            return
-        extra = {**self.extra, "listen/endpoints": [], "scouting/gossip/autoconnect": {"router": [], "peer": []}}
-        self._uplink_zid = self.free_zids.pop() if self.free_zids else None
-        if self._uplink_zid is not None:
-            extra["id"] = self._uplink_zid
-        conf = zenoh_config("router", [*self._ground_connect, self.own_endpoint], extra=extra)
-        self.uplink = await asyncio.to_thread(zenoh.open, conf)
-        log.info("%s: holding the direct link to the ground", self.drone_id)
-
-    async def _let_go_direct(self, say: bool = True) -> None:
-        session, self.uplink = self.uplink, None
-        if self._uplink_zid is not None:
-            self.free_zids.append(self._uplink_zid)
-            self._uplink_zid = None
-        rate = self.echo_rate
-        if say:
-            log.info("%s: letting go of the direct link to the ground (the laptop's echo came back %s), "
-                     "linked through neighbours %s", self.drone_id, "never" if rate is None else f"{100 * rate:.0f} %",
-                     ", ".join(sorted(self.bridges)) or "none")
-        if session is not None:
-            try:
-                await asyncio.to_thread(session.close)
-            except zenoh.ZError:
-                pass
+            for zid in list(self.bridges):
+                await self._close(zid)
 
     async def _scout_round(self) -> list[tuple[str, list[str]]]:
         """One Scout for routers on the radio; the Hellos heard within the round."""
@@ -325,11 +205,11 @@ class Neighbours:
 
 
 def new_bridge_zids() -> frozenset[str]:
-    """ZIDs for this agent's bridges and its uplink, chosen at start so its router's access rules can
+    """ZIDs for this agent's bridges, chosen at start so its router's access rules can
     name them (bus/mesh_security.py): 32 hex digits, the first not 0 (Zenoh drops
     leading zeros when it prints one)."""
     zids: set[str] = set()
-    while len(zids) < MAX_BRIDGES + 1:  # and the uplink
+    while len(zids) < MAX_BRIDGES:
         zid = secrets.token_hex(16)
         if zid[0] != "0":
             zids.add(zid)

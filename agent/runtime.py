@@ -399,27 +399,20 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
     try:
         log.info("%s: flight controller %s connected; router on %s joins the mesh via %s",
                  drone_id, config.fc, ", ".join(config.listen) or "(no listener)", ", ".join(config.connect))
-        # On a radio the drone's link to the ground is its agent's uplink (agent/neighbours.py),
-        # which it may let go; elsewhere its router dials the ground itself.
-        bus = await ZenohBus.open("router", [] if config.mesh_interface else config.connect, config.listen,
-                                  mesh_interface=config.mesh_interface, extra=secured)
+        bus = await ZenohBus.open("router", config.connect, config.listen, mesh_interface=config.mesh_interface,
+                                  extra=secured)
         try:
+            await _join(bus, Keys(config.namespace), drone_id)
+            agent = Agent(drone_id, config, fc, bus, clock)
             if config.mesh_interface is None:
-                await _join(bus, Keys(config.namespace), drone_id)
-                await Agent(drone_id, config, fc, bus, clock).run()
+                await agent.run()
             else:
-                neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
-                                        own_endpoint(config.listen) or "", lambda: agent.ground_unsure(),
-                                        ground_silent=lambda: agent.ground_silent(), extra=secured, zids=bridge_zids)
-                await neighbours.start()
-                try:
-                    await _join(bus, Keys(config.namespace), drone_id)
-                    agent = Agent(drone_id, config, fc, bus, clock)
-                    async with asyncio.TaskGroup() as tg:
-                        tg.create_task(agent.run(), name=f"{drone_id} agent")
-                        tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
-                finally:
-                    await neighbours.close()
+                async with asyncio.TaskGroup() as tg:
+                    tg.create_task(agent.run(), name=f"{drone_id} agent")
+                    neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
+                                            own_endpoint(config.listen) or "", agent.ground_unsure, extra=secured,
+                                            zids=bridge_zids)
+                    tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
         finally:
             await bus.close()
     finally:

@@ -74,36 +74,3 @@ class NeedWatch:
                 self.needed = True
         return self.needed
 
-
-class DirectWatch:
-    """Whether the drone holds its own link to the ground (pure; times monotonic).
-
-    Routing takes the fewest hops, so a direct link that is lossy but up carries the
-    drone's traffic even while a clean way through a neighbour is open: a relay 40 m
-    from the laptop on a radio good to 31 m routed a whole chain over its 31 %-loss
-    direct link (fast-time corpus, world 123; ADR 0003). So while the drone needs
-    bridges, its direct link is let go when the laptop's echo (one datagram a round,
-    never retransmitted, like a scout) comes back less than GOOD_RATE and a bridge to
-    a good neighbour is up - unless a neighbour's traffic comes through this drone
-    (`carrying`): a relay cannot tell whether its good neighbours lead to the laptop or
-    hang on it (the thesis's relay let go for the worker it carried, and the worker lost
-    the ground 3.4 s). It is held again as soon as any of that changes, or when the
-    ground has gone silent with it let go (the neighbour led nowhere: then it is held
-    for HOLD_S whatever the echo says). A laptop that never echoes (`rate` None: no
-    echo service, a wired bench) keeps the link held."""
-
-    HOLD_S = 15.0
-
-    def __init__(self) -> None:
-        self.held = True
-        self._hold_until = 0.0
-
-    def update(self, now: float, *, needed: bool, rate: float | None, good_bridge: bool, carrying: bool,
-               silent: bool) -> bool:
-        if not self.held and silent:
-            self._hold_until = now + self.HOLD_S
-        if now < self._hold_until:
-            self.held = True
-        else:
-            self.held = not needed or carrying or rate is None or rate >= GOOD_RATE or not good_bridge
-        return self.held

@@ -38,7 +38,6 @@ from dronefleet.agent.config import AgentConfig
 from dronefleet.agent.fc_sim import SimFlightController
 from dronefleet.agent.runtime import Agent
 from dronefleet.bus.clock import VirtualClock
-from dronefleet.bus.echo import serve_echoes
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.mesh_security import mesh_security
 from dronefleet.bus.zenoh_bus import ZenohBus
@@ -131,7 +130,6 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     try:
         bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
             config.security, "ground", config.listen, router=True, namespace=config.namespace))
-        echoes = await serve_echoes(list(config.listen))  # drones measure their hop to the laptop (ADR 0003)
         try:
             station = GroundStation(config, bus, events)
             station.record_missions(data_dir / "missions")
@@ -155,8 +153,6 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
                     await asyncio.wait([http_task])
                     station_task.cancel()
         finally:
-            for echo in echoes:
-                echo.close()
             await bus.close()
     finally:
         store.close()

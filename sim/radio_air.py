@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from dronefleet.bus.clock import VirtualClock
-from dronefleet.bus.mesh_policy import ANSWER_WINDOW, GOOD_RATE, DirectWatch, NeedWatch, choose
+from dronefleet.bus.mesh_policy import ANSWER_WINDOW, NeedWatch, choose
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
 LEASE_S = 2.0  # a link with nothing through it for this long is closed
@@ -53,7 +53,6 @@ class GroundView(Protocol):
     """What an agent makes of the ground from its probes (agent/runtime.py)."""
 
     def ground_unsure(self) -> bool: ...
-    def ground_silent(self) -> bool: ...
 
 
 class RadioAir:
@@ -76,7 +75,6 @@ class RadioAir:
         self._needs: dict[str, NeedWatch] = {}
         self._answers: dict[tuple[str, str], deque[bool]] = {}  # per drone and neighbour: its scouts answered
         self._next_round = 0.0
-        self._direct: dict[str, DirectWatch] = {}
         self.tick()
 
     # Medium ------------------------------------------------------------------
@@ -204,40 +202,30 @@ class RadioAir:
             callback()
 
     def _held(self, a: str, b: str) -> bool:
-        """A drone's link to the ground while its agent holds it (DirectWatch); a link
-        between two drones while one of them holds it as a bridge."""
-        if GROUND in (a, b):
-            watch = self._direct.get(b if a == GROUND else a)
-            return watch is None or watch.held
-        return b in self.bridges.get(a, ()) or a in self.bridges.get(b, ())
+        """Every drone dials the ground; a link between two drones is a bridge one of
+        them holds."""
+        return GROUND in (a, b) or b in self.bridges.get(a, ()) or a in self.bridges.get(b, ())
 
     def _round(self, where: Mapping[str, Spot3], now: float) -> None:
-        """Each drone's agent scouts once and echoes the laptop once (a datagram and its
-        answer must both cross, no retransmission), decides its bridges from the answer
-        rates while its direct link is not working, and whether to hold that link
-        (agent/neighbours.py)."""
+        """Each drone's agent scouts once (a Scout and its Hello must both cross, no
+        retransmission) and decides its bridges from the answer rates while its direct
+        link is not working (agent/neighbours.py)."""
         drones = sorted(n for n in where if n != GROUND)
         for a in drones:
             rates: dict[str, float] = {}
-            for b in [*drones, GROUND]:  # the laptop: its echo (agent/neighbours.py), like a scout
+            for b in drones:
                 if b == a:
                     continue
                 answered = self._answers.setdefault((a, b), deque(maxlen=ANSWER_WINDOW))
                 loss = self.model.loss(distance_3d(where[a], where[b]))
                 answered.append(self._rng("scout", a, b).random() < (1.0 - loss) ** 2)
                 rates[b] = sum(answered) / len(answered)
-            ground = rates.pop(GROUND)
             need = self._needs.setdefault(a, NeedWatch(now))
             direct = self.links.get(_pair(a, GROUND))
             agent = self.agent(a)
             unsure = agent is not None and agent.ground_unsure()
             needed = need.update(direct is not None and direct.up and not unsure, now)
             self.bridges[a] = choose(rates, self.bridges.get(a, set())) if needed else set()
-            good_bridge = any(rates[b] >= GOOD_RATE and self.links[_pair(a, b)].up for b in self.bridges[a])
-            carrying = any(a in self.bridges.get(d, ()) and self.links[_pair(a, d)].up for d in drones if d != a)
-            self._direct.setdefault(a, DirectWatch()).update(
-                now, needed=needed, rate=ground, good_bridge=good_bridge, carrying=carrying,
-                silent=agent is not None and agent.ground_silent())
 
 
 def _pair(a: str, b: str) -> tuple[str, str]:

@@ -10,7 +10,7 @@ import ipaddress
 import select
 import socket
 import threading
-from typing import Any, cast
+from typing import cast
 
 import msgspec
 import pytest
@@ -18,19 +18,9 @@ import zenoh
 
 from dronefleet.agent.config import AgentConfig, own_endpoint
 from dronefleet.agent.neighbours import Heard, Neighbours, radio_locator
-from dronefleet.bus.echo import ECHO_MAX, ECHO_TAG, echo_address, serve_echoes
-from dronefleet.bus.mesh_policy import (
-    GOOD_RATE,
-    KEEP_RATE,
-    MAX_BRIDGES,
-    RETRANSMITTED_MS,
-    DirectWatch,
-    NeedWatch,
-    choose,
-    unsure,
-)
+from dronefleet.bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, RETRANSMITTED_MS, NeedWatch, choose, unsure
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
-from tests.helpers import free_port, free_udp_base
+from tests.helpers import free_port
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
 
@@ -164,51 +154,3 @@ def test_the_ground_is_in_doubt_from_one_lost_or_retransmitted_probe_of_the_last
     assert unsure([9.0, None, 8.0])
     assert unsure([9.0, 8.0, RETRANSMITTED_MS + 60])  # TCP's first retransmission: 200 ms
     assert not unsure([])
-
-
-def test_the_direct_link_is_let_go_only_for_a_good_neighbour_and_never_by_a_drone_others_link_through() -> None:
-    w = DirectWatch()
-    lossy: dict[str, Any] = {"needed": True, "rate": 0.6, "good_bridge": True, "carrying": False, "silent": False}
-    assert not w.update(0.0, **lossy)
-    assert w.update(1.0, **{**lossy, "rate": GOOD_RATE})  # the laptop answers well again
-    assert w.update(2.0, **{**lossy, "good_bridge": False})  # no good neighbour to go through
-    assert w.update(3.0, **{**lossy, "carrying": True})  # a relay: its neighbours may hang on it
-    assert w.update(4.0, **{**lossy, "rate": None})  # a laptop that never echoes
-    assert w.update(5.0, **{**lossy, "needed": False})
-    assert not w.update(6.0, **lossy)
-
-
-def test_a_direct_link_let_go_for_a_neighbour_that_led_nowhere_is_held_a_while() -> None:
-    w = DirectWatch()
-    lossy: dict[str, Any] = {"needed": True, "rate": 0.6, "good_bridge": True, "carrying": False, "silent": False}
-    assert not w.update(0.0, **lossy)
-    assert w.update(3.0, **{**lossy, "silent": True})
-    assert w.update(3.0 + DirectWatch.HOLD_S - 0.1, **lossy)
-    assert not w.update(3.0 + DirectWatch.HOLD_S, **lossy)
-
-
-async def test_the_laptop_echoes_tagged_datagrams_only() -> None:
-    port = free_udp_base(1)
-    echoes = await serve_echoes([f"tcp/127.0.0.1:{port}", "udp/127.0.0.1:1", "tcp/127.0.0.1:0"])
-    assert len(echoes) == 1  # beside TCP listeners on a fixed port only
-    got: asyncio.Queue[bytes] = asyncio.Queue()
-
-    class Client(asyncio.DatagramProtocol):
-        def datagram_received(self, data: bytes, addr: Any) -> None:
-            got.put_nowait(data)
-
-    loop = asyncio.get_running_loop()
-    client, _ = await loop.create_datagram_endpoint(Client, remote_addr=("127.0.0.1", port))
-    try:
-        client.sendto(b"not an echo")
-        client.sendto(b"x" * 100)
-        client.sendto(ECHO_TAG + b"drone01 7")
-        assert await asyncio.wait_for(got.get(), 5) == ECHO_TAG + b"drone01 7"  # the first answer is the tagged one
-        client.sendto(ECHO_TAG + b"y" * ECHO_MAX)  # too long to echo
-        client.sendto(ECHO_TAG + b"drone01 8")
-        assert await asyncio.wait_for(got.get(), 5) == ECHO_TAG + b"drone01 8"
-        assert echo_address("tls/10.0.0.1:7447") == ("10.0.0.1", 7447)
-    finally:
-        client.close()
-        for echo in echoes:
-            echo.close()

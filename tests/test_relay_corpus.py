@@ -75,10 +75,10 @@ def test_corpus_worlds_never_fail_through_a_relay(seed: int) -> None:
 
 
 @pytest.mark.slow(8)
-@pytest.mark.parametrize("seed", [6, 12, 13, 14])
+@pytest.mark.parametrize("seed", [6, 12, 13, 25])
 def test_chain_mode_measures_the_radio_and_keeps_the_worker_heard(seed: int) -> None:
     """Issue 32 items 1 and 3 on four corpus worlds whose spares suffice (radios 69/95,
-    105/166, 32/62 and 136/249 m; none given to the plugin, whose prior is 60/100): the
+    105/166, 32/62 and 126/168 m; none given to the plugin, whose prior is 60/100): the
     probe relay measures the hop that
     holds, the worker waits at the chain's edge (said in the log) and flies its survey with
     the ground hearing it at least every 3 s, no two flying drones within 5 m. (Rates over
