@@ -47,6 +47,7 @@ DWELL_S = 11.0  # on its spot this long: a whole 10-probe window measured there
 ON_SPOT_M = 3.0
 LAUNCH_CLEAR_M = 15.0  # a relay is sent when the last one has flown this far from the drones on the ground
 PARKED_CLEAR_M = 6.0  # a held drone is not held over a drone on the ground (across)
+RELAYS_APART_M = 7.0  # relays hover on one level: spots of different chains keep this apart
 MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node before it
 SPIKE_MS = 30.0  # a window's mean RTT this far above the best seen held two retransmissions (+200 ms / 10 each)
 RELEASE_AFTER = 5  # plans in a row without need before a relay goes home
@@ -305,8 +306,8 @@ class Chains:
             return
         trial = self.reach.trial(self.first_trial)
         spot = self._trial_spot(trial, nodes)
-        if self.safe is None:
-            self.safe = toward(ORIGIN, spot, flat(self.reach.lo, self.duty_alt))
+        if self.safe is None:  # not over a drone on the ground either: it hovers there between trials
+            self.safe = self._off_parked(ORIGIN, toward(ORIGIN, spot, flat(self.reach.lo, self.duty_alt)), {})
         if self.probe is None:
             self.probe = Slot(spot, None, now, None, trial)
             out.dispatch.append((PROBE, spot, DWELL_S + 4.0))
@@ -363,7 +364,7 @@ class Chains:
         if chain and chain[-1].relay is None:
             return free  # one asked for, not assigned yet
         last, last_z = planned[-1]
-        spot = self._off_parked(last, toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z))))
+        spot = self._off_parked(last, toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z))), seen)
         key = f"{w.id}#{len(chain)}"
         if self.idle:
             relay = self.idle.pop(0)
@@ -384,14 +385,25 @@ class Chains:
         out.dispatch.append((key, spot, 0.0))
         return free - 1
 
-    def _off_parked(self, back: Point, spot: Point) -> Point:
-        """`spot`, or nearer `back`, until it is not over a drone on the ground (which would
-        climb into the relay hovering there when it takes off)."""
+    def _off_parked(self, back: Point, spot: Point, seen: Mapping[str, Seen]) -> Point:
+        """`spot`, or nearer `back`, or aside, until it is not over a drone on the ground
+        (which would climb into the relay hovering there when it takes off) nor within
+        RELAYS_APART_M of another relay's spot or of a relay on duty (chains toward
+        workers in near directions begin side by side; two relays came within 3.5 m)."""
+        taken = [sl.spot for c in self.chains.values() for sl in c] + [o.at for rid, o in seen.items() if rid not in self.idle]
+
+        def room(p: Point) -> float:  # 1 or more: clear of both
+            return min([dist(p, q) / PARKED_CLEAR_M for q in self.parked] + [dist(p, q) / RELAYS_APART_M for q in taken]
+                       + [math.inf])
+
         length = dist(back, spot)
         along = [toward(back, spot, length - k) for k in range(int(length - MIN_STEP_M) + 1)]
         ux, uy = ((spot[0] - back[0]) / length, (spot[1] - back[1]) / length) if length else (1.0, 0.0)
         aside = [(spot[0] - uy * k * sign, spot[1] + ux * k * sign) for k in range(1, 13) for sign in (1, -1)]
-        return next((p for p in along + aside if self._clear(p)), spot)
+        nearer = [toward(back, spot, float(k)) for k in range(int(min(length, MIN_STEP_M)) + 1)]  # down to `back`
+        candidates = along + aside + nearer
+        # the first with room; with none (a ring of drones on the ground around the laptop), the roomiest
+        return next((p for p in candidates if room(p) >= 1.0), max(candidates, key=room))
 
     def _launch_clear(self, seen: Mapping[str, Seen]) -> bool:
         """No relay in the air near the drones on the ground: one taking off there climbs

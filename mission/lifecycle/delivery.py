@@ -98,7 +98,7 @@ class CommandDelivery:
         for interrupted in range(RESUME_TRIES + 1):
             try:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear,
-                                                  take_back=interrupted > 0)
+                                                  take_back=interrupted > 0 or not self._sent_home(drone_id))
             except _TakenBack:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
@@ -111,6 +111,12 @@ class CommandDelivery:
             # still wants this done, so it is sent again once the drone can hear it.
             self.log("warn", f"{drone_id}: {name} was interrupted by the drone's lost-link failsafe; sending it again")
         return status
+
+    def _sent_home(self, drone_id: str) -> bool:
+        """The mission's own last command to the drone was a return: a goto refused while
+        it returns is the script's doing, not the failsafe's, and is not taken back."""
+        last = next((c for c in reversed(self.commands) if c.drone_id == drone_id), None)
+        return last is not None and last.cmd == "return"
 
     async def _on_leash(self, drone_id: str, body: dict[str, Any]) -> None:
         """A goto beyond what the relays cover goes as far as they do, and on as they
@@ -196,10 +202,10 @@ class CommandDelivery:
         is out of reach, whatever the ground's liveliness says yet: tried again for
         mission.link_grace_s, then the mission ends link_lost. With `wait_clear`, a
         target another drone holds (409 conflict) is tried again each time that drone
-        reports, for up to mission.clear_wait_s. With `take_back` (a command sent again
-        after the drone's lost-link failsafe interrupted it), a drone its failsafe is
-        flying home (a goto is refused while it returns) is stopped first, once: it hears
-        the ground again, and the mission still wants it where it was going."""
+        reports, for up to mission.clear_wait_s. With `take_back` (the mission did not send
+        the drone home itself), a drone its lost-link failsafe is flying home (a goto is
+        refused while it returns) is stopped first, once: it hears the ground again, and
+        the mission still wants it where it was going."""
         attempt, waited_for, unheard_since = 1, None, None
         give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
         while True:
