@@ -16,7 +16,8 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
 - a worker already closer than that to another (they take off side by side) may fly
   any way that does not bring it closer still;
 - two workers each waiting on the other: the first by name goes; a worker kept waiting
-  YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is.
+  YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is; the
+  later by name, if it still cannot move, steps aside out of the other's way.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ AROUND_M = 5.5  # from where another drone (a relay) is: relays hover 6 m above 
 AIRBORNE_M = 1.0
 YIELD_LIMIT_S = 20.0
 SEARCH_STEPS = 12  # halvings of the leg when looking for its clear part
+MIN_LEG_M = 3.0  # a leg cut shorter than this does not get the drone anywhere (the leash sends legs of 2 m or more)
 
 
 def _sub(a: Point3, b: Point3) -> Point3:
@@ -76,12 +78,14 @@ class Ways:
     legs: dict[str, tuple[Point3, Point3]] = field(default_factory=dict)  # drone → its declared leg
     flown: set[str] = field(default_factory=set)  # workers seen in the air
     waiting: dict[str, float] = field(default_factory=dict)  # worker → since when it waits for another
+    wants: dict[str, Point3] = field(default_factory=dict)  # worker → where its leg would go, all of it
 
     def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
               now: float) -> tuple[Point3, str | None]:
         """How far `drone` may fly from `at` toward `to`: the end of its clear part, and
         the drone it gives way to (None when it may fly all of it). `others`: where
         every other drone is; `workers`: the leashed drones (their legs are declared)."""
+        self.wants[drone] = to
         obstacles: list[tuple[str, Point3, Point3, float, bool]] = []  # (drone, from, to, clearance, a way)
         for o, p in others.items():
             if o == drone:
@@ -130,5 +134,33 @@ class Ways:
             else:
                 hi = mid
         end = _along(at, to, lo)
+        if relaxed and math.dist(at, end) < MIN_LEG_M and drone > first and first in others:
+            end = self._aside(at, others[first], self.wants.get(first), others, drone)
         self.legs[drone] = (at, end)
         return end, first
+
+    def _aside(self, at: Point3, other: Point3, wants: Point3 | None, others: Mapping[str, Point3],
+               drone: str) -> Point3:
+        """Two drones that took off side by side and each want to pass where the other
+        is (corpus world 48 waited for ever): the later by name steps aside, across the
+        way the other wants to go, until that way is CLEAR_M off; where the other wants
+        to go nowhere, away from it. `at` when that step would come near another drone."""
+        ox, oy = other[0], other[1]
+        dx, dy = ((wants[0] - ox, wants[1] - oy) if wants is not None else (0.0, 0.0))
+        length = math.hypot(dx, dy)
+        if length < 1.0:  # no way: straight away from it
+            ax, ay = at[0] - ox, at[1] - oy
+            norm = math.hypot(ax, ay) or 1.0
+            step = (ax / norm * CLEAR_M, ay / norm * CLEAR_M)
+        else:
+            ux, uy = dx / length, dy / length
+            side = (at[0] - ox) * -uy + (at[1] - oy) * ux  # which side of its way this drone is on
+            sign = 1.0 if side >= 0 else -1.0
+            across = abs(side)
+            step = (-uy * sign * (CLEAR_M + 1.0 - across), ux * sign * (CLEAR_M + 1.0 - across)) \
+                if across < CLEAR_M + 1.0 else (0.0, 0.0)
+        end = (at[0] + step[0], at[1] + step[1], at[2])
+        if any(segment_distance(at, end, p, p) < AROUND_M for o, p in others.items() if o != drone and p[2] > AIRBORNE_M
+               and math.dist(at, p) >= AROUND_M):
+            return at
+        return end

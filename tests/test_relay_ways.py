@@ -92,3 +92,17 @@ def test_workers_that_took_off_side_by_side_may_part_but_not_close_in() -> None:
     assert end == (0, -100, 15) and other is None
     end, other = Ways().clear("drone01", (0, 0, 15), (100, 30, 15), {"drone02": (0, 6, 15)}, workers, now=0.0)
     assert other == "drone02" and math.dist(end, (0, 0, 15)) < 1.0
+
+
+def test_two_workers_each_in_the_others_way_the_later_steps_aside() -> None:
+    """Corpus world 48: two workers that took off 5.5 m apart, each wanting to fly
+    through where the other waits, waited for ever."""
+    ways = Ways()
+    workers = {"drone01", "drone02"}
+    one, two = (0.0, 0.0, 15.0), (0.0, 5.5, 15.0)
+    assert ways.clear("drone01", one, (0, 100, 15), {"drone02": two}, workers, now=0.0) == (one, "drone02")
+    assert ways.clear("drone02", two, (0, -100, 15), {"drone01": one}, workers, now=0.0)[1] == "drone01"
+    end, other = ways.clear("drone02", two, (0, -100, 15), {"drone01": one}, workers, now=YIELD_LIMIT_S)
+    assert other == "drone01" and abs(abs(end[0]) - (CLEAR_M + 1)) < 0.01 and end[1:] == two[1:]  # across drone01's way
+    end, other = ways.clear("drone01", one, (0, 100, 15), {"drone02": end}, workers, now=YIELD_LIMIT_S + 5)
+    assert end == (0, 100, 15) and other is None
