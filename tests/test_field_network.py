@@ -578,6 +578,7 @@ CORPUS_WORLD = 206  # radio good to 53 m, lost at 72 m; the surveyor's area 133 
 
 @RADIO_B
 @pytest.mark.slow(330)
+@pytest.mark.timeout(720)  # the mission flies 4-5 min in real time; under the whole suite's load, longer
 async def test_a_corpus_world_on_real_packets_keeps_its_surveyor_heard(
         tmp_path: Path, processes: list[ChildProcess]) -> None:
     """Issue 32 (5): a corpus world with a short radio on the emulated radio, three
