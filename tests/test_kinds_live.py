@@ -81,11 +81,11 @@ async def test_kinds_roles_declared_sensors_and_a_field_sensor_reach_missions(tm
             tasks.append(asyncio.ensure_future(keep_publishing(field_bus, "sensor/gas07/gas", {
                 "sensor_id": "gas07", "type": "gas", "fields": {"co_ppm": 40.0, "no2_ppb": 7.0}, "position": FIELD_AT}, 0.5)))
 
-            async def listed() -> Any:
+            async def listed() -> Any:  # its reading and its token travel apart: either may come first
                 body = (await http.get("/sensor", params={"type": "gas"})).json()
-                return body if body else None
+                return body if body and body[0]["alive"] is not None else None
 
-            listing = await until(listed, 15, "gas07 in GET /sensor")
+            listing = await until(listed, 15, "gas07 in GET /sensor, its token seen")
             assert listing[0]["sensor_id"] == "gas07" and listing[0]["alive"] is True
             assert listing[0]["position"]["lat"] == FIELD_AT.lat and listing[0]["readings"][0]["fields"]["co_ppm"] == 40.0
             assert (await http.get("/sensor/nope")).status_code == 404
