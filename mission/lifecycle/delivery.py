@@ -29,6 +29,11 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 
+# Where a held goto may go now: (lat, lon, why no drone is free for the relays it needs
+# or None, what holds it: "at the edge of its relay chain" or "out of drone02's way").
+Leash = tuple[float, float, str | None, str]
+
+
 class _TakenBack(Exception):  # noqa: N818 - a signal, not an error
     """A drone's failsafe return was stopped to send a command again (`_deliver`)."""
 
@@ -71,7 +76,7 @@ class CommandDelivery:
     _pushed: int
     _link_back_at: dict[str, asyncio.Future[None]]
     plugin_drones: dict[str, str]
-    leash: Callable[[str, float, float, float | None], tuple[float, float, str | None, str] | None] | None
+    leash: Callable[[str, float, float, float | None], Leash | None] | None
     leashed: dict[str, tuple[float, float, float | None]]
 
     if TYPE_CHECKING:

@@ -20,7 +20,7 @@ from typing import Any, Literal
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle import assignment as a
-from dronefleet.mission.lifecycle.delivery import CommandDelivery, PendingBundle, SentCommand, leave
+from dronefleet.mission.lifecycle.delivery import CommandDelivery, Leash, PendingBundle, SentCommand, leave
 from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import (
     Activity,
@@ -93,7 +93,7 @@ class Mission(CommandDelivery):
         self._heard_at: dict[str, float] = {}  # drone id → when its telemetry last came (mission clock)
         # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
         # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
-        self.leash: Callable[[str, float, float, float | None], tuple[float, float, str | None, str] | None] | None = None
+        self.leash: Callable[[str, float, float, float | None], Leash | None] | None = None
         self.leashed: dict[str, tuple[float, float, float | None]] = {}  # drone → the goal of its held goto
 
     @property

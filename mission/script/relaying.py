@@ -14,16 +14,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from dronefleet.mission.lifecycle.delivery import Leash
 from dronefleet.mission.script import units
 from dronefleet.mission.script.geo import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
 from dronefleet.relay import planner, ways
 from dronefleet.sim.projection import LocalFrame
-
-# Where a held goto may go now: (lat, lon, why no drone is free for the relays it needs
-# or None, what holds it: "at the edge of its relay chain" or "out of drone02's way").
-Leash = tuple[float, float, str | None, str]
 
 if TYPE_CHECKING:
     from dronefleet.mission.lifecycle.mission import Mission
