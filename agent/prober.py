@@ -4,13 +4,16 @@ outcome feeds that peer's window, and a LinkQuality per peer goes out on
 `drone/<id>/link`. Neighbours are the drones whose liveliness token this agent sees.
 
 An answered ground probe is the agent's sign of the ground: `on_ground_contact` is
-called with its time, which drives the lost-link policy.
+called with its time, which drives the lost-link policy. Each report says whether the
+answers of its window came over the drone's own link to the peer (`hops` 1) or some
+through other drones (2): a relay plugin proves a hop only by the first (relay/chain.py).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections import deque
 from collections.abc import Callable
 
 import msgspec
@@ -44,6 +47,8 @@ class LinkProber:
         self.on_ground_contact = on_ground_contact
         self.window = window
         self.windows: dict[str, LinkWindow] = {GROUND_PEER: LinkWindow(window)}
+        # per peer and probe of the window: answered, and over one link (None: unknown)
+        self.linked: dict[str, deque[tuple[bool, bool | None]]] = {}
         self.neighbours: set[str] = set()
         self._seq = 0
 
@@ -70,31 +75,36 @@ class LinkProber:
 
     async def probe_all(self) -> None:
         peers = [GROUND_PEER, *sorted(self.neighbours)]
-        rtts = await asyncio.gather(*(self._probe(peer) for peer in peers))
+        outcomes = await asyncio.gather(*(self._probe(peer) for peer in peers))
         now_ms = self.clock.time_ms()
-        for peer, rtt in zip(peers, rtts, strict=True):
+        for peer, (rtt, direct) in zip(peers, outcomes, strict=True):
             window = self.windows[peer]
             window.add(rtt)
+            linked = self.linked.setdefault(peer, deque(maxlen=self.window))
+            linked.append((rtt is not None, direct))
+            answers = [d for answered, d in linked if answered]
             s = window.summary()
             quality = LinkQuality(
                 drone_id=self.drone_id, timestamp=now_ms, peer=peer,
                 rtt_ms=s.rtt_ms, jitter_ms=s.jitter_ms, loss=s.loss, quality=s.quality,
+                hops=None if not answers or None in answers else (1 if all(answers) else 2),
             )
             try:
                 self.bus.publish(self.keys.link(self.drone_id), encode(quality), reliable=False)
             except BusError as exc:
                 log.debug("%s: link quality not published: %s", self.drone_id, exc)
 
-    async def _probe(self, peer: str) -> float | None:
+    async def _probe(self, peer: str) -> tuple[float | None, bool | None]:
+        """The round trip in ms (None: unanswered), and whether the answer came over one link."""
         self._seq += 1
         key = self.keys.ground_ping() if peer == GROUND_PEER else self.keys.ping(peer)
         ping = Ping(drone_id=self.drone_id, timestamp=self.clock.time_ms(), seq=self._seq)
         sent = self.clock.monotonic()
         try:
-            await self.bus.query(key, encode(ping), timeout_s=self.period_s)
+            _, direct = await self.bus.query_linked(key, encode(ping), timeout_s=self.period_s)
         except (BusError, TimeoutError):
-            return None
+            return None, None
         now = self.clock.monotonic()
         if peer == GROUND_PEER:
             self.on_ground_contact(now)
-        return (now - sent) * 1000.0
+        return (now - sent) * 1000.0, direct

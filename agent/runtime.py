@@ -13,6 +13,7 @@ import asyncio
 import collections
 import json
 import logging
+import math
 import uuid
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -32,7 +33,7 @@ from dronefleet.agent.prober import LinkProber
 from dronefleet.agent.telemetry import to_telemetry
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_policy import unsure
-from dronefleet.bus.port import Bus, Sample, echo
+from dronefleet.bus.port import Bus, Declaration, QueryHandler, Sample, echo
 from dronefleet.schemas.about import About
 from dronefleet.schemas.auth import verifier_of
 from dronefleet.schemas.bundles import BundleReply, BundleStatus, parse_bundle
@@ -49,6 +50,10 @@ LOST_LINK_TICK_S = 0.2
 RECENT_STATUSES = 64  # command statuses kept to repeat to a ground that was out of reach
 STEADY_PROBES = 5  # probes answered in a row after a gap before its repeats count as heard
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
+# A contact gap this long may have been a link closing and the mesh routing the drone
+# another way: its command and bundle queryables are declared afresh (ADR 0003).
+REDECLARE_AFTER_S = 2.0
+OVERLAP_S = 1.0  # after a fresh declaration: a query reaching both gets one answer, within this
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 GEOFENCE_ID_PREFIX = "geofence-"
 
@@ -60,6 +65,63 @@ def make_flight_controller(url: str, clock: Clock) -> FlightController:
     from dronefleet.agent.fc_mavsdk import MavsdkFlightController
 
     return MavsdkFlightController(url, connect_timeout_s=FC_CONNECT_TIMEOUT_S)
+
+
+class Redeclarable:
+    """A queryable that can be declared afresh without a moment undeclared.
+
+    After the mesh routed a drone another way, the ground's router could hold no route
+    to its `cmd` queryable while its telemetry flowed (twice in 5 real-packet runs of
+    corpus world 206, ADR 0003): a declaration is not always carried again over the new
+    way. `refresh` declares the other of two forms that match the same key (`K`, then
+    `K/**`, a new resource to every router, so it travels the mesh anew), then
+    undeclares the old one. While both are declared a query can reach both: for
+    OVERLAP_S after a refresh the same query (selector and payload) gets the first
+    answer again instead of a second run. Only then: a replayed command is otherwise
+    refused as one (SPEC §9), and within that second it is not run twice either.
+    """
+
+    def __init__(self, bus: Bus, key: str, handler: QueryHandler, clock: Clock) -> None:
+        self._bus, self._handler, self._clock = bus, handler, clock
+        self._forms = (key, f"{key}/**")
+        self.refreshes = 0
+        self._refreshed_at = -math.inf
+        self._answers: dict[tuple[str, bytes], tuple[float, asyncio.Future[bytes]]] = {}
+        self._declared: Declaration = bus.serve(key, self._answer)
+
+    @property
+    def form(self) -> str:
+        return self._forms[self.refreshes % 2]
+
+    async def _answer(self, selector: str, payload: bytes) -> bytes:
+        now = self._clock.monotonic()
+        for query in [q for q, (at, _) in self._answers.items() if now - at > OVERLAP_S]:
+            del self._answers[query]
+        if now - self._refreshed_at > OVERLAP_S:
+            return await self._handler(selector, payload)
+        known = self._answers.get((selector, payload))
+        if known is not None:
+            return await asyncio.shield(known[1])
+        answer: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
+        self._answers[(selector, payload)] = (now, answer)
+        try:
+            answer.set_result(await self._handler(selector, payload))
+        except BaseException as exc:
+            answer.set_exception(exc)
+            answer.exception()  # retrieved: a duplicate awaiting it gets it, none is no warning
+            del self._answers[(selector, payload)]  # an error is not remembered: a retry runs again
+            raise
+        return answer.result()
+
+    def refresh(self) -> None:
+        self.refreshes += 1
+        self._refreshed_at = self._clock.monotonic()
+        fresh = self._bus.serve(self.form, self._answer)
+        self._declared.close()
+        self._declared = fresh
+
+    def close(self) -> None:
+        self._declared.close()
 
 
 class Agent:
@@ -93,6 +155,7 @@ class Agent:
         # the contact after it not yet steady): each contact after a gap repeats them.
         self._unsure_since_ms: int | None = None
         self._steady_from_ms = 0
+        self._served: list[Redeclarable] = []  # the command and bundle queryables, while running
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -129,6 +192,11 @@ class Agent:
             # failed, at once after start) may have gone nowhere. Sent again.
             unheard, self._before_contact = self._before_contact, None
             self._send_again(unheard, "statuses published before the ground answered")
+        if gap_began_ms is not None and now_ms - gap_began_ms >= REDECLARE_AFTER_S * 1000 and self._served:
+            log.info("%s: the ground answers again after %.1f s; declaring its command queryables afresh",
+                     self.drone_id, (now_ms - gap_began_ms) / 1000)
+            for served in self._served:
+                served.refresh()
         if gap_began_ms is not None and now_ms - gap_began_ms > 1.5 * period_ms:
             # At least one probe went unanswered: the link dropped for a while, maybe for
             # less than the lost-link timeout, and a reliable publication whose link closed
@@ -319,8 +387,8 @@ class Agent:
     async def run(self) -> None:
         """Serve until cancelled. The caller owns (and closes) fc and bus."""
         # Queryable first: once the liveliness token is visible, commands are served.
-        queryable = self.bus.serve(self.keys.cmd(self.drone_id), self._on_command)
-        bundles = self.bus.serve(self.keys.bundle(self.drone_id), self._on_bundle)
+        self._served = [Redeclarable(self.bus, self.keys.cmd(self.drone_id), self._on_command, self.clock),
+                        Redeclarable(self.bus, self.keys.bundle(self.drone_id), self._on_bundle, self.clock)]
         sensors = self.bus.subscribe(self.keys.sensor(self.drone_id), self._on_sensor, latest_only=True)
         ping = self.bus.serve(self.keys.ping(self.drone_id), echo)
         about = self.bus.serve(self.keys.about(self.drone_id), self._on_about)
@@ -344,8 +412,9 @@ class Agent:
             about.close()
             ping.close()
             sensors.close()
-            bundles.close()
-            queryable.close()
+            for served in self._served:
+                served.close()
+            self._served = []
 
 
 def _flying(state: FcState) -> bool:

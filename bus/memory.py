@@ -49,6 +49,9 @@ class Medium(Protocol):
 
     async def sleep(self, seconds: float) -> None: ...
 
+    def path(self, src: str, dst: str) -> list[str] | None:
+        """The nodes a message from `src` to `dst` passes (both ends), or None."""
+
     def on_change(self, callback: Callable[[], None]) -> None:
         """Call back whenever which nodes reach which may have changed."""
         ...
@@ -178,6 +181,9 @@ class MemoryBus:
         return entry[0]
 
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
+        return (await self.query_linked(selector, payload, timeout_s=timeout_s))[0]
+
+    async def query_linked(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> tuple[bytes, bool | None]:
         key = strip_parameters(selector)
         net = self._net
         matches = [(d, h) for d, h in net.queryables
@@ -185,6 +191,15 @@ class MemoryBus:
         if not matches:
             raise Unreachable(f"no queryable for {key}")
         decl, handler = matches[0]
+        path = net.medium.path(self.node, decl.owner.node) if net.medium is not None else None
+        reply = await self._query(decl, handler, key, selector, payload, timeout_s)
+        # the path the reply takes back, as it is when the reply arrives
+        back = net.medium.path(decl.owner.node, self.node) if net.medium is not None else None
+        return reply, (None if path is None or back is None else len(path) <= 2 and len(back) <= 2)
+
+    async def _query(self, decl: _Decl, handler: QueryHandler, key: str, selector: str, payload: bytes,
+                     timeout_s: float) -> bytes:
+        net = self._net
         name = decl.keyexpr if "*" not in decl.keyexpr else key
         if "?" in selector:  # the handler sees the parameters, as Zenoh's query.selector
             name += selector[selector.index("?"):]

@@ -67,6 +67,10 @@ class Bus(Protocol):
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
         """The first reply, or Unreachable / QueryTimeout / QueryRefused."""
 
+    async def query_linked(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> tuple[bytes, bool | None]:
+        """As `query`, and whether the node that answered is linked to this one directly
+        (its reply crossed one link, not a path through other nodes); None: unknown."""
+
     def announce(self, key: str) -> Declaration:
         """Declare a liveliness token; it vanishes when closed or when this node dies."""
 

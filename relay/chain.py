@@ -84,6 +84,7 @@ class Seen:
     loss: float | None  # its link window to the ground (None: no window yet)
     rtt_ms: float | None
     fresh: bool = True  # heard lately (else where it is and its window are old news)
+    hops: int | None = None  # its window's answers came over its own link (1), some through others (2), or unknown
 
 
 @dataclass
@@ -155,6 +156,8 @@ class Chains:
         self.stuck: dict[str, str] = {}
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
+        self.grounded: list[Point] = []  # the drones on the ground: where the next relay takes off
+        self.airborne: list[Point] = []  # the served drones in the air
 
     # ---- what the plugin asks -------------------------------------------------------
 
@@ -172,6 +175,13 @@ class Chains:
             chain[:] = [s for s in chain if s.relay != relay]
         if relay in self.idle:
             self.idle.remove(relay)
+
+    def relays(self) -> set[str]:
+        """The relays the plan holds: the probe, those on a chain's slot, the idle."""
+        held = {s.relay for c in self.chains.values() for s in c} | set(self.idle)
+        if self.probe is not None:
+            held.add(self.probe.relay)
+        return {r for r in held if r is not None}
 
     def allowed(self, worker: str, at: Point, alt: float, goal: Point) -> Point:
         """How far toward `goal` the worker may fly now: the last point of the straight
@@ -209,7 +219,9 @@ class Chains:
         of the mesh (spot, altitude), which a probe's traffic may pass through."""
         out = ChainPlan()
         # drones on the ground, and relays climbing from it through the served drones' level
-        self.parked = [at for at, alt in others if alt < 1.0] + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
+        self.grounded = [at for at, alt in others if alt < 1.0]
+        self.parked = self.grounded + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
+        self.airborne = [w.at for w in workers if w.alt >= 1.0]
         for s in seen.values():
             if s.fresh and s.rtt_ms is not None and (self.base_rtt is None or s.rtt_ms < self.base_rtt):
                 self.base_rtt = s.rtt_ms
@@ -250,8 +262,11 @@ class Chains:
                 chain.pop()
 
     def _learn(self, now: float, nodes: Sequence[tuple[Point, float]], seen: Mapping[str, Seen], out: ChainPlan) -> None:
-        """The probe on its spot for a whole window proves the bottleneck of its best
-        path to the laptop, or, failing, that its own hop to the laptop does not hold
+        """The probe on its spot for a whole window proves its own hop to the laptop when
+        every answer came over that link (its report's `hops`; in world 63 the ring of
+        spares around the laptop made every trial prove only the hop through one of
+        them: 40 m on a radio good to 56), else the bottleneck of its best path to the
+        laptop; or, failing, that its own hop to the laptop does not hold
         (were that link lossless it would be up and, one hop being fewest, taken)."""
         slot = self.probe
         if slot is None or slot.relay is None or slot.hop == 0.0 or slot.relay not in seen:
@@ -280,8 +295,11 @@ class Chains:
         clean = (not lost and s.loss == 0.0 and s.rtt_ms is not None
                  and s.rtt_ms <= (self.base_rtt or 0.0) + SPIKE_MS)
         if clean:
-            others = list(nodes) + [(o.at, o.alt) for rid, o in seen.items() if rid != slot.relay]
-            proven = bottleneck((s.at, s.alt), others)
+            if s.hops == 1:  # every answer over its own link: that hop, whatever stands nearer
+                proven = math.hypot(dist(s.at, ORIGIN), s.alt)
+            else:  # its traffic may have taken a shorter hop through another node
+                others = list(nodes) + [(o.at, o.alt) for rid, o in seen.items() if rid != slot.relay]
+                proven = bottleneck((s.at, s.alt), others)
             self.reach.held(proven)
             self.safe = slot.spot
             out.notes.append(f"probe {slot.relay}: a hop of {proven:.0f} m held")
@@ -303,6 +321,8 @@ class Chains:
         if self.probe is None and spare <= 0:
             for w in workers:
                 self.stuck[w.id] = "no free drone to measure the radio with"
+            return
+        if self.probe is None and not self._launch_clear({}):
             return
         trial = self.reach.trial(self.first_trial)
         spot = self._trial_spot(trial, nodes)
@@ -406,11 +426,15 @@ class Chains:
         return next((p for p in candidates if room(p) >= 1.0), max(candidates, key=room))
 
     def _launch_clear(self, seen: Mapping[str, Seen]) -> bool:
-        """No relay in the air near the drones on the ground: one taking off there climbs
-        through every lower level (relays fly out on levels of their own, ADR 0006)."""
+        """No relay in the air near the drones on the ground, and no served drone flying
+        over one (within PARKED_CLEAR_M across): the relay sent next takes off from one of
+        them and climbs through every lower level (relays fly out on levels of their own,
+        ADR 0006). A worker passing over the spares' row held 3.1 m from a relay
+        climbing through its level (corpus worlds 81, 119, 135, 140)."""
         asked = any(s.relay is None for c in self.chains.values() for s in c)
         return not asked and all(abs(o.alt - self.duty_alt) <= 2.0 or self._clear(o.at, LAUNCH_CLEAR_M)
-                                 for o in seen.values())
+                                 for o in seen.values()) \
+            and all(dist(p, q) >= PARKED_CLEAR_M for p in self.airborne for q in self.grounded)
 
     def _release(self, workers: Iterable[Worker], out: ChainPlan) -> None:
         hop = self.reach.lo * MARGIN

@@ -10,7 +10,9 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
   short where it would come within CLEAR_M (3-D) of another worker's remaining declared
   leg or of the column above a worker that has not taken off yet (it will climb
   there), or within AROUND_M of where any other drone is now (relays keep their own
-  levels: relay/chain.py);
+  levels: relay/chain.py), or within CLEAR_M of the column of a relay sent from the
+  ground or not yet above the worker's level, which climbs (or lands) through it (a
+  worker flew over a spare as it took off, 3.1 m from it: corpus worlds 81, 119, 135);
 - cut to nothing, the worker waits where it is; the other drone's way clears as it
   flies (its remaining leg is from where it is now);
 - a worker already closer than that to another (they take off side by side) may fly
@@ -23,7 +25,7 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 
 Point3 = tuple[float, float, float]  # metres north, east, up (above the laptop's level)
@@ -81,22 +83,29 @@ class Ways:
     wants: dict[str, Point3] = field(default_factory=dict)  # worker → where its leg would go, all of it
 
     def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
-              now: float) -> tuple[Point3, str | None]:
+              now: float, relays: Collection[str] = ()) -> tuple[Point3, str | None]:
         """How far `drone` may fly from `at` toward `to`: the end of its clear part, and
         the drone it gives way to (None when it may fly all of it). `others`: where
-        every other drone is; `workers`: the leashed drones (their legs are declared)."""
+        every other drone is; `workers`: the leashed drones (their legs are declared);
+        `relays`: drones sent as relays (one still on the ground is about to take off)."""
         self.wants[drone] = to
+        top = max(at[2], to[2])
         obstacles: list[tuple[str, Point3, Point3, float, bool]] = []  # (drone, from, to, clearance, a way)
         for o, p in others.items():
             if o == drone:
                 continue
-            if p[2] > AIRBORNE_M:
+            if p[2] > AIRBORNE_M and o not in workers and p[2] < top + AROUND_M:
+                # a relay below the top of this leg takes off or lands: its column
+                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + AROUND_M), CLEAR_M, False))
+            elif p[2] > AIRBORNE_M:
                 obstacles.append((o, p, p, CLEAR_M if o in workers else AROUND_M, False))
                 if o in workers:
                     self.flown.add(o)
                     leg = self.legs.get(o)
                     if leg is not None:
                         obstacles.append((o, p, leg[1], CLEAR_M, True))  # what is left of its leg
+            elif o in relays:  # assigned, arming: it climbs its column next
+                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + AROUND_M), CLEAR_M, False))
             elif o in workers and o not in self.flown:
                 obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], max(at[2], to[2])), CLEAR_M, False))
             else:

@@ -7,15 +7,19 @@ with a unique port and scouting off.
 from __future__ import annotations
 
 import asyncio
+import operator
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
+from functools import partial
 
 import pytest
 
+from dronefleet.agent.runtime import OVERLAP_S, Redeclarable
+from dronefleet.bus.clock import SystemClock, VirtualClock
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.port import Bus, QueryRefused, QueryTimeout, Unreachable
 from dronefleet.bus.zenoh_bus import ZenohBus
-from tests.helpers import Collector, free_port
+from tests.helpers import Collector, free_port, until
 
 MeshFactory = Callable[[], Awaitable[Bus]]
 
@@ -57,6 +61,12 @@ async def serve_reachably(server: Bus, client: Bus, key: str, handler) -> None:
     """Declare a queryable and wait (deadline 5 s) until the client's queries reach it;
     the handler must answer the payload b"warm"."""
     server.serve(key, handler)
+    await reachable(client, key)
+
+
+async def reachable(client: Bus, key: str) -> None:
+    """Wait (deadline 5 s) until the client's queries on `key` reach a queryable that
+    answers the payload b"warm"."""
     deadline = time.monotonic() + 5
     while True:
         try:
@@ -116,6 +126,89 @@ async def test_query_is_answered_by_the_matching_queryable(mesh: MeshFactory) ->
     await serve_reachably(server, client, "drone/d1/cmd", echo)
     reply = await client.query("drone/d1/cmd", b"arm", timeout_s=2)
     assert reply == b"drone/d1/cmd|arm"
+
+
+async def test_a_queryable_declared_afresh_answers_every_query_around_it_once(mesh: MeshFactory) -> None:
+    """The agent's command queryable after a contact gap (agent/runtime.Redeclarable):
+    queries that reached the old declaration are answered after it is gone, queries
+    sent after reach the new one (the other form, `K/**`), and each runs once."""
+    server, client = await mesh(), await mesh()
+    runs: list[bytes] = []
+    held = asyncio.Event()
+
+    async def handler(key: str, payload: bytes) -> bytes:
+        runs.append(payload)
+        if payload.startswith(b"held"):
+            await held.wait()
+        return key.encode() + b"|" + payload
+
+    served = Redeclarable(server, "drone/d1/cmd", handler, SystemClock())
+    await reachable(client, "drone/d1/cmd")
+    for round_ in range(3):
+        query = b"held%d" % round_
+        pending = asyncio.ensure_future(client.query("drone/d1/cmd", query, timeout_s=5))
+        await until(partial(operator.contains, runs, query), 5, "the held query at the handler")
+        served.refresh()
+        held.set()
+        assert await pending == b"drone/d1/cmd|held%d" % round_
+        held.clear()
+        assert await client.query("drone/d1/cmd", b"after%d" % round_, timeout_s=2) == b"drone/d1/cmd|after%d" % round_
+    assert served.form == "drone/d1/cmd/**" and served.refreshes == 3
+    mine = [r for r in runs if r != b"warm"]
+    assert sorted(mine) == sorted({*mine}), mine  # none ran twice
+    served.close()
+
+
+async def test_a_query_reaching_both_declarations_runs_once() -> None:
+    """Just after a refresh a query can reach both forms: the second gets the first's
+    answer; an error is not kept, so a retry runs again. Later the same bytes run
+    again (the handler refuses a replayed command as one, SPEC §9)."""
+    runs: list[bytes] = []
+    gate = asyncio.Event()
+
+    async def handler(key: str, payload: bytes) -> bytes:
+        runs.append(payload)
+        await gate.wait()
+        if payload == b"bad":
+            raise ValueError("boom")
+        return payload
+
+    clock = VirtualClock()
+    served = Redeclarable(MemoryBus(MemoryNetwork()), "drone/d1/cmd", handler, clock)
+    served.refresh()
+    twice = [asyncio.ensure_future(served._answer("drone/d1/cmd", b"arm")) for _ in range(2)]
+    bad = [asyncio.ensure_future(served._answer("drone/d1/cmd", b"bad")) for _ in range(2)]
+    await until(lambda: len(runs) == 2, 5, "the handler to start")
+    gate.set()
+    assert await asyncio.gather(*twice) == [b"arm", b"arm"]
+    for outcome in await asyncio.gather(*bad, return_exceptions=True):
+        assert isinstance(outcome, ValueError)
+    with pytest.raises(ValueError):
+        await served._answer("drone/d1/cmd", b"bad")
+    assert runs == [b"arm", b"bad", b"bad"]
+    await clock.advance(OVERLAP_S + 0.1)
+    assert await served._answer("drone/d1/cmd", b"arm") == b"arm"
+    assert runs == [b"arm", b"bad", b"bad", b"arm"]
+
+
+@pytest.mark.integration
+async def test_a_reply_says_whether_it_came_over_one_link() -> None:
+    """query_linked (the agent's probes, agent/prober.py): the router's own queryable is
+    one link from its client; another client's is two, through the router."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = await ZenohBus.open("router", listen=[endpoint])
+    near, far = await ZenohBus.open("client", connect=[endpoint]), await ZenohBus.open("client", connect=[endpoint])
+    try:
+        async def echo(key: str, payload: bytes) -> bytes:
+            return payload
+
+        await serve_reachably(router, near, "ground/ping", echo)
+        await serve_reachably(far, near, "drone/far/ping", echo)
+        assert await near.query_linked("ground/ping", b"p") == (b"p", True)
+        assert await near.query_linked("drone/far/ping", b"p") == (b"p", False)
+    finally:
+        for bus in (far, near, router):
+            await bus.close()
 
 
 async def test_query_without_queryable_is_unreachable_at_once(mesh: MeshFactory) -> None:

@@ -184,8 +184,12 @@ async def test_out_of_range_and_back_in_fast_time() -> None:
 
 
 async def test_relay_through_a_neighbour_in_fast_time() -> None:
-    _, seen = await relay_through_a_neighbour()
+    f, seen = await relay_through_a_neighbour()
     assert seen["path"] == ["droneB", "droneA", GROUND]  # only through A: B-ground is out of range
+    # Each drone's reports say how its probes were answered: A over its own link, B through A.
+    hops = {d: {m.get("hops") for _, k, m in f.said if k == f"drone/{d}/link" and m["peer"] == GROUND} - {None}
+            for d in ("droneA", "droneB")}
+    assert hops == {"droneA": {1}, "droneB": {2}}, hops
     assert seen["arm"] is True
     assert seen["refused"] in ("Unreachable", "QueryTimeout", "CommandRejected")
     assert seen["back_after_s"] <= 5.0, seen

@@ -150,3 +150,23 @@ def test_a_held_drone_is_not_held_over_a_drone_that_may_take_off() -> None:
     edge = c.allowed("d1", w.at, w.alt, w.goal)  # type: ignore[arg-type]
     assert dist(edge, parked) >= 6.0 and dist(edge, (0, 0)) > 10
     assert flat(40.0 * MARGIN, 15.0) >= dist(edge, (0, 0))
+
+
+def test_no_relay_takes_off_while_a_served_drone_flies_over_the_drones_on_the_ground() -> None:
+    """Corpus world 81: a worker passing over the spares' row held 3.1 m from a relay
+    climbing through its level. The relay is sent once the worker is 6 m clear."""
+    spares = [(at(20, 90), 0.0), (at(27, 90), 0.0)]
+    for across, sent in ((3.0, False), (5.5, False), (6.5, True)):
+        c = Chains(DUTY)
+        c.reach = Reach(lo=50.0, hi=51.0)
+        over = Worker("d1", (across, 20.0), 15.0, at(300))  # beside the first spare, on its way out
+        out = c.plan(0.0, [over], {}, spare=2, others=spares)
+        assert (out.dispatch != []) is sent, (across, out)
+
+
+def test_the_probe_waits_too_while_a_worker_is_over_a_spare() -> None:
+    c = Chains(DUTY, first_trial=60.0)
+    spare = (at(20, 90), 0.0)
+    assert c.plan(0.0, [Worker("d1", (2.0, 20.0), 15.0, at(200))], {}, spare=1, others=[spare]).dispatch == []
+    out = c.plan(1.0, [Worker("d1", (12.0, 20.0), 15.0, at(200))], {}, spare=1, others=[spare])
+    assert [k for k, _, _ in out.dispatch] == [PROBE]

@@ -54,6 +54,21 @@ def test_relays_hovering_above_the_workers_level_are_not_in_the_way() -> None:
     assert end == (0, 100, 15) and other is None
 
 
+def test_a_worker_does_not_fly_over_a_relay_climbing_through_its_level() -> None:
+    """Corpus world 119: a relay taking off beside a worker's way was 3 m up when the
+    worker passed over it, and 3.1 m from it when it climbed through 15 m."""
+    ways = Ways()
+    end, other = ways.clear("drone01", (0, 0, 15), (0, 40, 15), {"drone05": (2, 20, 3)}, {"drone01"}, now=0.0)
+    assert other == "drone05" and end[1] < 20 and segment_distance((0, 0, 15), end, (2, 20, 0), (2, 20, 25)) >= CLEAR_M - 0.1
+    # sent, still on the ground: it takes off next; not sent: a drone on the ground
+    end, other = Ways().clear("drone01", (0, 0, 15), (0, 40, 15), {"drone05": (2, 20, 0)}, {"drone01"}, 0.0, {"drone05"})
+    assert other == "drone05" and end[1] < 20
+    assert Ways().clear("drone01", (0, 0, 15), (0, 40, 15), {"drone05": (2, 20, 0)}, {"drone01"}, 0.0) == ((0, 40, 15), None)
+    # once it is above the worker's level (its duty), the worker passes under it
+    end, other = ways.clear("drone01", end, (0, 40, 15), {"drone05": (2, 20, 21)}, {"drone01"}, now=5.0)
+    assert end == (0, 40, 15) and other is None
+
+
 def test_two_workers_each_waiting_on_the_others_way_do_not_wait_for_ever() -> None:
     ways = Ways()
     workers = {"drone01", "drone02"}

@@ -264,14 +264,24 @@ def chain_go(relay, spot, hold, first=None):
                  steps.move(to=safe, alt=levels(relay, duty) * m)]
     plan.append(steps.wait(CHAIN_DUTY_S * s))
     state["until"][relay.id] = relays.now() + CHAIN_DUTY_S
-    push(relay, plan, on_link_loss="continue", timeout=(CHAIN_DUTY_S + 300) * s)
+    record = push(relay, plan, on_link_loss="continue", timeout=(CHAIN_DUTY_S + 300) * s)
+    if record.state == "failed" and relay.id in crew:
+        # Its slot is asked for again, from a drone that flies. Seen: a relay sent home
+        # and at once again, armed still after landing, which PX4 then disarmed before
+        # its takeoff step (corpus world 63; the slot waited for it until the time limit).
+        chain_leave(relay, f"relay duty failed at step {record.step + 1} ({record.reason}); the plugin sends another")
 
 
 def chain_home(relay):
+    chain_leave(relay, "relay no longer needed, returning")
+
+
+def chain_leave(relay, why):
     relays.chain_dropped(relay.id)
     state["until"].pop(relay.id, None)
-    print(f"{relay.id}: relay no longer needed, returning")
-    home(relay, outbound(relay) * m)
+    print(f"{relay.id}: {why}")
+    if relay.state in ("active", "hold"):
+        home(relay, outbound(relay) * m)
     if relay.id in crew:
         del crew[relay.id]
         revoke(relay)

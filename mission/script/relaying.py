@@ -216,7 +216,7 @@ class Relays:
             fresh = self._mission is not None and self._mission.heard_within(rid, heard_s)
             seen[rid] = chains.Seen(frame.local(d.position), _above(d, d.position.alt) or 0.0,
                                     link.loss if link is not None else None, link.rtt_ms if link is not None else None,
-                                    fresh)
+                                    fresh, link.hops if link is not None else None)
         result = self._chains.plan(now, workers, seen, self.spare(), self._mesh_nodes(frame, set(seen) | set(self._served)))
         return ChainOrders(
             moves=[(rid, frame.world(pt), hold) for rid, pt, hold in result.moves],
@@ -256,7 +256,7 @@ class Relays:
         at = frame.local(d.position)
         allowed = ch.allowed(drone_id, at, above or 0.0, goal)
         end, other = self._ways.clear(drone_id, (*at, here), (*allowed, above or here), self._everyone(frame),
-                                      set(self._served), self.now())
+                                      set(self._served), self.now(), ch.relays())
         if chains.dist(end[:2], goal) < 0.5:
             return None
         cut = other is not None and chains.dist(end[:2], allowed) >= 0.5  # short of the chain's edge: another's way
