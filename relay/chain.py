@@ -33,19 +33,17 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from dronefleet.relay.hop import Reach, bottleneck
 from dronefleet.relay.planner import Point, dist, toward
 
 ORIGIN: Point = (0.0, 0.0)
 PROBE = "probe"
 
-FLOOR_M = 20.0  # every radio is taken to hold this far (the corpus's shortest is good to 25 m)
-GROWTH = 1.5  # a probe with no failed hop yet tries this much beyond the longest proven
-CONVERGED = 1.06  # hi / lo this close: the hop is known
-MAX_TRIALS = 8  # … or after this many trials
 MARGIN = 0.97  # chains are laid at this share of the proven hop
 DWELL_S = 11.0  # on its spot this long: a whole 10-probe window measured there
 ON_SPOT_M = 3.0
 LAUNCH_CLEAR_M = 15.0  # a relay is sent when the last one has flown this far from the drones on the ground
+LAUNCH_TIMEOUT_S = 40.0  # a relay assigned this long ago and still on the ground never took off: another is sent
 PARKED_CLEAR_M = 6.0  # a held drone is not held over a drone on the ground (across)
 RELAYS_APART_M = 7.0  # relays hover on one level: spots of different chains keep this apart
 MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node before it
@@ -95,41 +93,7 @@ class Slot:
     on_spot_since: float | None = None
     hop: float = 0.0  # a probe's trial hop (0: measured, the next one not sent yet)
     resends: int = 0  # a probe's trial sent again (its move refused, or it came back unmeasured)
-
-
-@dataclass
-class Reach:
-    lo: float = FLOOR_M
-    hi: float | None = None
-    first_tried: bool = False
-    trials: int = 0
-
-    @property
-    def known(self) -> bool:
-        """Bracketed closely enough, or tried often enough (drones standing by the laptop
-        can keep the proofs shorter than the trials: the chains then use what was proven)."""
-        return (self.hi is not None and self.hi <= self.lo * CONVERGED) or self.trials >= MAX_TRIALS
-
-    def trial(self, first: float | None = None) -> float:
-        """The next hop to try: the radio model's (`first`) while nothing failed and it
-        is longer than what held, else GROWTH beyond what held, else halfway to what failed."""
-        if self.hi is None:
-            if first is not None and not self.first_tried and first > self.lo * 1.01:
-                self.first_tried = True
-                return first
-            return self.lo * GROWTH
-        return (self.lo + self.hi) / 2
-
-    def held(self, hop: float) -> None:
-        self.trials += 1
-        self.lo = max(self.lo, hop)
-        if self.hi is not None and self.hi <= self.lo:
-            self.hi = self.lo * CONVERGED
-
-    def failed(self, hop: float) -> None:
-        self.trials += 1
-        if hop > self.lo:
-            self.hi = hop if self.hi is None else min(self.hi, hop)
+    again: bool = False  # its relay failed: to be asked for again, in place
 
 
 @dataclass
@@ -137,6 +101,7 @@ class ChainPlan:
     dispatch: list[tuple[str, Point, float]] = field(default_factory=list)  # (slot key, spot, hold seconds or 0)
     moves: list[tuple[str, Point, float]] = field(default_factory=list)  # (relay, spot, seconds to dwell before coming back; 0: stay)
     home: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)  # relays assigned that never took off: the plan goes on without them
     notes: list[str] = field(default_factory=list)
 
 
@@ -166,6 +131,23 @@ class Chains:
         slot = self._slot(key)
         if slot is not None and slot.relay is None:
             slot.relay = relay
+            slot.again = False
+
+    def failed(self, relay: str, now: float) -> None:
+        """`relay` cannot do its duty (its duty bundle failed, it never took off): its
+        slot is asked for again in place (a probe, sent again); the plugin sends it home."""
+        if self.probe is not None and self.probe.relay == relay:
+            self.probe = None
+            if self.reach.trials == 0:
+                self.reach.first_tried = False  # the model's hop was never tried: the next probe tries it
+        for chain in self.chains.values():
+            for slot in chain:
+                if slot.relay == relay:
+                    # asked for again at the next plan (as if its ask had timed out)
+                    slot.relay, slot.again, slot.on_spot_since = None, True, None
+                    slot.asked_at = now - DISPATCH_TIMEOUT_S - 1.0
+        if relay in self.idle:
+            self.idle.remove(relay)
 
     def dropped(self, relay: str) -> None:
         """A relay the plugin lost (its assignment failed, it was revoked)."""
@@ -272,6 +254,10 @@ class Chains:
         if slot is None or slot.relay is None or slot.hop == 0.0 or slot.relay not in seen:
             return
         s = seen[slot.relay]
+        if s.fresh and s.alt < 1.0 and now - slot.asked_at > LAUNCH_TIMEOUT_S:  # it never took off
+            out.failed.append(slot.relay)
+            self.failed(slot.relay, now)
+            return
         lost = not s.fresh and now - slot.asked_at > DISPATCH_TIMEOUT_S
         there = s.fresh and self._on_spot(s, slot.spot)
         if there and slot.on_spot_since is None:
@@ -361,6 +347,10 @@ class Chains:
         gap = False
         for s in chain:
             o = seen.get(s.relay) if s.relay is not None else None
+            if o is not None and s.relay is not None and o.fresh and o.alt < 1.0 and now - s.asked_at > LAUNCH_TIMEOUT_S:
+                out.failed.append(s.relay)  # assigned and still on the ground: it never took off (or came down)
+                self.failed(s.relay, now)
+                o = None
             there = o is not None and self._on_spot(o, s.spot)
             s.on_spot_since = (s.on_spot_since or now) if there else None
             if o is not None and s.relay is not None and not there and o.fresh and now - s.asked_at > SLOT_RESEND_S:
@@ -376,6 +366,13 @@ class Chains:
         self.covered[w.id] = self._nodes(now, chain, seen, out)
         if w.alt < 1.0 and w.goal is None:
             return free  # on the ground, going nowhere: nothing to keep it connected for
+        again = next((i for i, s in enumerate(chain) if s.again), None)
+        if again is not None:  # a relay of the chain failed: its slot first
+            if free <= 0 or now - chain[again].asked_at <= DISPATCH_TIMEOUT_S or not self._launch_clear(seen):
+                return free
+            chain[again].asked_at = now
+            out.dispatch.append((f"{w.id}#{again}", chain[again].spot, 0.0))
+            return free - 1
         goal = w.goal or w.at
         hop = self.reach.lo * MARGIN
         planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
@@ -431,7 +428,7 @@ class Chains:
         them and climbs through every lower level (relays fly out on levels of their own,
         ADR 0006). A worker passing over the spares' row held 3.1 m from a relay
         climbing through its level (corpus worlds 81, 119, 135, 140)."""
-        asked = any(s.relay is None for c in self.chains.values() for s in c)
+        asked = any(s.relay is None and not s.again for c in self.chains.values() for s in c)
         return not asked and all(abs(o.alt - self.duty_alt) <= 2.0 or self._clear(o.at, LAUNCH_CLEAR_M)
                                  for o in seen.values()) \
             and all(dist(p, q) >= PARKED_CLEAR_M for p in self.airborne for q in self.grounded)
@@ -454,23 +451,3 @@ class Chains:
                 del self.leaving[rid]
                 chain.pop()
                 out.home.append(rid)
-
-
-def bottleneck(start: tuple[Point, float], others: Sequence[tuple[Point, float]]) -> float:
-    """The least, over every path from `start` to the laptop through `others`, of its
-    longest hop (3-D): what a clean window at `start` proves the radio holds."""
-    nodes = [start, *others, (ORIGIN, 0.0)]
-    goal = len(nodes) - 1
-    best = [math.inf] * len(nodes)
-    best[0] = 0.0
-    done = [False] * len(nodes)
-    for _ in range(len(nodes)):
-        i = min((k for k in range(len(nodes)) if not done[k]), key=lambda k: best[k])
-        done[i] = True
-        if i == goal:
-            break
-        for j in range(len(nodes)):
-            if not done[j]:
-                (a, za), (b, zb) = nodes[i], nodes[j]
-                best[j] = min(best[j], max(best[i], math.hypot(dist(a, b), za - zb)))
-    return best[goal]

@@ -8,21 +8,17 @@ import math
 import pytest
 
 from dronefleet.relay.chain import (
-    CONVERGED,
     DWELL_S,
-    FLOOR_M,
-    GROWTH,
     MARGIN,
     PROBE,
     ChainPlan,
     Chains,
-    Reach,
     Seen,
     Worker,
-    bottleneck,
     dist,
     flat,
 )
+from dronefleet.relay.hop import CONVERGED, FLOOR_M, GROWTH, Reach, bottleneck
 
 DUTY = 21.0  # relays' altitude above the laptop; the worker flies at 15 m
 

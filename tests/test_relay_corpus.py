@@ -6,10 +6,13 @@ from __future__ import annotations
 import asyncio
 import math
 import re
+from typing import Any
 
 import pytest
 
 from dronefleet import relay_corpus as rc
+from dronefleet import relay_experiments as rx
+from dronefleet.compose import SimField
 from dronefleet.schemas.geo import distance_m
 from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, generate, hop_m
 
@@ -94,6 +97,59 @@ def test_chain_mode_measures_the_radio_and_keeps_the_worker_heard(seed: int) -> 
     assert any("held at the edge of its relay chain" in m for m in log) and any("going on to its goal" in m for m in log)
     learnt = next(float(m.split("hops of ")[1].split(" m")[0]) for m in log if "the radio holds hops of" in m)
     assert learnt <= world.radio.good_m + 0.15 * (world.radio.lost_m - world.radio.good_m), (learnt, world.describe())
+
+
+@pytest.mark.slow(10)
+def test_chain_mode_proves_its_own_hop_past_a_ring_of_spares() -> None:
+    """Corpus world 63 (radio 56/107 m, three workers, seven spares in a ring around the
+    laptop): the probe's answers came over its own link, so a clean window proves its own
+    hop, not the bottleneck through the spare below it (it learnt 40 m so); a relay sent
+    home and at once again, armed still after landing, was disarmed before its takeoff
+    step, and the plugin sends another instead of waiting for it to the time limit;
+    no worker flies over a relay climbing through its level (it came within 1.3 m)."""
+    world = generate(63)
+    assert world.spares_suffice and world.layout == "ring"
+    result = asyncio.run(rc.fly(world, "chain"))
+    o = rc.judge(world, "chain", result)
+    log = [line["message"] for line in result["log"]]
+    assert o.finished, f"{world.describe()}: {o}"
+    learnt = next(float(m.split("hops of ")[1].split(" m")[0]) for m in log if "the radio holds hops of" in m)
+    assert learnt >= 0.9 * world.radio.good_m, (learnt, world.describe())
+    assert o.separation_m >= rc.MIN_SEPARATION_M, f"{world.describe()}: {o.separation_m:.1f} m"
+
+
+@pytest.mark.slow(8)
+def test_a_relay_that_cannot_arm_is_replaced_and_not_sent_again_and_again() -> None:
+    """Issue 32 item 2: a relay's failure is the plugin's problem. World 6's first spare
+    is denied arming by its autopilot (after the ground saw it healthy, so it is
+    assigned): sent as the probe it never takes off; the plan gives it up after
+    LAUNCH_TIMEOUT_S and sends another, and a drone that failed twice is kept out, not
+    sent again and again. The mission finishes with its worker heard."""
+    world = generate(6)
+    broken = world.spares[0]
+
+    async def fly() -> dict[str, Any]:
+        gs = world.world.ground_station
+        assert gs is not None and (line := rc.MODES["chain"]) is not None
+        sim = SimField(world.world, seed=world.seed)
+        try:
+            await sim.start()
+            # its autopilot refuses to arm from now on; the ground saw it healthy
+            sim.vehicles[broken].arm = lambda: "arming denied: preflight check failed"  # type: ignore[method-assign]
+            record = await sim.run_mission(world.script(line.format(lat=gs.lat, lon=gs.lon)), max_s=rc.MAX_S)
+            return sim.result(record)
+        finally:
+            await sim.close()
+
+    result = asyncio.run(fly())
+    o = rc.judge(world, "chain", result)
+    log = [line["message"] for line in result["log"]]
+    assert o.connected, f"{world.describe()}: {o}\n" + "\n".join(log)
+    gave_up = [m for m in log if m.startswith(f"{broken}: assigned but never took off")]
+    assert gave_up and "the plugin sends another relay" in gave_up[0], log
+    assert len(gave_up) <= 2 and (len(gave_up) < 2 or "no longer this one" in gave_up[1]), gave_up
+    assert broken not in rx.relays_flown(result, world.workers)
+    assert any("relay duty" in m and not m.startswith(broken) for m in log), log
 
 
 def test_chain_mode_where_the_spares_do_not_suffice_holds_then_names_the_relays_missing() -> None:

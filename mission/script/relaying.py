@@ -10,6 +10,7 @@ around the ground station, the plan's points become positions again.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -26,6 +27,8 @@ if TYPE_CHECKING:
     from dronefleet.mission.lifecycle.mission import Mission
 
 AIRBORNE_M = 1.0  # above home: flying
+LAND_CLEAR_M = ways.CLEAR_M  # a relay comes down only this far (across) from every drone flying below it
+ON_GROUND_CLEAR_M = 3.0  # … and lands at least this far from a drone on the ground
 
 
 class Frame:
@@ -61,6 +64,7 @@ class ChainOrders:
     dispatch: list[tuple[Position, float, str]]  # (spot, dwell as above, the slot's key for `chain_joined`)
     home: list[str]
     notes: list[str]
+    failed: list[str]  # relays assigned that never took off: their slots are asked for again
 
 
 def _goal(drone: Any) -> Position | None:
@@ -221,7 +225,7 @@ class Relays:
         return ChainOrders(
             moves=[(rid, frame.world(pt), hold) for rid, pt, hold in result.moves],
             dispatch=[(frame.world(pt), hold, key) for key, pt, hold in result.dispatch],
-            home=result.home, notes=result.notes,
+            home=result.home, notes=result.notes, failed=result.failed,
         )
 
     def _mesh_nodes(self, frame: Frame, besides: set[str]) -> list[tuple[chains.Point, float]]:
@@ -235,6 +239,11 @@ class Relays:
     def chain_dropped(self, relay_id: str) -> None:
         if self._chains is not None:
             self._chains.dropped(relay_id)
+
+    def chain_failed(self, relay_id: str) -> None:
+        """The relay cannot do its duty (its duty bundle failed): its slot is asked for again."""
+        if self._chains is not None:
+            self._chains.failed(relay_id, self.now())
 
     def probe_safe(self) -> Position | None:
         """Where the chain's probe comes back to after a trial."""
@@ -263,6 +272,35 @@ class Relays:
         edge = frame.world(end[:2])
         return (edge.lat, edge.lon, None if cut else ch.stuck.get(drone_id),
                 f"out of {other}'s way" if cut else "at the edge of its relay chain")
+
+    def landing_spot(self, relay: Any) -> Position:
+        """Where a relay going home comes down: its home, or the nearest spot around it
+        (8, 16, 24 m out) clear of every drone in the air by LAND_CLEAR_M and of those
+        on the ground by ON_GROUND_CLEAR_M (a relay on duty may hover over the home of
+        one sent out before it)."""
+        frame = self._frame
+        assert frame is not None, "landing_spot: mode chain only"
+        home = frame.local(relay.home)
+        others = [v for k, v in self._everyone(frame).items() if k != relay.id]
+
+        def clear(pt: chains.Point) -> bool:
+            return all(chains.dist(pt, (x, y)) >= (LAND_CLEAR_M if z > AIRBORNE_M else ON_GROUND_CLEAR_M)
+                       for x, y, z in others)
+
+        ring = [(home[0] + r * math.cos(math.radians(b)), home[1] + r * math.sin(math.radians(b)))
+                for r in (8.0, 16.0, 24.0) for b in range(0, 360, 30)]
+        return frame.world(next((pt for pt in [home, *ring] if clear(pt)), home))
+
+    def clear_below(self, relay: Any) -> bool:
+        """No drone flies below `relay` within LAND_CLEAR_M across: it may come down."""
+        frame = self._frame
+        assert frame is not None, "clear_below: mode chain only"
+        everyone = self._everyone(frame)
+        if relay.id not in everyone:
+            return True
+        x0, y0, z0 = everyone[relay.id]
+        return all(z <= AIRBORNE_M or z >= z0 or chains.dist((x0, y0), (x, y)) >= LAND_CLEAR_M
+                   for k, (x, y, z) in everyone.items() if k != relay.id)
 
     def _everyone(self, frame: Frame) -> dict[str, tuple[float, float, float]]:
         """Where every drone the ground knows is (local metres, metres above field level)."""
