@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 
 from dronefleet.relay.hop import Reach, bottleneck
 from dronefleet.relay.planner import Point, dist, toward
+from dronefleet.relay.ways import segment_distance
 
 ORIGIN: Point = (0.0, 0.0)
 PROBE = "probe"
@@ -165,6 +166,11 @@ class Chains:
             held.add(self.probe.relay)
         return {r for r in held if r is not None}
 
+    def launching(self) -> bool:
+        """A relay asked for and not assigned yet: any drone on the ground may take off."""
+        asked = self.probe is not None and self.probe.relay is None
+        return asked or any(s.relay is None for c in self.chains.values() for s in c)
+
     def allowed(self, worker: str, at: Point, alt: float, goal: Point) -> Point:
         """How far toward `goal` the worker may fly now: the last point of the straight
         way there that a proven node covers (the goal itself when all of it is)."""
@@ -225,7 +231,7 @@ class Chains:
         free = spare
         for w in workers:
             free = self._extend(now, w, seen, free, out)
-        self._release(workers, out)
+        self._release(workers, seen, out)
         return out
 
     def _slot(self, key: str) -> Slot | None:
@@ -308,7 +314,7 @@ class Chains:
             for w in workers:
                 self.stuck[w.id] = "no free drone to measure the radio with"
             return
-        if self.probe is None and not self._launch_clear({}):
+        if self.probe is None and not self._launch_clear({}, out):
             return
         trial = self.reach.trial(self.first_trial)
         spot = self._trial_spot(trial, nodes)
@@ -368,7 +374,7 @@ class Chains:
             return free  # on the ground, going nowhere: nothing to keep it connected for
         again = next((i for i, s in enumerate(chain) if s.again), None)
         if again is not None:  # a relay of the chain failed: its slot first
-            if free <= 0 or now - chain[again].asked_at <= DISPATCH_TIMEOUT_S or not self._launch_clear(seen):
+            if free <= 0 or now - chain[again].asked_at <= DISPATCH_TIMEOUT_S or not self._launch_clear(seen, out):
                 return free
             chain[again].asked_at = now
             out.dispatch.append((f"{w.id}#{again}", chain[again].spot, 0.0))
@@ -388,7 +394,7 @@ class Chains:
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
             return free
-        if not self._launch_clear(seen):
+        if not self._launch_clear(seen, out):
             return free  # the last relay sent is still climbing out over the others' takeoff spots
         if free <= 0:
             need, at, z = 0, last, last_z
@@ -422,19 +428,42 @@ class Chains:
         # the first with room; with none (a ring of drones on the ground around the laptop), the roomiest
         return next((p for p in candidates if room(p) >= 1.0), max(candidates, key=room))
 
-    def _launch_clear(self, seen: Mapping[str, Seen]) -> bool:
-        """No relay in the air near the drones on the ground, and no served drone flying
-        over one (within PARKED_CLEAR_M across): the relay sent next takes off from one of
-        them and climbs through every lower level (relays fly out on levels of their own,
-        ADR 0006). A worker passing over the spares' row held 3.1 m from a relay
-        climbing through its level (corpus worlds 81, 119, 135, 140)."""
-        asked = any(s.relay is None and not s.again for c in self.chains.values() for s in c)
-        return not asked and all(abs(o.alt - self.duty_alt) <= 2.0 or self._clear(o.at, LAUNCH_CLEAR_M)
-                                 for o in seen.values()) \
-            and all(dist(p, q) >= PARKED_CLEAR_M for p in self.airborne for q in self.grounded)
+    def _launch_clear(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
+        """No relay crossing the levels near the drones on the ground, and no served drone
+        flying over one (within PARKED_CLEAR_M across): the relay sent next takes off from
+        one of them and climbs through every lower level (relays fly out on levels of their
+        own, ADR 0006). A relay crosses while off the duty level in the air: on its way
+        to a spot (near when its way passes within LAUNCH_CLEAR_M of them), coming home
+        (its way ends among them), or sent in this very plan; one sent and still on the
+        ground takes off first. Seen: a worker held 3.1 m
+        from a relay climbing through its level (world 81); the probe, sent to its chain
+        spot, flew over a relay climbing from the ground (world 18)."""
+        if out.moves or any(s.relay is None and not s.again for c in self.chains.values() for s in c):
+            return False
+        if not all(dist(p, q) >= PARKED_CLEAR_M for p in self.airborne for q in self.grounded):
+            return False
+        ways = {s.relay: [s.spot] for c in self.chains.values() for s in c if s.relay is not None}
+        if self.probe is not None and self.probe.relay is not None:
+            ways[self.probe.relay] = [self.probe.spot] + ([self.safe] if self.safe is not None else [])
+        for rid, o in seen.items():
+            if o.fresh and o.alt <= 1.0 and rid in ways:
+                return False  # sent, not yet up: one takes off at a time
+            if not o.fresh or o.alt <= 1.0 or abs(o.alt - self.duty_alt) <= 2.0:
+                continue  # on the ground, or on its duty level
+            if rid not in ways:
+                return False  # coming home
+            for to in ways[rid]:
+                if any(segment_distance((*o.at, 0.0), (*to, 0.0), (*q, 0.0), (*q, 0.0)) < LAUNCH_CLEAR_M for q in self.parked):
+                    return False
+        return True
 
-    def _release(self, workers: Iterable[Worker], out: ChainPlan) -> None:
+    def _release(self, workers: Iterable[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:
+        """The last relay of a chain its worker no longer needs goes home — when no
+        other relay is climbing out or coming home: one crossing the levels at a time (a
+        relay flying home on its level passed over one climbing from the ground, 1.4 m
+        apart: corpus world 99)."""
         hop = self.reach.lo * MARGIN
+        crossing = any(o.fresh and (o.alt <= 1.0 or abs(o.alt - self.duty_alt) > 2.0) for o in seen.values())
         for w in workers:
             chain = self.chains.get(w.id, [])
             if not chain or chain[-1].relay is None:
@@ -447,7 +476,8 @@ class Chains:
                 self.leaving.pop(rid, None)
                 continue
             self.leaving[rid] = self.leaving.get(rid, 0) + 1
-            if self.leaving[rid] >= RELEASE_AFTER:
+            if self.leaving[rid] >= RELEASE_AFTER and not crossing:
+                crossing = True
                 del self.leaving[rid]
                 chain.pop()
                 out.home.append(rid)

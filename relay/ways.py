@@ -83,11 +83,13 @@ class Ways:
     wants: dict[str, Point3] = field(default_factory=dict)  # worker → where its leg would go, all of it
 
     def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
-              now: float, relays: Collection[str] = ()) -> tuple[Point3, str | None]:
+              now: float, relays: Collection[str] = (), launching: bool = False) -> tuple[Point3, str | None]:
         """How far `drone` may fly from `at` toward `to`: the end of its clear part, and
         the drone it gives way to (None when it may fly all of it). `others`: where
         every other drone is; `workers`: the leashed drones (their legs are declared);
-        `relays`: drones sent as relays (one still on the ground is about to take off)."""
+        `relays`: drones sent as relays (one still on the ground is about to take off);
+        `launching`: a relay is asked for and not assigned yet (any drone on the ground
+        may be the one: a worker's leg was laid over a spare as it was assigned, world 137)."""
         self.wants[drone] = to
         top = max(at[2], to[2])
         obstacles: list[tuple[str, Point3, Point3, float, bool]] = []  # (drone, from, to, clearance, a way)
@@ -104,7 +106,7 @@ class Ways:
                     leg = self.legs.get(o)
                     if leg is not None:
                         obstacles.append((o, p, leg[1], CLEAR_M, True))  # what is left of its leg
-            elif o in relays:  # assigned, arming: it climbs its column next
+            elif o in relays or (launching and o not in workers):  # assigned, arming: it climbs its column next
                 obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + AROUND_M), CLEAR_M, False))
             elif o in workers and o not in self.flown:
                 obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], max(at[2], to[2])), CLEAR_M, False))

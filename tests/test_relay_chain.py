@@ -9,6 +9,7 @@ import pytest
 
 from dronefleet.relay.chain import (
     DWELL_S,
+    LAUNCH_TIMEOUT_S,
     MARGIN,
     PROBE,
     ChainPlan,
@@ -91,10 +92,11 @@ def test_a_probe_measures_the_hop_then_chains_are_laid_on_it_and_the_worker_is_l
             break
     assert c.reach.known and 70.0 < c.reach.lo < 90.0
     hop = c.reach.lo * MARGIN
-    # the probe becomes the chain's first relay; the next one is asked for at once
+    # the probe becomes the chain's first relay; the next one is asked for once it is on its way
     out = c.plan(250.0, [w], {"r1": seen(c.safe or (0, 0))}, spare=3)
     (relay, first, back), = out.moves
-    (key, second, _), = out.dispatch
+    assert out.dispatch == []  # not while a relay is sent across in the same plan
+    (key, second, _), = c.plan(251.0, [w], {"r1": seen(c.safe or (0, 0))}, spare=3).dispatch
     assert relay == "r1" and back == 0 and math.hypot(dist(first, (0, 0)), DUTY) == pytest.approx(hop, abs=0.5)
     assert key == "d1#1" and dist(first, second) == pytest.approx(hop, abs=0.5)
     c.joined(key, "r2")
@@ -135,6 +137,37 @@ def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() 
     for k in range(20):
         sent += c.plan(100.0 + k, [home], views, spare=0).home
     assert sent == [f"r{i}" for i in range(len(spots), 0, -1)]  # the far end first
+
+
+def test_one_relay_crosses_the_levels_at_a_time() -> None:
+    """Corpus world 99: a relay flying home on its transit level passed 1.4 m over one
+    climbing from the ground. A relay no longer needed waits on its spot while another
+    is climbing out (or coming home), then goes."""
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0)
+    far = Worker("d1", at(60), 15.0, at(80))
+    out = c.plan(0.0, [far], {}, spare=5)
+    c.joined(out.dispatch[0][0], "r1")
+    spot = out.dispatch[0][1]
+    home = Worker("d1", at(5), 15.0, at(5))
+    climbing = {"r1": seen(spot), "r9": seen(at(20, 90), alt=10.0)}  # r9: another chain's, on its way up
+    assert not any(c.plan(10.0 + k, [home], climbing, spare=0).home for k in range(10))
+    climbing["r9"] = seen(at(20, 90))  # on its duty level now
+    assert c.plan(30.0, [home], climbing, spare=0).home == ["r1"]
+
+
+def test_a_relay_assigned_and_still_on_the_ground_is_given_up_and_its_slot_asked_for_again() -> None:
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0)
+    w = Worker("d1", at(10), 15.0, at(150))
+    (key, spot, _), = c.plan(0.0, [w], {}, spare=5).dispatch
+    c.joined(key, "r1")
+    assert c.plan(LAUNCH_TIMEOUT_S - 1, [w], {"r1": seen(at(5, 90), alt=0.0)}, spare=5).failed == []
+    out = c.plan(LAUNCH_TIMEOUT_S + 1, [w], {"r1": seen(at(5, 90), alt=0.0)}, spare=5)
+    assert out.failed == ["r1"] and out.dispatch == [(key, spot, 0.0)]  # its slot, asked for again in place
+    assert c.plan(LAUNCH_TIMEOUT_S + 2, [w], {}, spare=5).dispatch == []  # once
+    c.joined(key, "r2")
+    assert "r2" in c.relays() and "r1" not in c.relays()
 
 
 def test_a_held_drone_is_not_held_over_a_drone_that_may_take_off() -> None:

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 
 AIRBORNE_M = 1.0  # above home: flying
 LAND_CLEAR_M = ways.CLEAR_M  # a relay comes down only this far (across) from every drone flying below it
-ON_GROUND_CLEAR_M = 3.0  # … and lands at least this far from a drone on the ground
+ON_GROUND_CLEAR_M = chains.PARKED_CLEAR_M  # … and lands this far from a drone on the ground (it may take off)
 
 
 class Frame:
@@ -265,7 +265,7 @@ class Relays:
         at = frame.local(d.position)
         allowed = ch.allowed(drone_id, at, above or 0.0, goal)
         end, other = self._ways.clear(drone_id, (*at, here), (*allowed, above or here), self._everyone(frame),
-                                      set(self._served), self.now(), ch.relays())
+                                      set(self._served), self.now(), ch.relays(), ch.launching())
         if chains.dist(end[:2], goal) < 0.5:
             return None
         cut = other is not None and chains.dist(end[:2], allowed) >= 0.5  # short of the chain's edge: another's way
