@@ -463,14 +463,18 @@ class Chains:
         relay flying home on its level passed over one climbing from the ground, 1.4 m
         apart: corpus world 99)."""
         hop = self.reach.lo * MARGIN
-        crossing = any(o.fresh and (o.alt <= 1.0 or abs(o.alt - self.duty_alt) > 2.0) for o in seen.values())
+        held = self.relays()
+        crossing = any(o.fresh and ((o.alt <= 1.0 and rid in held) or (o.alt > 1.0 and abs(o.alt - self.duty_alt) > 2.0))
+                       for rid, o in seen.items())  # sent and not yet up, or in the air off the duty level
         for w in workers:
             chain = self.chains.get(w.id, [])
             if not chain or chain[-1].relay is None:
                 continue
             before = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain[:-1]]
             places = [w.at] + ([w.goal] if w.goal is not None else [])
-            needed = not all(covers(before, p, w.alt, hop) for p in places)
+            # on the ground going nowhere, it needs none (one landed at a home beyond the
+            # laptop's hop kept its relay on duty to the time limit: world 161)
+            needed = not (w.alt < 1.0 and w.goal is None) and not all(covers(before, p, w.alt, hop) for p in places)
             rid = chain[-1].relay
             if needed:
                 self.leaving.pop(rid, None)

@@ -534,3 +534,41 @@ print(f"out at {distance(d.position, d.home):.0f} m")
     assert record.status == "finished", (record, log)
     assert "drone01: goto waits for the link to come back" in log, log
     assert "out at 25 m" in log, log
+
+
+SUPERSEDED_UNHEARD = """
+d = assign("drone01")
+arm(d)
+takeoff(d, 10*m)
+
+
+def hold_up_high():
+    return push(d, [step.move(up=6*m), step.wait(120*s)])
+
+
+first = run(hold_up_high)
+sleep(15*s)
+push(d, [step.move(down=6*m), step.wait(1*s)])
+wait(first)
+print(f"first: {first.result.state}")
+"""
+
+
+async def test_a_bundle_ended_by_the_next_one_returns_though_its_end_was_lost() -> None:
+    """Corpus world 185: a relay's duty bundle was superseded by the next one while its
+    statuses were lost, and its push waited until the time limit. A bundle (or command)
+    the drone accepts ends the one it ran; the mission reads that one's record again.
+    Here drone01's statuses are lost while it is above 12 m: the first bundle's end."""
+    def lossy_up_high(sim: SimField) -> None:
+        assert sim.air is not None
+        through = sim.air.transit
+
+        def transit(src: str, dst: str, stream: str = "") -> float | None:
+            if src == "drone01" and stream.endswith("/status") and sim.vehicles["drone01"].rel_alt > 12:
+                return None
+            return through(src, dst, stream)
+
+        sim.air.transit = transit  # type: ignore[method-assign]
+
+    _, (record, log), _ = await fly(SUPERSEDED_UNHEARD, fire_world(RadioModel()), max_s=300, prepare=lossy_up_high)
+    assert "first: cancelled" in log, (record, log)

@@ -156,6 +156,19 @@ def test_one_relay_crosses_the_levels_at_a_time() -> None:
     assert c.plan(30.0, [home], climbing, spare=0).home == ["r1"]
 
 
+def test_a_worker_landed_beyond_the_laptops_hop_keeps_no_relay() -> None:
+    """Corpus world 161: a worker landed at its home 35 m from the laptop, beyond the
+    hop (30 m), and its relay stayed on duty until the time limit."""
+    c = Chains(DUTY)
+    c.reach = Reach(lo=31.0, hi=32.0)
+    out = c.plan(0.0, [Worker("d1", at(20), 15.0, at(60))], {}, spare=3)
+    c.joined(out.dispatch[0][0], "r1")
+    views = {"r1": seen(out.dispatch[0][1])}
+    landed = Worker("d1", at(35), 0.0, None)
+    sent = [rid for k in range(10) for rid in c.plan(10.0 + k, [landed], views, spare=2).home]
+    assert sent == ["r1"]
+
+
 def test_a_relay_assigned_and_still_on_the_ground_is_given_up_and_its_slot_asked_for_again() -> None:
     c = Chains(DUTY)
     c.reach = Reach(lo=50.0, hi=51.0)

@@ -88,6 +88,7 @@ class CommandDelivery:
         def fail(self, cause: str, message: str) -> MissionOver: ...
         def setback(self, cause: str, message: str) -> MissionOver: ...
         def check_assigned(self, drone_id: str) -> None: ...
+        def _catch_up(self, pending: PendingBundle) -> None: ...
         async def next_telemetry(self, drone_id: str) -> None: ...
 
     async def execute(self, drone_id: str, body: dict[str, Any], *, wait: bool = True,
@@ -161,6 +162,7 @@ class CommandDelivery:
         except (CommandRejected, InvalidMessage, Unreachable) as exc:
             log.info("mission %s: %s: a leg toward the chain's edge was not taken (%s)", self.id, drone_id, exc)
             return False
+        self._bundles_ended_by(drone_id)
         return True
 
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
@@ -216,6 +218,7 @@ class CommandDelivery:
         while True:
             try:
                 await self.station.command(drone_id, payload, self.id)
+                self._bundles_ended_by(drone_id)
                 if waited_for is not None:
                     self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
                 return
@@ -295,9 +298,19 @@ class CommandDelivery:
         try:
             with self._sending("push", drone_id):
                 await self.station.push(drone_id, json.dumps({**body, "bundle_id": bundle_id}).encode(), self.id)
+                self._bundles_ended_by(drone_id, bundle_id)
                 return await self._outcome(pending.done, drone_id)
         finally:
             self._bundles.pop(bundle_id, None)
+
+    def _bundles_ended_by(self, drone_id: str, newer: str | None = None) -> None:
+        """A command or bundle the drone accepted ends the bundle it was running (SPEC §6).
+        Its own end may have gone down with a link that dropped (a relay's duty bundle:
+        corpus world 185 waited for one until the time limit): the agent's record of
+        every bundle of this mission still running there is read again."""
+        for pending in list(self._bundles.values()):
+            if pending.drone_id == drone_id and pending.bundle_id != newer and not pending.done.done():
+                self._catch_up(pending)
 
     @contextlib.contextmanager
     def _sending(self, name: str, drone_id: str) -> Iterator[None]:
