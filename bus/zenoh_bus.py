@@ -259,20 +259,19 @@ class ZenohBus:
             query.drop()  # finalises the query: the querier's get ends now
 
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
-        return (await self._query(selector, payload, timeout_s)).ok.payload.to_bytes()  # type: ignore[union-attr]
+        return (await self._query(selector, payload, timeout_s))[0]
 
     async def query_linked(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> tuple[bytes, bool | None]:
-        reply = await self._query(selector, payload, timeout_s)
-        assert reply.ok is not None
-        replier = reply.replier_id
+        reply, replier = await self._query(selector, payload, timeout_s)
         if replier is None:
-            return reply.ok.payload.to_bytes(), None
-        # A router linked to this one has a transport of its own here (measured with
-        # three routers in a row: the far one's reply does not come from a transport).
-        linked = {str(t.zid) for t in self._session.info.transports()}
-        return reply.ok.payload.to_bytes(), str(replier.zid) in linked
+            return reply, None
+        # A router linked to this one has a transport of its own here (measured: three
+        # routers in a row, gossip autoconnect off as on the radio; the far one's
+        # replies come through the middle one, whose transport it is).
+        return reply, replier in {str(t.zid) for t in self._session.info.transports()}
 
-    async def _query(self, selector: str, payload: bytes, timeout_s: float) -> zenoh.Reply:
+    async def _query(self, selector: str, payload: bytes, timeout_s: float) -> tuple[bytes, str | None]:
+        """The first good reply's payload and the ZID of the node that sent it."""
         done: asyncio.Future[list[zenoh.Reply]] = self._loop.create_future()
         replies: list[zenoh.Reply] = []
 
@@ -298,7 +297,7 @@ class ZenohBus:
         errors: list[str] = []
         for reply in result:
             if reply.ok is not None:
-                return reply
+                return reply.ok.payload.to_bytes(), str(reply.replier_id.zid) if reply.replier_id is not None else None
             if reply.err is not None:
                 errors.append(reply.err.payload.to_string())
         if not errors:
