@@ -448,10 +448,10 @@ class Chains:
         for rid, o in seen.items():
             if o.fresh and o.alt <= 1.0 and rid in ways:
                 return False  # sent, not yet up: one takes off at a time
+            if rid not in ways and o.alt > 1.0:
+                return False  # coming home (heard or not)
             if not o.fresh or o.alt <= 1.0 or abs(o.alt - self.duty_alt) <= 2.0:
                 continue  # on the ground, or on its duty level
-            if rid not in ways:
-                return False  # coming home
             for to in ways[rid]:
                 if any(segment_distance((*o.at, 0.0), (*to, 0.0), (*q, 0.0), (*q, 0.0)) < LAUNCH_CLEAR_M for q in self.parked):
                     return False
@@ -464,8 +464,10 @@ class Chains:
         apart: corpus world 99)."""
         hop = self.reach.lo * MARGIN
         held = self.relays()
-        crossing = any(o.fresh and ((o.alt <= 1.0 and rid in held) or (o.alt > 1.0 and abs(o.alt - self.duty_alt) > 2.0))
-                       for rid, o in seen.items())  # sent and not yet up, or in the air off the duty level
+        # sent and not yet up, or in the air off the duty level; one going home counts out of
+        # reach too (world 107: a relay flying home lost its link, and the next one went)
+        crossing = any(o.alt > 1.0 if rid not in held else o.fresh and (o.alt <= 1.0 or abs(o.alt - self.duty_alt) > 2.0)
+                       for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
         for w in workers:
             chain = self.chains.get(w.id, [])
             if not chain or chain[-1].relay is None:

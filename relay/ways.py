@@ -18,8 +18,10 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
 - a worker already closer than that to another (they take off side by side) may fly
   any way that does not bring it closer still;
 - two workers each waiting on the other: the first by name goes; a worker kept waiting
-  YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is; the
-  later by name, if it still cannot move, steps aside out of the other's way.
+  YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is, and
+  CLEAR_M from the way of one that set out meanwhile (two kept waiting as long went in
+  the same second and crossed 2.6 m apart: world 92); the later by name, if it still
+  cannot move, steps aside out of the other's way.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ CLEAR_M = 8.0  # from another worker's way: the 5 m the drones must keep, plus a
 AROUND_M = 5.5  # from where another drone (a relay) is: relays hover 6 m above the workers' level, over their ways
 AIRBORNE_M = 1.0
 YIELD_LIMIT_S = 20.0
+FRESH_LEG_S = 2.0  # a way declared this lately is kept off even by a worker kept waiting
 SEARCH_STEPS = 12  # halvings of the leg when looking for its clear part
 MIN_LEG_M = 3.0  # a leg cut shorter than this does not get the drone anywhere (the leash sends legs of 2 m or more)
 
@@ -81,6 +84,7 @@ class Ways:
     flown: set[str] = field(default_factory=set)  # workers seen in the air
     waiting: dict[str, float] = field(default_factory=dict)  # worker → since when it waits for another
     wants: dict[str, Point3] = field(default_factory=dict)  # worker → where its leg would go, all of it
+    declared: dict[str, float] = field(default_factory=dict)  # worker → when its leg was last declared
 
     def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
               now: float, relays: Collection[str] = (), launching: bool = False) -> tuple[Point3, str | None]:
@@ -118,16 +122,16 @@ class Ways:
         def blocker(t: float, relaxed: bool) -> str | None:
             end = _along(at, to, t)
             for (o, a, b, _, way), clear in zip(obstacles, near, strict=True):
-                if relaxed and way:
-                    continue
-                if segment_distance(at, end, a, b) < (min(clear, AROUND_M) if relaxed else clear):
+                if relaxed and way and (o in self.waiting or now - self.declared.get(o, -math.inf) > FRESH_LEG_S):
+                    continue  # its way waits too, or is old; one that just set out is kept off
+                if segment_distance(at, end, a, b) < (min(clear, AROUND_M) if relaxed and not way else clear):
                     return o
             return None
 
         first = blocker(1.0, False)
         if first is None:
             self.waiting.pop(drone, None)
-            self.legs[drone] = (at, to)
+            self._declare(drone, (at, to), now)
             return to, None
         # Two drones each waiting on the other: the first by name goes; anyone kept
         # waiting YIELD_LIMIT_S goes too. Either keeps AROUND_M from where others are.
@@ -135,7 +139,7 @@ class Ways:
         relaxed = (first in self.waiting and drone < first) or now - since >= YIELD_LIMIT_S
         if relaxed and blocker(1.0, True) is None:
             self.waiting.pop(drone, None)
-            self.legs[drone] = (at, to)
+            self._declare(drone, (at, to), now)
             return to, first
         lo, hi = 0.0, 1.0
         for _ in range(SEARCH_STEPS):
@@ -147,8 +151,12 @@ class Ways:
         end = _along(at, to, lo)
         if relaxed and math.dist(at, end) < MIN_LEG_M and drone > first and first in others:
             end = self._aside(at, others[first], self.wants.get(first), others, drone)
-        self.legs[drone] = (at, end)
+        self._declare(drone, (at, end), now)
         return end, first
+
+    def _declare(self, drone: str, leg: tuple[Point3, Point3], now: float) -> None:
+        self.legs[drone] = leg
+        self.declared[drone] = now
 
     def _aside(self, at: Point3, other: Point3, wants: Point3 | None, others: Mapping[str, Point3],
                drone: str) -> Point3:

@@ -134,15 +134,18 @@ def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() 
     views = {f"r{i + 1}": seen(s) for i, s in enumerate(spots)}
     home = Worker("d1", at(5), 15.0, at(5))
     sent: list[str] = []
-    for k in range(20):
-        sent += c.plan(100.0 + k, [home], views, spare=0).home
+    for k in range(40):
+        gone = c.plan(100.0 + k, [home], views, spare=0).home
+        for rid in gone:
+            views.pop(rid)  # home and revoked before the next plan: one goes at a time
+        sent += gone
     assert sent == [f"r{i}" for i in range(len(spots), 0, -1)]  # the far end first
 
 
 def test_one_relay_crosses_the_levels_at_a_time() -> None:
     """Corpus world 99: a relay flying home on its transit level passed 1.4 m over one
     climbing from the ground. A relay no longer needed waits on its spot while another
-    is climbing out (or coming home), then goes."""
+    comes home (heard or not: world 107's lost its link on the way), then goes."""
     c = Chains(DUTY)
     c.reach = Reach(lo=50.0, hi=51.0)
     far = Worker("d1", at(60), 15.0, at(80))
@@ -150,10 +153,10 @@ def test_one_relay_crosses_the_levels_at_a_time() -> None:
     c.joined(out.dispatch[0][0], "r1")
     spot = out.dispatch[0][1]
     home = Worker("d1", at(5), 15.0, at(5))
-    climbing = {"r1": seen(spot), "r9": seen(at(20, 90), alt=10.0)}  # r9: another chain's, on its way up
-    assert not any(c.plan(10.0 + k, [home], climbing, spare=0).home for k in range(10))
-    climbing["r9"] = seen(at(20, 90))  # on its duty level now
-    assert c.plan(30.0, [home], climbing, spare=0).home == ["r1"]
+    homing = {"r1": seen(spot), "r9": seen(at(20, 90), alt=27.0, fresh=False)}  # r9: sent home, out of reach
+    assert not any(c.plan(10.0 + k, [home], homing, spare=0).home for k in range(10))
+    homing["r9"] = seen(at(3, 90), alt=0.0)  # landed (and about to be revoked)
+    assert c.plan(30.0, [home], homing, spare=0).home == ["r1"]
 
 
 def test_a_worker_landed_beyond_the_laptops_hop_keeps_no_relay() -> None:

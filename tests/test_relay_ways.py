@@ -87,6 +87,21 @@ def test_two_workers_each_waiting_on_the_others_way_do_not_wait_for_ever() -> No
     assert end == (50, -20, 15) and other is None
 
 
+def test_two_workers_kept_waiting_as_long_do_not_set_out_across_each_other() -> None:
+    """Corpus world 92: two workers waiting on each other for 20 s went in the same
+    second, each keeping clear of where the other was, and crossed 2.6 m apart. The one
+    that sets out first declares its way; the other keeps CLEAR_M from it."""
+    ways = Ways()
+    workers = {"drone01", "drone02"}
+    ways.waiting = {"drone01": 0.0, "drone02": 0.0}
+    one, two = (-15.1, -9.0, 15.0), (-24.1, -10.6, 15.0)
+    end_one, _ = ways.clear("drone01", one, (-15.0, -40.0, 15.0), {"drone02": two}, workers, now=YIELD_LIMIT_S)
+    assert end_one == (-15.0, -40.0, 15.0)
+    end_two, other = ways.clear("drone02", two, (0.0, -30.0, 15.0), {"drone01": one}, workers, now=YIELD_LIMIT_S)
+    assert other == "drone01"
+    assert segment_distance(two, end_two, one, end_one) >= CLEAR_M - 0.1
+
+
 def test_a_worker_kept_waiting_goes_but_never_through_where_another_drone_is() -> None:
     ways = Ways()
     workers = {"drone01", "drone02"}

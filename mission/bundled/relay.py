@@ -260,9 +260,15 @@ def chain_go(relay, spot, hold, first=None):
     if relay.id not in crew or relay.id in state["gone"]:
         return  # sent home meanwhile
     duty, up = state["duty"], outbound(relay)
-    plan = (first or []) + [steps.move(to=relay.position, alt=levels(relay, up) * m),
-            steps.move(to=spot, alt=levels(relay, up) * m, speed=10 * m / s),
-            steps.move(to=spot, alt=levels(relay, duty) * m)]
+    here = relay.position
+    if first is None and hold == 0 and here.distance(spot) <= 3 and abs(here.alt - levels(relay, duty)) <= 2:
+        # a renewal where it hovers: no climb to its level and back (it crossed the level of
+        # a relay flying by on it: corpus worlds 39, 60, 107)
+        plan = [steps.move(to=spot, alt=levels(relay, duty) * m)]
+    else:
+        plan = (first or []) + [steps.move(to=here, alt=levels(relay, up) * m),
+                                steps.move(to=spot, alt=levels(relay, up) * m, speed=10 * m / s),
+                                steps.move(to=spot, alt=levels(relay, duty) * m)]
     safe = relays.probe_safe()
     if hold > 0 and safe is not None:
         plan += [steps.wait(hold * s), steps.move(to=spot, alt=levels(relay, up) * m),
