@@ -338,6 +338,15 @@ class Chains:
         clear = [p for p in spots if self._clear(p)] or spots
         return max(clear, key=lambda p: bottleneck((p, self.duty_alt), nodes))
 
+    def _settled(self, relay: str, o: Seen) -> bool:
+        """On the spot the plan holds it to (the probe: its trial spot or where it waits)."""
+        spots = [s.spot for c in self.chains.values() for s in c if s.relay == relay]
+        if self.probe is not None and self.probe.relay == relay:
+            spots += [self.probe.spot] + ([self.safe] if self.safe is not None else [])
+        if relay in self.idle and self.safe is not None:
+            spots.append(self.safe)
+        return any(self._on_spot(o, spot) for spot in spots)
+
     def _on_spot(self, o: Seen, spot: Point) -> bool:
         return dist(o.at, spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
 
@@ -464,9 +473,10 @@ class Chains:
         apart: corpus world 99)."""
         hop = self.reach.lo * MARGIN
         held = self.relays()
-        # sent and not yet up, or in the air off the duty level; one going home counts out of
-        # reach too (world 107: a relay flying home lost its link, and the next one went)
-        crossing = any(o.alt > 1.0 if rid not in held else o.fresh and (o.alt <= 1.0 or abs(o.alt - self.duty_alt) > 2.0)
+        # one going home counts out of reach too (world 107: a relay flying home lost its link,
+        # and the next one went); one of the plan's counts until it is on its spot (world 53:
+        # a relay climbing out passed the duty level as another was sent home over it)
+        crossing = any(o.alt > 1.0 if rid not in held else o.fresh and not self._settled(rid, o)
                        for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
         for w in workers:
             chain = self.chains.get(w.id, [])

@@ -163,3 +163,34 @@ def test_chain_mode_where_the_spares_do_not_suffice_holds_then_names_the_relays_
     assert (o.status, o.cause) == ("failed", "requirements"), o
     assert re.search(r"drone\d+ needs \d+ more relay\(s\) to reach its goal and no drone is free", o.message), o.message
     assert o.longest_gap_s < 5.0, o  # held in reach: never the 30 s of link_lost
+
+
+def test_a_goto_held_short_of_a_lower_goal_keeps_its_level_until_the_last_leg(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Corpus world 53: a worker's goto home (at field level) was held 65 m short; the leg
+    to the edge went down to the ground, where the drone could go no further, and the
+    mission ran to its time limit. Here every goto of world 6's worker toward field level
+    is held 30 m short for a while: the leg keeps the worker's level, the last leg lands it
+    at home, and the mission finishes."""
+    from dronefleet.mission.script import relaying
+    from dronefleet.schemas.geo import destination
+
+    world = generate(6)
+    worker = world.workers[0]
+    real = relaying.Relays.leash
+    held: dict[str, int] = {}
+    edge: list[tuple[float, float]] = []
+
+    def leash(self: relaying.Relays, drone_id: str, lat: float, lon: float, alt: float | None) -> Any:
+        if drone_id == worker and alt is not None and alt < world.world.origin.alt + 1 and held.get("n", 0) < 400:  # about 80 s of its reports
+            held["n"] = held.get("n", 0) + 1
+            edge.append(destination(lat, lon, 30.0, 0.0))
+            return (*edge[-1], None, "for the test")
+        return real(self, drone_id, lat, lon, alt)
+
+    monkeypatch.setattr(relaying.Relays, "leash", leash)
+    result = asyncio.run(rc.fly(world, "chain"))
+    o = rc.judge(world, "chain", result)
+    assert o.finished, o
+    assert held.get("n", 0) >= 1
+    at_edge = [q["rel_alt"] for q in rx.track(result, worker) if distance_m(q["lat"], q["lon"], *edge[-1]) < 3.0]
+    assert at_edge and min(at_edge) > 10, at_edge[:20]  # held at its level there, not down on the field

@@ -145,13 +145,22 @@ class CommandDelivery:
                 if stuck and stuck_since is not None and now - stuck_since >= LEASH_LIMIT_S:
                     raise self.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
                 if (sent is None or distance_m(lat, lon, *sent) > LEASH_STEP_M) and \
-                        await self._leash_step(drone_id, {**body, "lat": lat, "lon": lon}):
+                        await self._leash_step(drone_id, {**body, "lat": lat, "lon": lon, **self._leg_level(drone_id, goal[2])}):
                     sent = (lat, lon)
                 await self.next_telemetry(drone_id)
         finally:
             self.leashed.pop(drone_id, None)
         if said:
             self.log("info", f"{drone_id}: nothing holds it any more; going on to its goal")
+
+    def _leg_level(self, drone_id: str, alt: float | None) -> dict[str, float]:
+        """A leg short of the goal keeps the drone's level when the goal is lower: the
+        descent is the last leg's. (A goto home at field level, held 65 m short, flew its
+        leg down to the ground and could go no further: corpus world 53.)"""
+        t = self.station.registry.telemetry(drone_id) if drone_id in self.station.registry else None
+        if alt is None or t is None or t.position is None or t.position.alt <= alt:
+            return {}
+        return {"alt": t.position.alt}
 
     async def _leash_step(self, drone_id: str, body: dict[str, Any]) -> bool:
         """One leg of a held goto, not waited for. Refused (another drone's spot, say) or
