@@ -9,12 +9,11 @@ no probe lost and at most one retransmission in its round trips (mean RTT within
 SPIKE_MS of the best seen): a hop losing 5 % passes so three times in four, 10 % two
 times in five, 20 % one in thirteen.
 
-- **Learning the hop** (`Reach`): `lo` is the longest hop a relay proved, `hi` the
-  shortest one that did not hold. One probe relay flies out along the first worker's
-  way to a trial hop (GROWTH x lo, then halving [lo, hi]), dwells, and comes back to
-  the last proven spot by itself (its task bundle says so), so a trial beyond the
-  radio's reach costs a detour, never a drone. Until `hi / lo` <= CONVERGED the
-  workers are held near the laptop; the radio model (`good_m`) is only the first trial.
+- **Learning the hop** (`relay/hop.py`): one probe relay flies out along the first
+  worker's way to a trial hop (the model's `good_m`, then GROWTH x what held, then
+  halfway to what failed), dwells, and comes back to the last proven spot by itself
+  (its task bundle says so): a trial beyond reach costs a detour, never a drone. The
+  workers are held near the laptop until the hop is known.
 - **Chains**: then every worker gets its own chain from the laptop toward where the
   script sends it, a relay every proven hop (3-D: relays hover at the duty altitude,
   the laptop stands on the ground), added as the worker's goal needs them and sent home
@@ -23,9 +22,7 @@ times in five, 20 % one in thirteen.
   or a relay on its spot, within `lo` in 3-D); the rest of the way is flown as relays
   arrive. A worker held while its chain needs a relay and no drone is free is `stuck`,
   named with the relays missing.
-
-Everything is in a local frame in metres (north, east) around the ground station.
-"""
+Everything is in a local frame in metres (north, east) around the ground station."""
 
 from __future__ import annotations
 
@@ -161,10 +158,22 @@ class Chains:
 
     def relays(self) -> set[str]:
         """The relays the plan holds: the probe, those on a chain's slot, the idle."""
-        held = {s.relay for c in self.chains.values() for s in c} | set(self.idle)
-        if self.probe is not None:
-            held.add(self.probe.relay)
-        return {r for r in held if r is not None}
+        return set(self._spots())
+
+    def _spots(self) -> dict[str, list[Point]]:
+        """Each relay the plan holds and the spots it holds it to: a chain slot's; the
+        probe's trial spot and where it waits between trials; where an idle one waits."""
+        spots: dict[str, list[Point]] = {}
+        for c in self.chains.values():
+            for s in c:
+                if s.relay is not None:
+                    spots.setdefault(s.relay, []).append(s.spot)
+        waits = [self.safe] if self.safe is not None else []
+        if self.probe is not None and self.probe.relay is not None:
+            spots.setdefault(self.probe.relay, []).extend([self.probe.spot, *waits])
+        for relay in self.idle:
+            spots.setdefault(relay, []).extend(waits)
+        return spots
 
     def launching(self) -> bool:
         """A relay asked for and not assigned yet: any drone on the ground may take off."""
@@ -260,9 +269,7 @@ class Chains:
         if slot is None or slot.relay is None or slot.hop == 0.0 or slot.relay not in seen:
             return
         s = seen[slot.relay]
-        if s.fresh and s.alt < 1.0 and now - slot.asked_at > LAUNCH_TIMEOUT_S:  # it never took off
-            out.failed.append(slot.relay)
-            self.failed(slot.relay, now)
+        if self._never_took_off(slot.relay, s, slot.asked_at, now, out):
             return
         lost = not s.fresh and now - slot.asked_at > DISPATCH_TIMEOUT_S
         there = s.fresh and self._on_spot(s, slot.spot)
@@ -338,14 +345,13 @@ class Chains:
         clear = [p for p in spots if self._clear(p)] or spots
         return max(clear, key=lambda p: bottleneck((p, self.duty_alt), nodes))
 
-    def _settled(self, relay: str, o: Seen) -> bool:
-        """On the spot the plan holds it to (the probe: its trial spot or where it waits)."""
-        spots = [s.spot for c in self.chains.values() for s in c if s.relay == relay]
-        if self.probe is not None and self.probe.relay == relay:
-            spots += [self.probe.spot] + ([self.safe] if self.safe is not None else [])
-        if relay in self.idle and self.safe is not None:
-            spots.append(self.safe)
-        return any(self._on_spot(o, spot) for spot in spots)
+    def _never_took_off(self, relay: str, o: Seen, asked_at: float, now: float, out: ChainPlan) -> bool:
+        """On the ground LAUNCH_TIMEOUT_S after it was asked for: given up (`failed`)."""
+        if not (o.fresh and o.alt < 1.0 and now - asked_at > LAUNCH_TIMEOUT_S):
+            return False
+        out.failed.append(relay)
+        self.failed(relay, now)
+        return True
 
     def _on_spot(self, o: Seen, spot: Point) -> bool:
         return dist(o.at, spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
@@ -362,9 +368,7 @@ class Chains:
         gap = False
         for s in chain:
             o = seen.get(s.relay) if s.relay is not None else None
-            if o is not None and s.relay is not None and o.fresh and o.alt < 1.0 and now - s.asked_at > LAUNCH_TIMEOUT_S:
-                out.failed.append(s.relay)  # assigned and still on the ground: it never took off (or came down)
-                self.failed(s.relay, now)
+            if o is not None and s.relay is not None and self._never_took_off(s.relay, o, s.asked_at, now, out):
                 o = None
             there = o is not None and self._on_spot(o, s.spot)
             s.on_spot_since = (s.on_spot_since or now) if there else None
@@ -438,22 +442,18 @@ class Chains:
         return next((p for p in candidates if room(p) >= 1.0), max(candidates, key=room))
 
     def _launch_clear(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
-        """No relay crossing the levels near the drones on the ground, and no served drone
-        flying over one (within PARKED_CLEAR_M across): the relay sent next takes off from
-        one of them and climbs through every lower level (relays fly out on levels of their
-        own, ADR 0006). A relay crosses while off the duty level in the air: on its way
-        to a spot (near when its way passes within LAUNCH_CLEAR_M of them), coming home
-        (its way ends among them), or sent in this very plan; one sent and still on the
-        ground takes off first. Seen: a worker held 3.1 m
-        from a relay climbing through its level (world 81); the probe, sent to its chain
-        spot, flew over a relay climbing from the ground (world 18)."""
+        """No relay crossing the levels near the drones on the ground, no served drone over
+        one (PARKED_CLEAR_M across): the next relay takes off from one and climbs through
+        every lower level (ADR 0006). A relay crosses while in the air off the duty level:
+        on its way to a spot (near when that way passes within LAUNCH_CLEAR_M of them),
+        coming home, or sent in this plan; one sent and still on the ground goes first.
+        Seen: a worker 3.1 m from a relay climbing through its level (world 81); the probe
+        sent to its chain spot over a relay climbing from the ground (world 18)."""
         if out.moves or any(s.relay is None and not s.again for c in self.chains.values() for s in c):
             return False
         if not all(dist(p, q) >= PARKED_CLEAR_M for p in self.airborne for q in self.grounded):
             return False
-        ways = {s.relay: [s.spot] for c in self.chains.values() for s in c if s.relay is not None}
-        if self.probe is not None and self.probe.relay is not None:
-            ways[self.probe.relay] = [self.probe.spot] + ([self.safe] if self.safe is not None else [])
+        ways = {relay: spots for relay, spots in self._spots().items() if relay not in self.idle}
         for rid, o in seen.items():
             if o.fresh and o.alt <= 1.0 and rid in ways:
                 return False  # sent, not yet up: one takes off at a time
@@ -472,11 +472,11 @@ class Chains:
         relay flying home on its level passed over one climbing from the ground, 1.4 m
         apart: corpus world 99)."""
         hop = self.reach.lo * MARGIN
-        held = self.relays()
+        held = self._spots()
         # one going home counts out of reach too (world 107: a relay flying home lost its link,
         # and the next one went); one of the plan's counts until it is on its spot (world 53:
         # a relay climbing out passed the duty level as another was sent home over it)
-        crossing = any(o.alt > 1.0 if rid not in held else o.fresh and not self._settled(rid, o)
+        crossing = any(o.alt > 1.0 if rid not in held else o.fresh and not any(self._on_spot(o, p) for p in held[rid])
                        for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
         for w in workers:
             chain = self.chains.get(w.id, [])

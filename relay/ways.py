@@ -100,20 +100,20 @@ class Ways:
         for o, p in others.items():
             if o == drone:
                 continue
-            if p[2] > AIRBORNE_M and o not in workers and p[2] < top + AROUND_M:
-                # a relay below the top of this leg takes off or lands: its column
+            airborne = p[2] > AIRBORNE_M
+            if o not in workers and (p[2] < top + AROUND_M if airborne else o in relays or launching):
+                # a relay below the top of this leg (taking off or landing), or on the ground
+                # and sent or about to be (it climbs next): its column
                 obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + AROUND_M), CLEAR_M, False))
-            elif p[2] > AIRBORNE_M:
+            elif airborne:
                 obstacles.append((o, p, p, CLEAR_M if o in workers else AROUND_M, False))
                 if o in workers:
                     self.flown.add(o)
                     leg = self.legs.get(o)
                     if leg is not None:
                         obstacles.append((o, p, leg[1], CLEAR_M, True))  # what is left of its leg
-            elif o in relays or (launching and o not in workers):  # assigned, arming: it climbs its column next
-                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + AROUND_M), CLEAR_M, False))
             elif o in workers and o not in self.flown:
-                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], max(at[2], to[2])), CLEAR_M, False))
+                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top), CLEAR_M, False))
             else:
                 self.legs.pop(o, None)  # landed: its way is flown
         # Already closer than that (workers take off side by side): not closer still.
