@@ -38,7 +38,7 @@ from typing import Any
 
 import zenoh
 
-from dronefleet.bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, MAX_BRIDGES, NeedWatch, choose
+from dronefleet.bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, HELD_WINDOW, MAX_BRIDGES, NeedWatch, choose, rate
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from dronefleet.schemas.endpoints import ip_endpoint, plain_endpoint
 
@@ -81,11 +81,11 @@ class Heard:
     """One neighbour's router as the scouting rounds heard it."""
 
     locator: str
-    answers: collections.deque[bool] = field(default_factory=lambda: collections.deque(maxlen=ANSWER_WINDOW))
+    answers: collections.deque[bool] = field(default_factory=lambda: collections.deque(maxlen=HELD_WINDOW))
 
     @property
     def rate(self) -> float:
-        return sum(self.answers) / len(self.answers) if self.answers else 0.0
+        return rate(self.answers)
 
 
 class Neighbours:
@@ -131,7 +131,8 @@ class Neighbours:
                     self.heard.setdefault(zid, Heard(locator)).locator = locator
                 for zid, heard in list(self.heard.items()):
                     heard.answers.append(zid in answered)
-                    if len(heard.answers) == ANSWER_WINDOW and not any(heard.answers) and zid not in self.bridges:
+                    if len(heard.answers) >= ANSWER_WINDOW and not any(list(heard.answers)[-ANSWER_WINDOW:]) \
+                            and zid not in self.bridges:
                         del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
                 was_needed = need.needed
                 direct = await asyncio.to_thread(self.direct_link)  # a Zenoh call: off the loop, as stop() above
@@ -140,7 +141,7 @@ class Neighbours:
                     log.info("%s: %s", self.drone_id, "no working direct link to the ground; relaying through neighbours"
                              if needed else f"the direct link to the ground has worked {DIRECT_STEADY_S:g} s; "
                              "closing the links through neighbours")
-                wanted = choose({z: h.rate for z, h in self.heard.items()}, set(self.bridges)) if needed else set()
+                wanted = choose({z: h.answers for z, h in self.heard.items()}, set(self.bridges)) if needed else set()
                 for zid in set(self.bridges) - wanted:
                     await self._close(zid)
                 for zid in wanted - set(self.bridges):

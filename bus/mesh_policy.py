@@ -4,11 +4,12 @@ follows the same decisions."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
 GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
 KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers this often
+HELD_WINDOW = 10  # an open bridge is also good while it answered GOOD_RATE over this many rounds
 MAX_BRIDGES = 2
 DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
 START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
@@ -16,10 +17,30 @@ UNSURE_PROBES = 3  # the last probes to the ground that must have come back clea
 RETRANSMITTED_MS = 150.0  # … each within this (TCP's first retransmission is 200 ms)
 
 
-def choose(rates: dict[str, float], bridged: set[str]) -> set[str]:
-    """Which neighbours to hold a bridge to, when the drone needs one (pure).
+def rate(answers: Sequence[bool], window: int = ANSWER_WINDOW) -> float:
+    """How often a neighbour answered over the last `window` scouting rounds."""
+    last = list(answers)[-window:]
+    return sum(last) / len(last) if last else 0.0
 
-    Good neighbours (answering at least `GOOD_RATE`) first, those already bridged
+
+def good(answers: Sequence[bool], held: bool) -> bool:
+    """A neighbour worth relaying through: answering at least `GOOD_RATE` over the
+    last `ANSWER_WINDOW` rounds or, for a bridge already open, over the last
+    `HELD_WINDOW`. A scout and its Hello must both cross, so a clean hop (1 % loss)
+    misses one round in fifty; two misses in five, a few times in a thousand rounds,
+    had closed the only way of a relay chain to the ground for 6 s while it had another
+    good neighbour, the next relay out (fast-time corpus, world 31). A bridge to a
+    neighbour flying off still goes within a round of the two misses: a longer memory
+    (7 of 10) kept a worker's hop back down its chain, the fewest-hop way, until it
+    was lost (world 13: 3 s unheard)."""
+    return rate(answers) >= GOOD_RATE or (held and rate(answers, HELD_WINDOW) >= GOOD_RATE)
+
+
+def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str]) -> set[str]:
+    """Which neighbours to hold a bridge to, when the drone needs one (pure), from
+    each neighbour's answers to the last scouting rounds (oldest first).
+
+    Good neighbours (`good`) first, those already bridged
     before others, then best first, up to `MAX_BRIDGES`. Only when no neighbour is
     good: the open bridges answering at least `KEEP_RATE` stay, or else the best ones
     answering that often are tried (a drone in a chain of relays hears the next one up
@@ -30,9 +51,10 @@ def choose(rates: dict[str, float], bridged: set[str]) -> set[str]:
     corpus, ADR 0006). Never one answering under `KEEP_RATE`: a bridge over a hop that
     bad carried nothing through, and stalled the neighbour's router for seconds
     (bench/mesh_stall.py, frozen: 9.4 s)."""
-    good = sorted((z for z, r in rates.items() if r >= GOOD_RATE), key=lambda z: (z not in bridged, -rates[z], z))
-    if good:
-        return set(good[:MAX_BRIDGES])
+    rates = {z: rate(a) for z, a in answers.items()}
+    best = sorted((z for z, a in answers.items() if good(a, z in bridged)), key=lambda z: (z not in bridged, -rates[z], z))
+    if best:
+        return set(best[:MAX_BRIDGES])
     keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: (-rates[z], z))
     if keep:
         return set(keep[:MAX_BRIDGES])

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from dronefleet.bus.clock import VirtualClock
-from dronefleet.bus.mesh_policy import ANSWER_WINDOW, NeedWatch, choose
+from dronefleet.bus.mesh_policy import HELD_WINDOW, NeedWatch, choose
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
 LEASE_S = 2.0  # a link with nothing through it for this long is closed
@@ -212,20 +212,20 @@ class RadioAir:
         link is not working (agent/neighbours.py)."""
         drones = sorted(n for n in where if n != GROUND)
         for a in drones:
-            rates: dict[str, float] = {}
+            heard: dict[str, deque[bool]] = {}
             for b in drones:
                 if b == a:
                     continue
-                answered = self._answers.setdefault((a, b), deque(maxlen=ANSWER_WINDOW))
+                answered = self._answers.setdefault((a, b), deque(maxlen=HELD_WINDOW))
                 loss = self.model.loss(distance_3d(where[a], where[b]))
                 answered.append(self._rng("scout", a, b).random() < (1.0 - loss) ** 2)
-                rates[b] = sum(answered) / len(answered)
+                heard[b] = answered
             need = self._needs.setdefault(a, NeedWatch(now))
             direct = self.links.get(_pair(a, GROUND))
             agent = self.agent(a)
             unsure = agent is not None and agent.ground_unsure()
             needed = need.update(direct is not None and direct.up and not unsure, now)
-            self.bridges[a] = choose(rates, self.bridges.get(a, set())) if needed else set()
+            self.bridges[a] = choose(heard, self.bridges.get(a, set())) if needed else set()
 
 
 def _pair(a: str, b: str) -> tuple[str, str]:

@@ -18,38 +18,71 @@ import zenoh
 
 from dronefleet.agent.config import AgentConfig, own_endpoint
 from dronefleet.agent.neighbours import Heard, Neighbours, radio_locator
-from dronefleet.bus.mesh_policy import GOOD_RATE, KEEP_RATE, MAX_BRIDGES, RETRANSMITTED_MS, NeedWatch, choose, unsure
+from dronefleet.bus import mesh_policy
+from dronefleet.bus.mesh_policy import (
+    ANSWER_WINDOW,
+    GOOD_RATE,
+    HELD_WINDOW,
+    KEEP_RATE,
+    MAX_BRIDGES,
+    NeedWatch,
+    choose,
+    rate,
+)
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from tests.helpers import free_port
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
 
 
+def answered(hits: int, rounds: int = ANSWER_WINDOW) -> list[bool]:
+    """A neighbour's answers to the last `rounds` scouting rounds, oldest first: the misses first."""
+    return [False] * (rounds - hits) + [True] * hits
+
+
 def test_good_neighbours_are_chosen_best_first_up_to_the_limit() -> None:
-    rates = {"a": 1.0, "b": GOOD_RATE, "c": 1.0, "d": 0.6}
-    assert choose(rates, set()) == {"a", "c"}
+    assert GOOD_RATE == 0.8 and ANSWER_WINDOW == 5
+    heard = {"a": answered(5), "b": answered(4), "c": answered(5), "d": answered(3)}
+    assert choose(heard, set()) == {"a", "c"}
     assert MAX_BRIDGES == 2
 
 
 def test_an_open_fair_bridge_stays_only_while_no_good_neighbour_is_heard() -> None:
-    rates = {"far": 0.6, "kept": KEEP_RATE}
-    assert choose(rates, {"kept"}) == {"kept"}  # no churn between fair ones
-    rates["kept"] = KEEP_RATE - 0.2
-    assert choose(rates, {"kept"}) == {"far"}
+    heard = {"far": answered(3), "kept": answered(2)}
+    assert rate(heard["kept"]) == KEEP_RATE
+    assert choose(heard, {"kept"}) == {"kept"}  # no churn between fair ones
+    heard["kept"] = answered(1)
+    assert choose(heard, {"kept"}) == {"far"}
     # a worker passing its relays: the fair hop back down the chain would be the fewest-hop
     # route (fast-time corpus, ADR 0006); it gives way to the good relay beside it
-    assert choose({"behind": 0.6, "beside": 1.0}, {"behind"}) == {"beside"}
+    assert choose({"behind": answered(3), "beside": answered(5)}, {"behind"}) == {"beside"}
+    fair = [False, False, True, True, True, True, False, True, False, True]  # 6 of 10: open, still fair
+    assert len(fair) == HELD_WINDOW and choose({"behind": fair, "beside": answered(5)}, {"behind"}) == {"beside"}
+
+
+def test_an_open_clean_bridge_outlasts_two_unlucky_rounds() -> None:
+    """Corpus world 31: the first relay's only way to the ground (1 % loss) missed two
+    scouts of five and was closed for the next relay out: the chain unheard 6 s."""
+    unlucky = [True] * 7 + [False, True, False]
+    assert rate(unlucky) == 0.6
+    assert choose({"down": unlucky, "out": answered(5, HELD_WINDOW)}, {"down", "out"}) == {"down", "out"}
+    assert choose({"down": unlucky, "out": answered(5, HELD_WINDOW)}, {"out"}) == {"out"}  # not yet open: not good
+    going = [True] * 7 + [False] * 3  # a neighbour flying off goes within three rounds
+    assert choose({"down": going, "out": answered(5)}, {"down", "out"}) == {"out"}
+    assert mesh_policy.good([True] * 8 + [False] * 2, held=True)  # 8 of 10, 3 of the last 5
+    assert not mesh_policy.good([True] * 8 + [False] * 2, held=False)  # not open: judged on the last 5
+    assert not mesh_policy.good([True] * 7 + [False] * 3, held=True)  # the third miss in ten
 
 
 def test_good_bridges_already_open_are_kept_before_other_good_ones() -> None:
-    assert choose({"a": 1.0, "b": 1.0, "open": GOOD_RATE}, {"open"}) == {"open", "a"}
+    assert choose({"a": answered(5), "b": answered(5), "open": answered(4)}, {"open"}) == {"open", "a"}
 
 
 def test_with_no_good_neighbour_the_best_fair_ones_are_tried_and_never_a_bad_one() -> None:
-    assert choose({"near": 0.6, "farther": KEEP_RATE, "far": 0.7}, set()) == {"far", "near"}
-    assert choose({"farther": KEEP_RATE, "farthest": KEEP_RATE - 0.2}, set()) == {"farther"}
-    assert choose({"too far": KEEP_RATE - 0.01}, set()) == set()  # a bridge over it would stall the neighbour
-    assert choose({"gone": 0.0}, set()) == set()
+    assert choose({"near": answered(3), "farther": answered(2), "far": answered(3)}, set()) == {"far", "near"}
+    assert choose({"farther": answered(2), "farthest": answered(1)}, set()) == {"farther"}
+    assert choose({"too far": answered(1)}, set()) == set()  # a bridge over it would stall the neighbour
+    assert choose({"gone": answered(0)}, set()) == set()
     assert choose({}, set()) == set()
 
 
@@ -150,7 +183,7 @@ async def test_a_bridge_that_cannot_link_within_its_bound_is_not_opened_and_neve
 
 
 def test_the_ground_is_in_doubt_from_one_lost_or_retransmitted_probe_of_the_last_three() -> None:
-    assert not unsure([None, 400.0, 9.0, 12.0, 8.0])  # long ago
-    assert unsure([9.0, None, 8.0])
-    assert unsure([9.0, 8.0, RETRANSMITTED_MS + 60])  # TCP's first retransmission: 200 ms
-    assert not unsure([])
+    assert not mesh_policy.unsure([None, 400.0, 9.0, 12.0, 8.0])  # long ago
+    assert mesh_policy.unsure([9.0, None, 8.0])
+    assert mesh_policy.unsure([9.0, 8.0, mesh_policy.RETRANSMITTED_MS + 60])  # TCP's first retransmission: 200 ms
+    assert not mesh_policy.unsure([])
