@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import json
 import logging
 import os
@@ -103,6 +104,7 @@ class BundleRunner:
         self.current: Bundle | None = None
         self._task: asyncio.Task[None] | None = None
         self._commands: dict[str, asyncio.Future[CommandStatus]] = {}
+        self._taken: dict[str, bytes] = {}  # per bundle accepted since start: its content (`_content`)
 
     # ---- start-up: bundles a previous run left unfinished ----------------------------
 
@@ -124,8 +126,15 @@ class BundleRunner:
         return self.current.on_link_loss if self.running and self.current is not None else None
 
     def submit(self, bundle: Bundle) -> BundleReply:
+        """Start `bundle`. The same bundle again (its id and content, whenever and however
+        signed: the ground sends it again when no answer came) is answered as accepted
+        before, with its state, and not run twice; another bundle under a known id is
+        refused."""
         known = self.store.get(bundle.bundle_id)
         if known is not None:
+            if self._taken.get(bundle.bundle_id) == _content(bundle):
+                return BundleReply(bundle_id=bundle.bundle_id, accepted=True,
+                                   reason=f"bundle {bundle.bundle_id} accepted before ({known.state})")
             return BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=f"bundle {bundle.bundle_id} exists already ({known.state})")
         if not self.handler.connected:
             return BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason="flight controller disconnected")
@@ -133,6 +142,7 @@ class BundleRunner:
             self.interrupt(f"superseded by bundle {bundle.bundle_id}")
         record = BundleRecord(bundle_id=bundle.bundle_id, state="running", steps=len(bundle.steps), started=self.clock.time_ms())
         self.store.put(record)
+        self._taken[bundle.bundle_id] = _content(bundle)
         self.current = bundle
         self._task = asyncio.get_running_loop().create_task(self._run(bundle, record), name=f"bundle {bundle.bundle_id}")
         log.info("%s: bundle %s accepted (%d steps, on link loss: %s)", self.drone_id, bundle.bundle_id, len(bundle.steps), bundle.on_link_loss)
@@ -303,3 +313,10 @@ class BundleRunner:
         self.store.put(record)
         self.emit(BundleStatus(drone_id=self.drone_id, timestamp=self.clock.time_ms(), bundle_id=bundle_id, step=step,
                                state=state, reason=reason, scope=scope, steps=steps, command=command))
+
+
+def _content(bundle: Bundle) -> bytes:
+    """What a bundle asks, not when or by whom it was sent (its timestamp and signature
+    differ each time the ground sends it)."""
+    wire = msgspec.structs.replace(bundle.wire, timestamp=0, auth=None)
+    return hashlib.blake2b(msgspec.json.encode(wire), digest_size=16).digest()

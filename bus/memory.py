@@ -56,6 +56,10 @@ class Medium(Protocol):
         """Call back whenever which nodes reach which may have changed."""
         ...
 
+    def linked(self, node: str) -> frozenset[str]:
+        """The nodes `node` holds a live link to."""
+        ...
+
 
 @dataclass(eq=False)
 class _Decl:
@@ -255,6 +259,23 @@ class MemoryBus:
         decl = self._declare(key, close)
         self._net.tokens.append(decl)
         self._net._tell_watchers(decl, True)
+        return decl
+
+    def watch_links(self, on_closed: Callable[[], None]) -> _Decl:
+        decl = self._declare("", lambda: None)
+        medium = self._net.medium
+        if medium is None:
+            return decl  # one node: no links
+        held = medium.linked(self.node)
+
+        def check() -> None:
+            nonlocal held
+            now = medium.linked(self.node)
+            closed, held = held - now, now
+            if closed and not decl.closed:
+                medium.call_later(0.0, lambda: None if decl.closed else on_closed())
+
+        medium.on_change(check)
         return decl
 
     def watch_liveliness(self, keyexpr: str, handler: LivelinessHandler) -> _Decl:

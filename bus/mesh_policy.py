@@ -9,7 +9,8 @@ from collections.abc import Mapping, Sequence
 ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
 GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
 KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers this often
-HELD_WINDOW = 10  # an open bridge is also good while it answered GOOD_RATE over this many rounds
+HELD_WINDOW = 10  # an open bridge is also good while it answered GOOD_RATE over this many rounds …
+HELD_KEEP_RATE = 0.6  # … and kept, with no good one heard, while it answered this often over them
 MAX_BRIDGES = 2
 DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
 START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
@@ -42,7 +43,10 @@ def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str]) -> set[str]
 
     Good neighbours (`good`) first, those already bridged
     before others, then best first, up to `MAX_BRIDGES`. Only when no neighbour is
-    good: the open bridges answering at least `KEEP_RATE` stay, or else the best ones
+    good: the open bridges answering at least `KEEP_RATE` over the last rounds or
+    `HELD_KEEP_RATE` over `HELD_WINDOW` stay (a drone's only way, 14 % loss, missed
+    three scouts of five and was closed: unheard 6 s, relay mode measured in
+    tests/test_relay_experiments.py), or else the best ones
     answering that often are tried (a drone in a chain of relays hears the next one up
     and the one it carries about equally, and cannot tell which leads to the ground).
     A fair bridge gives way as soon as a good neighbour is heard: routing takes the
@@ -55,7 +59,8 @@ def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str]) -> set[str]
     best = sorted((z for z, a in answers.items() if good(a, z in bridged)), key=lambda z: (z not in bridged, -rates[z], z))
     if best:
         return set(best[:MAX_BRIDGES])
-    keep = sorted((z for z in bridged if rates.get(z, 0.0) >= KEEP_RATE), key=lambda z: (-rates[z], z))
+    keep = sorted((z for z in bridged if z in answers and (rates[z] >= KEEP_RATE or rate(answers[z], HELD_WINDOW) >= HELD_KEEP_RATE)),
+                  key=lambda z: (-rates[z], z))
     if keep:
         return set(keep[:MAX_BRIDGES])
     heard = sorted((z for z, r in rates.items() if r >= KEEP_RATE), key=lambda z: (-rates[z], z))

@@ -77,4 +77,8 @@ class Bus(Protocol):
     def watch_liveliness(self, keyexpr: str, handler: LivelinessHandler) -> Declaration:
         """handler(key, alive) for current tokens, then for every appearance/loss."""
 
+    def watch_links(self, on_closed: Callable[[], None]) -> Declaration:
+        """on_closed() (on the event loop) each time a link of this session's node to
+        another node closes: the mesh may route its traffic another way from now."""
+
     async def close(self) -> None: ...

@@ -26,7 +26,7 @@ import json
 import logging
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
 import zenoh
@@ -320,6 +320,14 @@ class ZenohBus:
 
         sub = self._session.liveliness().declare_subscriber(keyexpr, on_sample, history=True)
         return self._keep(_Declared(sub.undeclare, inbox))
+
+    def watch_links(self, on_closed: Callable[[], None]) -> _Declared:
+        def on_event(event: zenoh.LinkEvent) -> None:  # on a Zenoh thread
+            if event.kind == zenoh.SampleKind.DELETE and not self._closed:
+                self._loop.call_soon_threadsafe(on_closed)
+
+        listener = self._session.info.declare_link_events_listener(on_event)
+        return self._keep(_Declared(listener.undeclare))
 
     def _keep(self, decl: _Declared) -> _Declared:
         self._decls.append(decl)

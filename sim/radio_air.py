@@ -126,6 +126,9 @@ class RadioAir:
     def on_change(self, callback: Callable[[], None]) -> None:
         self._listeners.append(callback)
 
+    def linked(self, node: str) -> frozenset[str]:
+        return frozenset(self._neighbours.get(self._node(node), ()))
+
     # The mesh ----------------------------------------------------------------
 
     def path(self, src: str, dst: str) -> list[str] | None:

@@ -169,6 +169,10 @@ async def test_a_command_from_the_ground_cancels_the_bundle_mid_step() -> None:
         with pytest.raises(CommandRejected) as twice:  # ids are the drone's record: never reused
             await sim.station.push("drone01", bundle({"cmd": "land"}, bundle_id="b7"))
         assert twice.value.status == 409 and "exists already" in twice.value.reason
+        # the same bundle sent again (an answer lost): answered as before, not run again
+        again = await sim.station.push("drone01", bundle({"cmd": "takeoff", "alt": 10}, {"cmd": "move", "y": 300}, bundle_id="b7"))
+        assert again.accepted and again.reason == "bundle b7 accepted before (cancelled)", again
+        assert (await sim.station.bundle_record("drone01", "b7")).history == record.history
     finally:
         await sim.close()
 

@@ -17,7 +17,7 @@ import pytest
 from dronefleet.agent.runtime import OVERLAP_S, Redeclarable
 from dronefleet.bus.clock import SystemClock, VirtualClock
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
-from dronefleet.bus.port import Bus, QueryRefused, QueryTimeout, Unreachable
+from dronefleet.bus.port import Bus, QueryRefused, QueryTimeout, Unreachable, echo
 from dronefleet.bus.zenoh_bus import ZenohBus
 from tests.helpers import Collector, free_port, until
 
@@ -208,6 +208,35 @@ async def test_a_reply_says_whether_it_came_over_one_link() -> None:
         assert await near.query_linked("drone/far/ping", b"p") == (b"p", False)
     finally:
         for bus in (far, near, router):
+            await bus.close()
+
+
+@pytest.mark.integration
+async def test_a_link_closing_is_told_to_the_session_at_its_end() -> None:
+    """watch_links (the agent's telemetry at once after a reroute, agent/runtime.py):
+    a router whose link to another closes hears of it; a closed watch hears nothing."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    ground = await ZenohBus.open("router", listen=[endpoint])
+    drone = await ZenohBus.open("router", connect=[endpoint])
+    told: list[str] = []
+    closed = asyncio.Event()
+
+    def on_closed() -> None:
+        told.append("watched")
+        closed.set()
+
+    try:
+        watch = drone.watch_links(on_closed)
+        drone.watch_links(lambda: told.append("unwatched")).close()
+        await serve_reachably(ground, drone, "ground/ping", echo)
+        assert told == []
+        await ground.close()
+        async with asyncio.timeout(10):
+            await closed.wait()
+        watch.close()
+        assert told == ["watched"]
+    finally:
+        for bus in (drone, ground):
             await bus.close()
 
 

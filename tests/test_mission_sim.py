@@ -374,6 +374,28 @@ async def test_an_unanswered_command_is_sent_again_once_the_drone_is_heard_not_a
     assert sum("no answer to goto, sending it again" in line for line in lines) == 2, lines
 
 
+async def test_a_push_whose_answer_is_lost_is_sent_again_and_runs_once() -> None:
+    """Corpus world 81: a relay's homeward bundle got no answer over a lossy hop; sent
+    once only, the plugin's routine unwound and the relay hovered on its spot. The
+    push is now sent again as a command is; the agent, which had taken it, answers as
+    before and does not run it twice."""
+    pushes: list[str] = []
+
+    async def answer_lost(original: Callable[..., Awaitable[Any]], drone_id: str, payload: bytes, *args: Any) -> Any:
+        pushes.append(json.loads(payload)["bundle_id"])
+        reply = await original(drone_id, payload, *args)
+        if len(pushes) == 1:
+            raise Unreachable(f"no reply from drone/{drone_id}/bundle within 3 s (test)")
+        return reply
+
+    script = ("d = assign()\narm(d)\nr = push(d, [step.takeoff(5*m), step.move(forward=10*m)])\n"
+              "assert [e.state for e in r.history] == ['start', 'finish', 'start', 'finish', 'done'], r.history\n")
+    record, _, lines = await fly(script, world_with(), fleet_port=inject(push=answer_lost))
+    assert record.status == "finished", (record, lines)
+    assert len(pushes) == 2 and pushes[0] == pushes[1], pushes
+    assert sum("no answer to push, sending it again (2/3)" in line for line in lines) == 1, lines
+
+
 async def test_a_goto_whose_end_is_lost_ends_once_the_drone_stands_at_its_target(monkeypatch: pytest.MonkeyPatch) -> None:
     """A reliable publication goes down with a link that closes under it; a goto's
     `finish` lost with no probe missed (so the agent repeats nothing) hung its verb until

@@ -74,6 +74,16 @@ def test_an_open_clean_bridge_outlasts_two_unlucky_rounds() -> None:
     assert not mesh_policy.good([True] * 7 + [False] * 3, held=True)  # the third miss in ten
 
 
+def test_an_open_fair_bridge_outlasts_unlucky_rounds_when_no_good_one_is_heard() -> None:
+    """Relay mode measured (tests/test_relay_experiments.py): a drone's only way, 14 %
+    loss, missed three scouts of five and was closed; unheard 6 s."""
+    unlucky = [True] * 5 + [False, False, True, False, False]  # 1 of the last 5, 6 of 10
+    assert rate(unlucky) < KEEP_RATE
+    assert choose({"only": unlucky}, {"only"}) == {"only"}
+    assert choose({"only": unlucky}, set()) == set()  # not open: judged on the last 5
+    assert choose({"only": [False] + unlucky[1:]}, {"only"}) == set()  # 5 of 10
+
+
 def test_good_bridges_already_open_are_kept_before_other_good_ones() -> None:
     assert choose({"a": answered(5), "b": answered(5), "open": answered(4)}, {"open"}) == {"open", "a"}
 

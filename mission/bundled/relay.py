@@ -245,6 +245,9 @@ def outbound(relay):
 
 def chain_dispatch(key, spot, hold):
     relay = assign(any_relay)
+    # Above every relay still out, also when sent again: its old, lower level had one
+    # come down through the level of one flying out over its spot (corpus world 140).
+    state["lanes"][relay.id] = max([n for r, n in state["lanes"].items() if r in crew], default=0) + 1
     crew[relay.id] = relay
     state["gone"].discard(relay.id)
     relays.chain_joined(key, relay)

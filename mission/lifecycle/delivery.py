@@ -9,7 +9,7 @@ import asyncio
 import contextlib
 import json
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
@@ -27,6 +27,7 @@ from dronefleet.schemas.status import RETURNING, CommandStatus, ended_by_failsaf
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
+R = TypeVar("R")
 
 
 # Where a held goto may go now: (lat, lon, why no drone is free for the relays it needs
@@ -186,8 +187,10 @@ class CommandDelivery:
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
-                await self._deliver(drone_id, name, json.dumps({**body, "command_id": command_id}).encode(), wait_clear,
+                payload = json.dumps({**body, "command_id": command_id}).encode()
+                await self._deliver(drone_id, name, lambda: self.station.command(drone_id, payload, self.id), wait_clear,
                                     take_back)
+                self._bundles_ended_by(drone_id)
                 if not wait:
                     return None
                 self._sent[command_id].accepted = self.clock.monotonic()
@@ -210,10 +213,11 @@ class CommandDelivery:
             raise self.setback("cmd_exec", f"{name} {drone_id} failed: {status.reason or 'no reason given'}")
         return status
 
-    async def _deliver(self, drone_id: str, name: str, payload: bytes, wait_clear: bool = False,
-                       take_back: bool = False) -> None:
-        """Send a command; with no answer, send it again (same command id: the agent
-        runs it once) each time the drone is heard, before the mission gives up on it
+    async def _deliver(self, drone_id: str, name: str, send: Callable[[], Awaitable[R]], wait_clear: bool = False,
+                       take_back: bool = False) -> R:
+        """Send a command or bundle (`send`: the ground's reply); with no answer, send it
+        again (same command or bundle id: the agent runs it once) each time the drone is
+        heard, before the mission gives up on it
         (cmd_exec after DELIVERY_TRIES heard and unanswered). A drone not heard either
         is out of reach, whatever the ground's liveliness says yet: tried again for
         mission.link_grace_s, then the mission ends link_lost. With `wait_clear`, a
@@ -226,11 +230,10 @@ class CommandDelivery:
         give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
         while True:
             try:
-                await self.station.command(drone_id, payload, self.id)
-                self._bundles_ended_by(drone_id)
+                reply = await send()
                 if waited_for is not None:
                     self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
-                return
+                return reply
             except Unreachable as exc:
                 if self._out_of_reach(drone_id):  # the link dropped as it went: not the drone's fault
                     await self._heard_again(drone_id, name)
@@ -296,7 +299,11 @@ class CommandDelivery:
 
     async def push(self, drone_id: str, body: dict[str, Any]) -> BundleRecord:
         """Send a task bundle as this mission and wait until it has ended (SPEC §6);
-        the agent's record is the outcome. Refusals end the mission as `execute`'s do."""
+        the agent's record is the outcome. Refusals end the mission as `execute`'s do;
+        unanswered, it is sent again as a command is (the same bundle id: the agent runs
+        it once). Sent once only, a relay's homeward bundle lost on a lossy hop unwound
+        the plugin's routine and left the relay hovering on its spot, where another passed
+        1.1 m from it (corpus world 81)."""
         self.check_assigned(drone_id)
         self._pushed += 1  # fast time replays exactly: its ids come from the mission
         bundle_id = f"b-{self.id}-{self._pushed}" if self.deterministic else new_bundle_id()
@@ -306,8 +313,11 @@ class CommandDelivery:
         self._bundles[bundle_id] = pending
         try:
             with self._sending("push", drone_id):
-                await self.station.push(drone_id, json.dumps({**body, "bundle_id": bundle_id}).encode(), self.id)
+                payload = json.dumps({**body, "bundle_id": bundle_id}).encode()
+                reply = await self._deliver(drone_id, "push", lambda: self.station.push(drone_id, payload, self.id))
                 self._bundles_ended_by(drone_id, bundle_id)
+                if reply.reason:  # a push sent again that the agent had taken: its end may have gone by
+                    self._catch_up(pending)
                 return await self._outcome(pending.done, drone_id)
         finally:
             self._bundles.pop(bundle_id, None)
