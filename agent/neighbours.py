@@ -32,13 +32,23 @@ import logging
 import secrets
 import socket
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
 
-from dronefleet.bus.mesh_policy import ANSWER_WINDOW, DIRECT_STEADY_S, HELD_WINDOW, MAX_BRIDGES, NeedWatch, choose, rate
+from dronefleet.bus.mesh_policy import (
+    ANSWER_WINDOW,
+    DIRECT_STEADY_S,
+    HELD_WINDOW,
+    MAX_BRIDGES,
+    GroundView,
+    NeedWatch,
+    choose,
+    futile,
+    rate,
+)
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from dronefleet.schemas.endpoints import ip_endpoint, plain_endpoint
 
@@ -93,7 +103,7 @@ class Neighbours:
 
     def __init__(
         self, drone_id: str, bus: ZenohBus, interface: str, ground_endpoints: Sequence[str],
-        own_endpoint: str, ground_unsure: Callable[[], bool], *, extra: dict[str, Any] | None = None,
+        own_endpoint: str, ground: GroundView, *, extra: dict[str, Any] | None = None,
         zids: frozenset[str] = frozenset(),
     ) -> None:
         self.drone_id = drone_id
@@ -101,12 +111,13 @@ class Neighbours:
         self.interface = interface
         self.ground_endpoints = {plain_endpoint(e) for e in ground_endpoints}
         self.own_endpoint = own_endpoint
-        self.ground_unsure = ground_unsure
+        self.ground = ground
         self.extra = extra or {}
         self.free_zids = sorted(zids)  # the bridges' own ZIDs, which this drone's router trusts (secured mesh)
         self._zid_of: dict[str, str] = {}
         self.heard: dict[str, Heard] = {}
         self.bridges: dict[str, zenoh.Session] = {}
+        self._opened: dict[str, float] = {}  # per bridge: when it opened (loop time)
 
     def direct_link(self) -> bool:
         """The agent's router holds a link it dialled to one of the ground's endpoints."""
@@ -136,12 +147,13 @@ class Neighbours:
                         del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
                 was_needed = need.needed
                 direct = await asyncio.to_thread(self.direct_link)  # a Zenoh call: off the loop, as stop() above
-                needed = need.update(direct and not self.ground_unsure(), loop.time())
+                needed = need.update(direct and not self.ground.ground_unsure(), loop.time())
                 if needed != was_needed:
                     log.info("%s: %s", self.drone_id, "no working direct link to the ground; relaying through neighbours"
                              if needed else f"the direct link to the ground has worked {DIRECT_STEADY_S:g} s; "
                              "closing the links through neighbours")
-                wanted = choose({z: h.answers for z, h in self.heard.items()}, set(self.bridges)) if needed else set()
+                stale = futile(self._opened, self.ground.ground_heard_at(), loop.time())
+                wanted = choose({z: h.answers for z, h in self.heard.items()}, set(self.bridges), stale) if needed else set()
                 for zid in set(self.bridges) - wanted:
                     await self._close(zid)
                 for zid in wanted - set(self.bridges):
@@ -191,11 +203,13 @@ class Neighbours:
             return
         if own_zid is not None:
             self._zid_of[zid] = own_zid
+        self._opened[zid] = asyncio.get_running_loop().time()
         log.info("%s: linking through neighbour %s at %s (answers %.0f %% of scouts)",
                  self.drone_id, zid, heard.locator, 100 * heard.rate)
 
     async def _close(self, zid: str) -> None:
         session = self.bridges.pop(zid)
+        self._opened.pop(zid, None)
         if zid in self._zid_of:
             self.free_zids.append(self._zid_of.pop(zid))
         log.info("%s: link through neighbour %s closed", self.drone_id, zid)

@@ -168,14 +168,17 @@ class Agent:
             state=state, reason=reason,  # type: ignore[arg-type]
         ))
 
-    def ground_silent(self) -> bool:
-        """No answer from the ground for two probe periods."""
+    def ground_silent(self) -> bool:  # no answer from the ground for two probe periods
         return self.lost_link.silent(self.clock.monotonic())
 
+    def ground_heard_at(self) -> float:
+        return self.lost_link.last_contact
+
     def ground_unsure(self) -> bool:
-        """The ground silent, or one of its last probes lost or retransmitted: the
-        drone links through good neighbours before its direct link is lost (ADR 0003)."""
-        return self.ground_silent() or unsure(self.prober.windows[GROUND_PEER].outcomes())
+        """The ground silent, one of its last probes lost or retransmitted, or the one out
+        overdue: the drone links through good neighbours before its link is lost (ADR 0003)."""
+        return (self.ground_silent() or self.prober.ground_overdue(self.clock.monotonic())
+                or unsure(self.prober.windows[GROUND_PEER].outcomes()))
 
     def _on_ground_contact(self, now: float) -> None:
         now_ms = self.clock.time_ms()
@@ -211,8 +214,8 @@ class Agent:
             self._unsure_since_ms = None  # the link held long enough for the repeats to arrive
 
     def _signed_by_the_ground(self) -> None:
-        """A command or bundle that passed the ground's signature is contact (SPEC §8),
-        as an answered probe is. Unsigned ones could come from any client of the mesh."""
+        """A command or bundle that passed the ground's signature is contact (SPEC §8), as an
+        answered probe is."""
         if self.verifier is not None:
             self._on_ground_contact(self.clock.monotonic())
 
@@ -376,10 +379,8 @@ class Agent:
             self.bus.publish(self.keys.telem(self.drone_id), encode(telem), reliable=False)
 
     def _on_link_closed(self) -> None:
-        """A link of this drone's router closed (a lossy hop's lease ran out, its last
-        samples with it): the ground hears where the drone is over the new way at once,
-        not at the next period (a worker crossing the laptop's edge was unheard 3.0-3.6 s
-        where the lease accounts for 2: fast-time corpus worlds 42, 70; ADR 0003)."""
+        """A link of this drone's router closed (a lossy hop's lease ran out, its last samples
+        with it): the ground hears the drone over the new way now, not at the next period (ADR 0003)."""
         self._publish_telemetry()
 
     async def _telemetry_loop(self) -> None:
@@ -490,7 +491,7 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
                 async with asyncio.TaskGroup() as tg:
                     tg.create_task(agent.run(), name=f"{drone_id} agent")
                     neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
-                                            own_endpoint(config.listen) or "", agent.ground_unsure, extra=secured,
+                                            own_endpoint(config.listen) or "", agent, extra=secured,
                                             zids=bridge_zids)
                     tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
         finally:

@@ -5,6 +5,7 @@ follows the same decisions."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 ANSWER_WINDOW = 5  # rounds over which a neighbour's answer rate is taken
 GOOD_RATE = 0.8  # a neighbour answering this often is a hop worth relaying through
@@ -12,10 +13,21 @@ KEEP_RATE = 0.4  # a bridge already open is kept while its neighbour answers thi
 HELD_WINDOW = 10  # an open bridge is also good while it answered GOOD_RATE over this many rounds …
 HELD_KEEP_RATE = 0.6  # … and kept, with no good one heard, while it answered this often over them
 MAX_BRIDGES = 2
+SWAP_AFTER_S = 4.0  # bridges open this long while the ground stayed silent as long give way to others
 DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
 START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
 UNSURE_PROBES = 3  # the last probes to the ground that must have come back clean …
 RETRANSMITTED_MS = 150.0  # … each within this (TCP's first retransmission is 200 ms)
+
+
+class GroundView(Protocol):
+    """What an agent makes of the ground from its probes (agent/runtime.py)."""
+
+    def ground_unsure(self) -> bool: ...
+
+    def ground_heard_at(self) -> float:
+        """When the ground last answered (monotonic)."""
+        ...
 
 
 def rate(answers: Sequence[bool], window: int = ANSWER_WINDOW) -> float:
@@ -37,12 +49,23 @@ def good(answers: Sequence[bool], held: bool) -> bool:
     return rate(answers) >= GOOD_RATE or (held and rate(answers, HELD_WINDOW) >= GOOD_RATE)
 
 
-def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str]) -> set[str]:
+def futile(opened: Mapping[str, float], ground_heard_at: float, now: float) -> set[str]:
+    """The open bridges (`opened`: when each opened) that have not brought the ground
+    back: open `SWAP_AFTER_S` or longer, and the ground silent as long."""
+    if now - ground_heard_at < SWAP_AFTER_S:
+        return set()
+    return {z for z, at in opened.items() if now - at >= SWAP_AFTER_S}
+
+
+def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str], futile: set[str] | frozenset[str] = frozenset()) -> set[str]:
     """Which neighbours to hold a bridge to, when the drone needs one (pure), from
     each neighbour's answers to the last scouting rounds (oldest first).
 
     Good neighbours (`good`) first, those already bridged
-    before others, then best first, up to `MAX_BRIDGES`. Only when no neighbour is
+    before others (unless `futile`: they did not bring the ground back, and other good
+    ones are tried before them — a relay with three good neighbours held the worker and
+    the relay beyond, equally good, and not the one toward the laptop, and its chain was
+    unheard 30 s; fast-time corpus, world 21), then best first, up to `MAX_BRIDGES`. Only when no neighbour is
     good: the open bridges answering at least `KEEP_RATE` over the last rounds or
     `HELD_KEEP_RATE` over `HELD_WINDOW` stay (a drone's only way, 14 % loss, missed
     three scouts of five and was closed: unheard 6 s, relay mode measured in
@@ -56,7 +79,8 @@ def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str]) -> set[str]
     bad carried nothing through, and stalled the neighbour's router for seconds
     (bench/mesh_stall.py, frozen: 9.4 s)."""
     rates = {z: rate(a) for z, a in answers.items()}
-    best = sorted((z for z, a in answers.items() if good(a, z in bridged)), key=lambda z: (z not in bridged, -rates[z], z))
+    best = sorted((z for z, a in answers.items() if good(a, z in bridged)),
+                  key=lambda z: (z in futile, z not in bridged, -rates[z], z))
     if best:
         return set(best[:MAX_BRIDGES])
     keep = sorted((z for z in bridged if z in answers and (rates[z] >= KEEP_RATE or rate(answers[z], HELD_WINDOW) >= HELD_KEEP_RATE)),

@@ -26,10 +26,9 @@ import random
 from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Protocol
 
 from dronefleet.bus.clock import VirtualClock
-from dronefleet.bus.mesh_policy import HELD_WINDOW, NeedWatch, choose
+from dronefleet.bus.mesh_policy import HELD_WINDOW, GroundView, NeedWatch, choose, futile
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
 LEASE_S = 2.0  # a link with nothing through it for this long is closed
@@ -49,12 +48,6 @@ class _Link:
     retry_at: float = 0.0
 
 
-class GroundView(Protocol):
-    """What an agent makes of the ground from its probes (agent/runtime.py)."""
-
-    def ground_unsure(self) -> bool: ...
-
-
 class RadioAir:
     """Links between the nodes of a simulated field, following where they are."""
 
@@ -72,6 +65,7 @@ class RadioAir:
         self._in_flight: dict[tuple[str, str], tuple[float, float]] = {}  # per directed hop: (last entry, its arrival)
         self._listeners: list[Callable[[], None]] = []
         self.bridges: dict[str, set[str]] = {}  # per drone: the neighbours it holds a bridge to
+        self._opened: dict[str, dict[str, float]] = {}  # per drone and bridge: when it opened
         self._needs: dict[str, NeedWatch] = {}
         self._answers: dict[tuple[str, str], deque[bool]] = {}  # per drone and neighbour: its scouts answered
         self._next_round = 0.0
@@ -228,7 +222,13 @@ class RadioAir:
             agent = self.agent(a)
             unsure = agent is not None and agent.ground_unsure()
             needed = need.update(direct is not None and direct.up and not unsure, now)
-            self.bridges[a] = choose(heard, self.bridges.get(a, set())) if needed else set()
+            opened = self._opened.setdefault(a, {})
+            stale = futile(opened, agent.ground_heard_at(), now) if agent is not None else set()
+            self.bridges[a] = choose(heard, self.bridges.get(a, set()), stale) if needed else set()
+            for b in set(opened) - self.bridges[a]:
+                del opened[b]
+            for b in self.bridges[a] - set(opened):
+                opened[b] = now
 
 
 def _pair(a: str, b: str) -> tuple[str, str]:

@@ -25,14 +25,26 @@ from dronefleet.bus.mesh_policy import (
     HELD_WINDOW,
     KEEP_RATE,
     MAX_BRIDGES,
+    SWAP_AFTER_S,
     NeedWatch,
     choose,
+    futile,
     rate,
 )
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from tests.helpers import free_port
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
+
+
+class SureGround:
+    """An agent whose probes to the ground all come back."""
+
+    def ground_unsure(self) -> bool:
+        return False
+
+    def ground_heard_at(self) -> float:
+        return 0.0
 
 
 def answered(hits: int, rounds: int = ANSWER_WINDOW) -> list[bool]:
@@ -82,6 +94,20 @@ def test_an_open_fair_bridge_outlasts_unlucky_rounds_when_no_good_one_is_heard()
     assert choose({"only": unlucky}, {"only"}) == {"only"}
     assert choose({"only": unlucky}, set()) == set()  # not open: judged on the last 5
     assert choose({"only": [False] + unlucky[1:]}, {"only"}) == set()  # 5 of 10
+
+
+def test_bridges_that_do_not_bring_the_ground_back_give_way_to_other_good_ones() -> None:
+    """Corpus world 21: a relay held the worker and the relay beyond (equally good,
+    chosen by name), not the one toward the laptop: its chain was unheard 30 s."""
+    opened = {"beyond": 10.0, "worker": 10.0}
+    assert futile(opened, ground_heard_at=9.0, now=10.0 + SWAP_AFTER_S - 0.5) == set()  # not long enough
+    assert futile(opened, ground_heard_at=12.0, now=10.0 + SWAP_AFTER_S) == set()  # the ground answered since
+    stale = futile(opened, ground_heard_at=9.0, now=10.0 + SWAP_AFTER_S)
+    assert stale == {"beyond", "worker"}
+    heard = {"beyond": answered(5), "worker": answered(5), "toward": answered(5)}
+    assert choose(heard, set(opened)) == {"beyond", "worker"}  # the open ones, as before
+    assert choose(heard, set(opened), stale) == {"toward", "beyond"}  # the other first
+    assert choose({"beyond": answered(5)}, {"beyond"}, {"beyond"}) == {"beyond"}  # nothing else: kept
 
 
 def test_good_bridges_already_open_are_kept_before_other_good_ones() -> None:
@@ -151,7 +177,7 @@ async def test_a_scouting_round_never_holds_the_event_loop(monkeypatch: pytest.M
             held.append(not released.wait(timeout=10))
 
     monkeypatch.setattr(zenoh, "scout", lambda *args, **kwargs: StuckScout())
-    neighbours = Neighbours("d1", cast(ZenohBus, None), "lo", [], "tcp/127.0.0.1:7448", lambda: False)
+    neighbours = Neighbours("d1", cast(ZenohBus, None), "lo", [], "tcp/127.0.0.1:7448", SureGround())
     scouting = asyncio.create_task(neighbours._scout_round())
     async with asyncio.timeout(30):
         assert await asyncio.to_thread(stopping.wait, 20)
@@ -170,7 +196,7 @@ async def test_a_bridge_that_cannot_link_within_its_bound_is_not_opened_and_neve
     own = zenoh.open(zenoh_config("router", listen=[f"tcp/127.0.0.1:{port}"]))
     silent = socket.create_server(("127.0.0.1", 0))
     silent.setblocking(False)
-    neighbours = Neighbours("d1", cast(ZenohBus, None), "lo", [], f"tcp/127.0.0.1:{port}", lambda: False,
+    neighbours = Neighbours("d1", cast(ZenohBus, None), "lo", [], f"tcp/127.0.0.1:{port}", SureGround(),
                             zids=frozenset({"a1b2c3"}))
     try:
         neighbours.heard["n1"] = Heard(f"tcp/127.0.0.1:{silent.getsockname()[1]}")

@@ -1,0 +1,41 @@
+"""The agent's link prober (agent/prober.py) on the in-process bus and virtual clock."""
+
+from __future__ import annotations
+
+import asyncio
+
+from dronefleet.agent.prober import LinkProber
+from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.memory import MemoryBus, MemoryNetwork
+from dronefleet.bus.mesh_policy import RETRANSMITTED_MS
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import GROUND_PEER
+
+
+async def test_a_ground_probe_out_longer_than_a_clean_round_trip_is_overdue_before_its_outcome() -> None:
+    """Fast-time corpus world 42: a worker's link counted clean while its loss climbed
+    to 80 %, its probes neither answered nor timed out yet. A probe out longer than a
+    clean round trip takes counts at once (the drone bridges: ADR 0003)."""
+    clock, keys = VirtualClock(), Keys()
+    network = MemoryNetwork()
+    ground, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")
+    answer = asyncio.Event()
+
+    async def slow_echo(key: str, payload: bytes) -> bytes:
+        await answer.wait()
+        return payload
+
+    ground.serve(keys.ground_ping(), slow_echo)
+    contacts: list[float] = []
+    prober = LinkProber("drone01", drone, keys, clock, 1.0, on_ground_contact=contacts.append)
+    probe = asyncio.ensure_future(prober.probe_all())
+    await asyncio.sleep(0)
+    assert not prober.ground_overdue(clock.monotonic())  # just sent
+    await clock.advance(RETRANSMITTED_MS / 1000 / 2)
+    assert not prober.ground_overdue(clock.monotonic())
+    await clock.advance(RETRANSMITTED_MS / 1000)
+    assert prober.ground_overdue(clock.monotonic())  # still out: retransmitted or lost
+    answer.set()
+    await probe
+    assert contacts and not prober.ground_overdue(clock.monotonic())
+    assert prober.windows[GROUND_PEER].outcomes()[-1] is not None
