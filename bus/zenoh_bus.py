@@ -143,6 +143,10 @@ class _Declared:
         self._inbox = inbox
         self._closed = False
 
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
     def close(self) -> None:
         if self._closed:
             return
@@ -322,12 +326,17 @@ class ZenohBus:
         return self._keep(_Declared(sub.undeclare, inbox))
 
     def watch_links(self, on_closed: Callable[[], None]) -> _Declared:
+        def tell() -> None:  # on the loop: not once the watch or the session is closed
+            if not (decl.closed or self._closed):
+                on_closed()
+
         def on_event(event: zenoh.LinkEvent) -> None:  # on a Zenoh thread
-            if event.kind == zenoh.SampleKind.DELETE and not self._closed:
-                self._loop.call_soon_threadsafe(on_closed)
+            if event.kind == zenoh.SampleKind.DELETE:
+                self._loop.call_soon_threadsafe(tell)
 
         listener = self._session.info.declare_link_events_listener(on_event)
-        return self._keep(_Declared(listener.undeclare))
+        decl = _Declared(listener.undeclare)
+        return self._keep(decl)
 
     def _keep(self, decl: _Declared) -> _Declared:
         self._decls.append(decl)

@@ -407,7 +407,9 @@ class Chains:
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
             return free
-        if free <= 0:  # (before the launch check: with none to send it may never clear, world 46)
+        if not self._launch_clear(seen, out):
+            return free  # the last relay sent is still climbing out over the others' takeoff spots
+        if free <= 0:
             need, at, z = 0, last, last_z
             while not covers([(at, z)], goal, w.alt, hop) and need < 100:
                 at, z, need = toward(at, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - z))), self.duty_alt, need + 1
@@ -415,8 +417,6 @@ class Chains:
                                 f"the radio holds hops of {self.reach.lo:.0f} m, too short to reach relays hovering "
                                 f"{self.duty_alt:g} m up: relays cannot bring {w.id} to its goal")
             return free
-        if not self._launch_clear(seen, out):
-            return free  # the last relay sent is still climbing out over the others' takeoff spots
         chain.append(Slot(spot, None, now))
         out.dispatch.append((key, spot, 0.0))
         return free - 1

@@ -118,19 +118,6 @@ def test_no_free_drone_for_the_chain_is_named_with_the_relays_missing() -> None:
     assert needed == math.ceil((300 - 0) / (50 * MARGIN)) - 1 or needed == math.ceil(300 / (50 * MARGIN))
 
 
-def test_with_no_free_drone_the_missing_relays_are_named_whatever_holds_launches() -> None:
-    """Corpus world 46: a worker hovered over a drone on the ground, so no relay could be
-    sent (the launch check), and with none free to send the chain never said so: the
-    mission ran to its time limit instead of ending `requirements`."""
-    c = Chains(DUTY)
-    c.reach = Reach(lo=50.0, hi=51.0)
-    w = Worker("d1", at(3), 15.0, at(300))
-    out = c.plan(0.0, [w], {}, spare=0, others=[(at(0), 0.0)])
-    assert out.dispatch == [] and "no drone is free" in c.stuck["d1"], c.stuck
-    out = c.plan(1.0, [w], {}, spare=1, others=[(at(0), 0.0)])
-    assert out.dispatch == [] and c.stuck == {}  # one to send: it waits for the launch to clear
-
-
 def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() -> None:
     c = Chains(DUTY)
     c.reach = Reach(lo=50.0, hi=51.0)

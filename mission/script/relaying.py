@@ -270,9 +270,8 @@ class Relays:
             return None
         cut = other is not None and chains.dist(end[:2], allowed) >= 0.5  # short of the chain's edge: another's way
         edge = frame.world(end[:2])
-        # stuck also when held out of another's way: two workers held each other's ways
-        # while one had no relay to go on with, and neither ended (corpus world 46)
-        return (edge.lat, edge.lon, ch.stuck.get(drone_id), f"out of {other}'s way" if cut else "at the edge of its relay chain")
+        return (edge.lat, edge.lon, None if cut else ch.stuck.get(drone_id),
+                f"out of {other}'s way" if cut else "at the edge of its relay chain")
 
     def landing_spot(self, relay: Any) -> Position:
         """Where a relay going home comes down: its home, or the nearest spot around it
