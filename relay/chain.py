@@ -21,8 +21,7 @@ times in five, 20 % one in thirteen.
 - **The leash**: a worker's goto goes at most as far as a proven node covers (the laptop
   or a relay on its spot, within `lo` in 3-D); the rest of the way is flown as relays
   arrive. A worker held while its chain needs a relay and no drone is free is `stuck`,
-  named with the relays missing.
-Everything is in a local frame in metres (north, east) around the ground station."""
+  named with the relays missing. (A local frame in metres, north and east of the laptop.)"""
 
 from __future__ import annotations
 
@@ -120,7 +119,7 @@ class Chains:
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
         self.grounded: list[Point] = []  # the drones on the ground: where the next relay takes off
-        self.airborne: list[Point] = []  # the served drones in the air
+        self.legs: list[tuple[Point, Point]] = []  # the served drones in the air: where each is, how far it may go
 
     # ---- what the plugin asks -------------------------------------------------------
 
@@ -218,7 +217,7 @@ class Chains:
         # drones on the ground, and relays climbing from it through the served drones' level
         self.grounded = [at for at, alt in others if alt < 1.0]
         self.parked = self.grounded + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
-        self.airborne = [w.at for w in workers if w.alt >= 1.0]
+        self.legs = [(w.at, w.at) for w in workers if w.alt >= 1.0]  # while the probe measures, they wait
         for s in seen.values():
             if s.fresh and s.rtt_ms is not None and (self.base_rtt is None or s.rtt_ms < self.base_rtt):
                 self.base_rtt = s.rtt_ms
@@ -237,6 +236,9 @@ class Chains:
                 self.idle.append(self.probe.relay)
             out.notes.append(f"the radio holds hops of {self.reach.lo:.0f} m (fails at {self.reach.hi:.0f} m)")
             self.probe = None
+        for w in workers:
+            self.covered[w.id] = self._nodes(now, self.chains.setdefault(w.id, []), seen, out)
+        self.legs = [(w.at, self.allowed(w.id, w.at, w.alt, w.goal or w.at)) for w in workers if w.alt >= 1.0]
         free = spare
         for w in workers:
             free = self._extend(now, w, seen, free, out)
@@ -381,8 +383,7 @@ class Chains:
         return nodes
 
     def _extend(self, now: float, w: Worker, seen: Mapping[str, Seen], free: int, out: ChainPlan) -> int:
-        chain = self.chains.setdefault(w.id, [])
-        self.covered[w.id] = self._nodes(now, chain, seen, out)
+        chain = self.chains[w.id]
         if w.alt < 1.0 and w.goal is None:
             return free  # on the ground, going nowhere: nothing to keep it connected for
         again = next((i for i, s in enumerate(chain) if s.again), None)
@@ -443,16 +444,16 @@ class Chains:
 
     def _launch_clear(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
         """No relay crossing the levels near the drones on the ground, no served drone over
-        one (PARKED_CLEAR_M across): the next relay takes off from one and climbs through
-        every lower level (ADR 0006). A relay crosses while in the air off the duty level:
-        on its way to a spot (near when that way passes within LAUNCH_CLEAR_M of them),
-        coming home, or sent in this plan; one sent and still on the ground goes first.
-        Seen: a worker 3.1 m from a relay climbing through its level (world 81); the probe
-        sent to its chain spot over a relay climbing from the ground (world 18)."""
+        one or going over one (PARKED_CLEAR_M across): the next relay takes off from one and
+        climbs through every lower level (ADR 0006). A relay crosses while in the air off the
+        duty level: on its way to a spot (near when that way passes within LAUNCH_CLEAR_M of
+        them), coming home, or sent in this plan; one sent and still on the ground goes first
+        (a worker 3.1 m from a relay climbing through its level: world 81)."""
         if out.moves or any(s.relay is None and not s.again for c in self.chains.values() for s in c):
             return False
-        if not all(dist(p, q) >= PARKED_CLEAR_M for p in self.airborne for q in self.grounded):
-            return False
+        if any(segment_distance((*a, 0.0), (*b, 0.0), (*q, 0.0), (*q, 0.0)) < PARKED_CLEAR_M
+               for a, b in self.legs for q in self.grounded):
+            return False  # where it goes too: one let on as a relay was sent stopped 4.9 m from it (world 192)
         ways = {relay: spots for relay, spots in self._spots().items() if relay not in self.idle}
         for rid, o in seen.items():
             if o.fresh and o.alt <= 1.0 and rid in ways:

@@ -209,6 +209,19 @@ def test_no_relay_takes_off_while_a_served_drone_flies_over_the_drones_on_the_gr
         assert (out.dispatch != []) is sent, (across, out)
 
 
+def test_no_relay_takes_off_where_a_served_drone_is_let_go_over_the_drones_on_the_ground() -> None:
+    """Corpus world 192: a relay was sent from a spot 12 m from a worker that was let
+    go on at the same moment; it stopped 4.9 m from the relay climbing through its level.
+    The launch waits while a worker's way to where it may go passes over a spare."""
+    spare = [(at(20, 90), 0.0)]
+    for where, goal, sent in (((-15.0, 20.0), (300.0, 20.0), False), ((10.0, 20.0), (300.0, 20.0), True),
+                              ((-15.0, 20.0), (-300.0, 20.0), True)):
+        c = Chains(DUTY)
+        c.reach = Reach(lo=50.0, hi=51.0)
+        out = c.plan(0.0, [Worker("d1", where, 15.0, goal)], {}, spare=1, others=spare)
+        assert (out.dispatch != []) is sent, (where, goal, out)
+
+
 def test_the_probe_waits_too_while_a_worker_is_over_a_spare() -> None:
     c = Chains(DUTY, first_trial=60.0)
     spare = (at(20, 90), 0.0)
