@@ -15,6 +15,7 @@ import pytest
 from dronefleet.agent.config import AgentConfig
 from dronefleet.agent.link import LostLinkPolicy
 from dronefleet.compose import SimField
+from dronefleet.mission.lifecycle.delivery import OVERDUE_S
 from dronefleet.schemas.bundles import MAX_STEPS, parse_bundle
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.geo import destination, distance_m
@@ -558,21 +559,36 @@ print(f"first: {first.result.state}")
 """
 
 
+def lossy_up_high(sim: SimField) -> None:
+    """drone01's statuses are lost while it is above 12 m (queries still cross)."""
+    assert sim.air is not None
+    through = sim.air.transit
+
+    def transit(src: str, dst: str, stream: str = "") -> float | None:
+        if src == "drone01" and stream.endswith("/status") and sim.vehicles["drone01"].rel_alt > 12:
+            return None
+        return through(src, dst, stream)
+
+    sim.air.transit = transit  # type: ignore[method-assign]
+
+
+async def test_a_bundle_whose_end_was_lost_returns_once_past_its_timeout() -> None:
+    """Corpus world 53: a relay's homeward bundle ended while its statuses were lost,
+    and nothing else was sent to it: its routine waited to the time limit. Past its
+    timeout the mission reads the bundle's record from the agent."""
+    script = ('d = assign("drone01")\narm(d)\nr = push(d, [step.takeoff(15*m), step.wait(100*s)], timeout=20*s)\n'
+              "print(f'alone: {r.state} {r.reason}')\n")
+    _, (record, log), _ = await fly(script, fire_world(RadioModel()), max_s=120, prepare=lossy_up_high)
+    assert record.status == "finished", (record, log)
+    assert "alone: failed timeout: not done within 20 s" in log, log
+    assert record.start is not None and record.end is not None
+    assert (record.end - record.start) / 1000 < 20 + OVERDUE_S + 15, record  # takeoff, timeout, then one read
+
+
 async def test_a_bundle_ended_by_the_next_one_returns_though_its_end_was_lost() -> None:
     """Corpus world 185: a relay's duty bundle was superseded by the next one while its
     statuses were lost, and its push waited until the time limit. A bundle (or command)
     the drone accepts ends the one it ran; the mission reads that one's record again.
     Here drone01's statuses are lost while it is above 12 m: the first bundle's end."""
-    def lossy_up_high(sim: SimField) -> None:
-        assert sim.air is not None
-        through = sim.air.transit
-
-        def transit(src: str, dst: str, stream: str = "") -> float | None:
-            if src == "drone01" and stream.endswith("/status") and sim.vehicles["drone01"].rel_alt > 12:
-                return None
-            return through(src, dst, stream)
-
-        sim.air.transit = transit  # type: ignore[method-assign]
-
     _, (record, log), _ = await fly(SUPERSEDED_UNHEARD, fire_world(RadioModel()), max_s=300, prepare=lossy_up_high)
     assert "first: cancelled" in log, (record, log)

@@ -51,6 +51,8 @@ class PendingBundle:
 
 
 DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
+OVERDUE_S = 5.0  # a bundle not heard ending this long after its timeout is read from the agent …
+OVERDUE_RETRY_S = 30.0  # … and again this often
 RETRY_WAIT_S = 2.0  # between them: the drone is heard again within this, or counts as unheard
 # Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
 # them (relative ones — move by offsets, turn, offboard — would not mean the same again).
@@ -318,9 +320,23 @@ class CommandDelivery:
                 self._bundles_ended_by(drone_id, bundle_id)
                 if reply.reason:  # a push sent again that the agent had taken: its end may have gone by
                     self._catch_up(pending)
-                return await self._outcome(pending.done, drone_id)
+                overdue = asyncio.ensure_future(self._overdue(pending))
+                try:
+                    return await self._outcome(pending.done, drone_id)
+                finally:
+                    overdue.cancel()
         finally:
             self._bundles.pop(bundle_id, None)
+
+    async def _overdue(self, pending: PendingBundle) -> None:
+        """Past its timeout (the agent ends it then) a bundle whose end was not heard is
+        read from the agent's record, again every OVERDUE_RETRY_S: a relay's homeward
+        bundle whose end went down with a lossy link kept its routine waiting to the
+        time limit, nothing else sent to it (corpus world 53)."""
+        await self.clock.sleep(max(0.0, pending.deadline - self.clock.monotonic()) + OVERDUE_S)
+        while not pending.done.done():
+            self._catch_up(pending)
+            await self.clock.sleep(OVERDUE_RETRY_S)
 
     def _bundles_ended_by(self, drone_id: str, newer: str | None = None) -> None:
         """A command or bundle the drone accepted ends the bundle it was running (SPEC §6).
