@@ -142,8 +142,7 @@ class Neighbours:
                     self.heard.setdefault(zid, Heard(locator)).locator = locator
                 for zid, heard in list(self.heard.items()):
                     heard.answers.append(zid in answered)
-                    if len(heard.answers) >= ANSWER_WINDOW and not any(list(heard.answers)[-ANSWER_WINDOW:]) \
-                            and zid not in self.bridges:
+                    if len(heard.answers) >= ANSWER_WINDOW and heard.rate == 0.0 and zid not in self.bridges:
                         del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
                 was_needed = need.needed
                 direct = await asyncio.to_thread(self.direct_link)  # a Zenoh call: off the loop, as stop() above

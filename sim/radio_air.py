@@ -64,8 +64,7 @@ class RadioAir:
         self._paths: dict[tuple[str, str], list[str] | None] = {}
         self._in_flight: dict[tuple[str, str], tuple[float, float]] = {}  # per directed hop: (last entry, its arrival)
         self._listeners: list[Callable[[], None]] = []
-        self.bridges: dict[str, set[str]] = {}  # per drone: the neighbours it holds a bridge to
-        self._opened: dict[str, dict[str, float]] = {}  # per drone and bridge: when it opened
+        self.bridges: dict[str, dict[str, float]] = {}  # per drone: the neighbours it holds a bridge to, and since when
         self._needs: dict[str, NeedWatch] = {}
         self._answers: dict[tuple[str, str], deque[bool]] = {}  # per drone and neighbour: its scouts answered
         self._next_round = 0.0
@@ -222,13 +221,10 @@ class RadioAir:
             agent = self.agent(a)
             unsure = agent is not None and agent.ground_unsure()
             needed = need.update(direct is not None and direct.up and not unsure, now)
-            opened = self._opened.setdefault(a, {})
-            stale = futile(opened, agent.ground_heard_at(), now) if agent is not None else set()
-            self.bridges[a] = choose(heard, self.bridges.get(a, set()), stale) if needed else set()
-            for b in set(opened) - self.bridges[a]:
-                del opened[b]
-            for b in self.bridges[a] - set(opened):
-                opened[b] = now
+            held = self.bridges.get(a, {})
+            stale = futile(held, agent.ground_heard_at(), now) if agent is not None else set()
+            chosen = choose(heard, set(held), stale) if needed else set()
+            self.bridges[a] = {b: held.get(b, now) for b in sorted(chosen)}
 
 
 def _pair(a: str, b: str) -> tuple[str, str]:
