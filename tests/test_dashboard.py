@@ -504,6 +504,27 @@ class HeldAnswer:
 
 
 @pytest.mark.slow(20)
+async def test_a_first_request_the_ground_never_answers_is_asked_again(dashboard: Dashboard, tmp_path: Path) -> None:
+    """The page's first request (its configuration) unanswered: it gives up after 5 s,
+    says the ground is unreachable and asks again, and comes up — it once sat at
+    "connecting…" for good while a loaded machine dropped that one request."""
+    lat, lon = SPAWNS["drone01"]
+    fleet = GroundFleet(tmp_path, {"drone01": f"sim://?lat={lat}&lon={lon}&alt=8.2"})
+    page = dashboard.page
+    held = await HeldAnswer.on(page, re.compile(r"/dashboard/config\.json$"))
+    try:
+        await fleet.ground.ready()
+        await dashboard.open(fleet.ground.url)
+        assert held.requests == 2 and not held.release.is_set()
+        await expect(page.locator("#banner")).to_be_hidden(timeout=UI_S * 1000)
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "1", timeout=UI_S * 1000)
+        assert dashboard.errors == []
+    finally:
+        held.release.set()
+        fleet.stop()
+
+
+@pytest.mark.slow(20)
 async def test_an_older_log_fetch_that_answers_last_does_not_wipe_newer_lines(dashboard: Dashboard, tmp_path: Path) -> None:
     """The selected drone's log is fetched again on each reconnection and whenever the
     drone comes back, so two fetches can cross. The older answer, arriving last, must

@@ -27,8 +27,11 @@ export async function call(method, path, options = {}, retried = false) {
   return response;
 }
 
-async function send(method, path, { json, text } = {}) {
+async function send(method, path, { json, text, timeoutMs } = {}) {
   const init = { method, headers: {} };
+  // A request the ground never answers (a dropped connection on the field's Wi-Fi) ends
+  // as a failure the caller can retry, not a page that waits forever.
+  if (timeoutMs) init.signal = AbortSignal.timeout(timeoutMs);
   if (token()) init.headers.authorization = `Bearer ${token()}`;
   if (json !== undefined) {
     init.body = JSON.stringify(json);

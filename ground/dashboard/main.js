@@ -14,10 +14,11 @@ import { View } from "./view.js";
 const $ = (id) => document.getElementById(id);
 const WORK_SAMPLES = 600;
 const FIELD_SENSORS_MS = 3000;
+const CONFIG_TIMEOUT_MS = 5000; // the first request: unanswered, the page asks again (and says so)
 
 async function loadConfig() {
   for (let attempt = 1; ; attempt++) {
-    const r = await call("GET", "/dashboard/config.json");
+    const r = await call("GET", "/dashboard/config.json", { timeoutMs: CONFIG_TIMEOUT_MS });
     if (r.ok) return r.data;
     showDown(attempt, r.message);
     await new Promise((resolve) => setTimeout(resolve, Math.min(2000, 250 * attempt)));
