@@ -34,6 +34,9 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     probe_period_ms: Annotated[int, Meta(ge=100, le=60_000)] = 1000  # link probes to the ground and neighbours
     probe_window: Annotated[int, Meta(ge=2, le=600)] = 10  # probes per peer that loss, RTT and jitter cover
     telemetry_rate_ms: Annotated[int, Meta(ge=20, le=60_000)] = 1000
+    # While the ground is in doubt (a probe lost, retransmitted or overdue), telemetry at
+    # least this often: a sample through a lossy hop or a new way arrives sooner (ADR 0003).
+    doubt_telemetry_rate_ms: Annotated[int, Meta(ge=20, le=60_000)] = 250
     acceptance_radius: Annotated[float, Meta(gt=0.0, le=100.0)] = 0.5
     takeoff_altitude: Annotated[float, Meta(gt=0.0, le=1000.0)] = 15.0
     return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = 15.0

@@ -4,9 +4,11 @@ monitors that follow drones assigned later and stop on revoke, namespaces per
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 import textwrap
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -14,6 +16,7 @@ import pytest
 from dronefleet.compose import SimField
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import BUNDLED_DIR, PluginLibrary
+from dronefleet.mission.script.relaying import Relays
 from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.world import World
 from tests.harness import GroundProcess, fleet_command
@@ -293,3 +296,32 @@ async def test_a_drone_a_plugin_assigned_out_of_reach_past_the_grace_is_the_plug
     own = 'd = assign("drone01")\narm(d)\ntakeoff(d, 10 * m)\nmove(d, forward=300 * m, speed=10 * m / s)\n'
     [(record, _)] = await run(library(tmp_path), own, world=world)
     assert (record.status, record.cause) == ("failed", "link_lost"), record.message
+
+
+@pytest.mark.parametrize("mode", ["measured", "chain"])
+async def test_the_relay_plugin_plans_once_a_period_however_often_drones_speak(
+        mode: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A drone in doubt of the ground publishes its telemetry every 250 ms (ADR 0003).
+    The relay plugin counts its plans (a relay is sent home after RELEASE_AFTER plans
+    without need): planning on every sample sent relays home four times as fast and lost
+    a drone for 4 s in the two-ways experiment. Drones reporting every 250 ms here: one
+    plan per 0.9 s at most, and still plans."""
+    planned: list[float] = []
+    name = "plan" if mode == "measured" else "chain"
+    original = getattr(Relays, name)
+
+    def counted(self: Relays, *args: Any, **kwargs: Any) -> Any:
+        planned.append(self.now())
+        return original(self, *args, **kwargs)
+    monkeypatch.setattr(Relays, name, counted)
+    field = SimField(World(), 3, telemetry_rate_ms=250)
+    await field.start()
+    try:
+        assert field.manager is not None
+        script = f'enable("relay", mode="{mode}")\nd = assign()\narm(d)\ntakeoff(d, 10 * m)\nsleep(20 * s)\n'
+        record = await field.run_mission_started(field.manager.submit(script).mission_id, max_s=120)
+        assert (record.status, record.cause) == ("finished", "success"), record.message
+    finally:
+        await field.close()
+    assert len(planned) >= 15, planned
+    assert min(b - a for a, b in itertools.pairwise(planned)) >= 0.9, planned

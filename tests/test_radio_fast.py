@@ -10,6 +10,7 @@ on board, so also what never reached the ground) and every line of the ground's 
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 from collections.abc import Awaitable, Callable
 from typing import Any
@@ -28,6 +29,7 @@ from dronefleet.sim.world import DroneSpec, Spot, World
 
 BASE = (40.633490, -8.660815)
 SEED = 7
+DOUBT_M = 76  # m: the default radio loses 40 % of what crosses there
 Trace = list[tuple[float, str, Any]]
 
 
@@ -39,9 +41,10 @@ class Field:
     """A SimField on the default radio, with what each drone says recorded on board."""
 
     def __init__(self, drones: list[DroneSpec], lost_link: LostLinkPolicy, seed: int = SEED,
-                 telemetry_rate_ms: int = 200) -> None:
+                 telemetry_rate_ms: int = 200, doubt_telemetry_rate_ms: int = 250) -> None:
         world = World(ground_station=Spot(lat=BASE[0], lon=BASE[1]), drones=drones, radio=RadioModel())
-        config = AgentConfig(telemetry_rate_ms=telemetry_rate_ms, lost_link=lost_link)
+        config = AgentConfig(telemetry_rate_ms=telemetry_rate_ms, doubt_telemetry_rate_ms=doubt_telemetry_rate_ms,
+                             lost_link=lost_link)
         self.sim = SimField(world, seed=seed, agent_config=config)
         self.said: Trace = []  # (t, key, message) heard on each drone's own node
         self.ids = [d.id for d in drones]
@@ -224,6 +227,63 @@ async def test_a_drone_whose_lossy_link_closes_is_heard_through_its_bridge_at_on
         await f.until(lambda: registry.telemetry("droneB").timestamp != heard, 0.3, "droneB heard again")
         published = [t for t, k, _ in f.said if k == "drone/droneB/telem"]
         assert any(abs(t - closed_at) < 0.01 for t in published), (closed_at, published[-5:])
+
+
+async def hover_on_a_lossy_link(doubt_telemetry_rate_ms: int) -> dict[str, Any]:
+    """One drone 10 s at 10 m from the laptop, then 40 s at DOUBT_M: when it published its
+    telemetry, when the ground heard it."""
+    at = north(10)
+    async with Field([DroneSpec(id="drone01", lat=at[0], lon=at[1])], LostLinkPolicy(timeout_s=120, action="continue"),
+                     telemetry_rate_ms=1000, doubt_telemetry_rate_ms=doubt_telemetry_rate_ms) as f:
+        registry = f.sim.station.registry
+        agent = f.sim._agent_runtimes["drone01"]
+        await f.until(lambda: f.state("drone01") == "ready", 10, "ready")
+        await f.command("drone01", cmd="arm")
+        await f.command("drone01", cmd="takeoff", alt=10)
+        await f.until(lambda: f.state("drone01") == "hold", 60, "hovering")
+        clean_from = f.clock.monotonic()
+        doubts = []
+        for _ in range(100):
+            await f.clock.advance(0.1)
+            doubts.append(agent.ground_unsure())
+        clean_to = f.clock.monotonic()
+        far = north(DOUBT_M)
+        goto = asyncio.ensure_future(f.sim.station.command("drone01", json.dumps(
+            {"cmd": "goto", "command_id": "out", "lat": far[0], "lon": far[1], "speed": 5}).encode()))
+        heard: list[float] = []
+        last = registry.telemetry("drone01").timestamp
+
+        def there() -> bool:
+            p = agent.fc.state().position
+            return p is not None and distance_m(far[0], far[1], p.lat, p.lon) < 1
+        await f.until(there, 60, f"at {DOUBT_M} m")
+        lossy_from = f.clock.monotonic()
+        for _ in range(400):
+            await f.clock.advance(0.1)
+            if registry.telemetry("drone01").timestamp != last:
+                last = registry.telemetry("drone01").timestamp
+                heard.append(f.clock.monotonic())
+        goto.cancel()
+        published = [t for t, k, _ in f.said if k == "drone/drone01/telem"]
+        return {"clean_doubts": doubts, "lossy_from": lossy_from, "heard": heard,
+                "clean": [t for t in published if clean_from <= t <= clean_to],
+                "lossy": [t for t in published if t >= lossy_from]}
+
+
+async def test_a_drone_in_doubt_of_the_ground_speaks_sooner() -> None:
+    """While its agent is in doubt of the ground, telemetry every 250 ms, not every 1 s:
+    over a hop that loses packets each sample is one more chance, and the ground hears
+    the drone more often, in more of the seconds (ADR 0003). A clean link keeps the
+    configured period."""
+    sooner, same = await hover_on_a_lossy_link(250), await hover_on_a_lossy_link(1000)
+    assert not any(sooner["clean_doubts"])
+    assert [round(b - a, 2) for a, b in itertools.pairwise(sooner["clean"])] == [1.0] * (len(sooner["clean"]) - 1)
+    steps = [round(b - a, 2) for a, b in itertools.pairwise(sooner["lossy"])]
+    assert steps.count(0.25) > len(steps) / 2, steps
+    assert [round(b - a, 2) for a, b in itertools.pairwise(same["lossy"])].count(0.25) == 0
+    assert len(sooner["heard"]) > 1.5 * len(same["heard"]), (len(sooner["heard"]), len(same["heard"]))
+    seconds = [len({int(t) for t in run["heard"]}) for run in (sooner, same)]  # seconds in which it was heard
+    assert seconds[0] > seconds[1], seconds
 
 
 async def test_an_onboard_sensor_feeds_its_agent_without_the_ground_in_fast_time() -> None:

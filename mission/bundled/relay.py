@@ -27,10 +27,11 @@ mission's failure (the mission's `setback`).
 duty = {}  # relay id -> {"target": position, "alt": metres above home, "serving": bool, "ready": bool}
 crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
-state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "dispatching": 0, "followed": [], "leaving": {},
-         "duty": None, "until": {}, "lanes": {}, "gone": set(), "failures": {}}
+state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "planned": None, "dispatching": 0, "followed": [],
+         "leaving": {}, "duty": None, "until": {}, "lanes": {}, "gone": set(), "failures": {}}
 MODES = ("measured", "distance", "chain")
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
+PLAN_EVERY_S = 0.9  # plans at most this often: a drone in doubt of the ground speaks every 250 ms
 steps = step  # the bundle steps' builder: the input `step` (a length) takes its name once enabled
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
 RENEW_S = 60  # ... and is renewed when less than this is left
@@ -110,14 +111,23 @@ def come_back(relay):
         revoke(relay)
 
 
-def measured(drone):
-    # One plan per telemetry period (when a drone is heard a second time since the last
-    # plan, so a drone out of reach does not stop it); none while a relay is being assigned.
+def new_round(drone):
+    """One plan per telemetry period: when a drone is heard a second time since the last
+    plan (a drone out of reach does not stop it), and not within PLAN_EVERY_S of it (a
+    drone in doubt of the ground speaks four times as often: counted in plans, relays
+    were sent home four times as fast)."""
     if drone.id not in state["round"]:
         state["round"].append(drone.id)
-        return
-    state["round"] = [drone.id]
-    if state["dispatching"]:
+        return False
+    if state["planned"] is not None and relays.now() - state["planned"] < PLAN_EVERY_S:
+        return False
+    state["round"], state["planned"] = [drone.id], relays.now()
+    return True
+
+
+def measured(drone):
+    # None while a relay is being assigned.
+    if not new_round(drone) or state["dispatching"]:
         return
     plan = relays.plan(list(served.values()), duty, crew, ground_spot(drone), state["scale"], steady=state["steady"],
                        min_quality=min_quality, base_alt=base_alt, alt_diff=alt_diff, step=step,
@@ -201,10 +211,8 @@ def follow(other):
 def chain(drone):
     """mode="chain" (relay/chain.py): a probe relay measures the hop that holds, then a
     chain per drone on that hop; the drones' gotos wait at the chain's edge."""
-    if drone.id not in state["round"]:
-        state["round"].append(drone.id)
+    if not new_round(drone):
         return
-    state["round"] = [drone.id]
     if state.get("duty") is None:
         if not any(d.state in ("active", "hold") for d in served.values()):
             return  # the levels are set above the served drones' flights, once they fly

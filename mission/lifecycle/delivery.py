@@ -79,6 +79,7 @@ class CommandDelivery:
     _pushed: int
     _link_back_at: dict[str, asyncio.Future[None]]
     plugin_drones: dict[str, str]
+    given_up: dict[str, float]
     leash: Callable[[str, float, float, float | None], Leash | None] | None
     leashed: dict[str, tuple[float, float, float | None]]
 
@@ -104,6 +105,7 @@ class CommandDelivery:
         name = str(body["cmd"])
         if name == "goto" and self.leash is not None and drone_id not in self.plugin_drones and "lat" in body:
             await self._on_leash(drone_id, body)
+        sent_at = self.clock.monotonic()
         for interrupted in range(RESUME_TRIES + 1):
             try:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear,
@@ -112,6 +114,9 @@ class CommandDelivery:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
                 break
+            if self.given_up.get(drone_id, -1.0) >= sent_at:  # the plugin went on without it: not sent out again
+                raise self.setback("cmd_exec", f"{name} {drone_id} ended by its lost-link failsafe after "
+                                               f"{self.config.mission.link_grace_s:g} s out of reach; not sent again")
             if interrupted == RESUME_TRIES:
                 self.log("warn", f"{drone_id}: {name} interrupted by its lost-link failsafe {RESUME_TRIES + 1} times; "
                                  "going on without it")

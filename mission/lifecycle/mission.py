@@ -86,6 +86,7 @@ class Mission(CommandDelivery):
         self._critical: set[str] = set()
         self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
         self._link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
+        self.given_up: dict[str, float] = {}  # a plugin's drone → when it was last unreachable past the grace
         self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (_catch_up)
         # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
         self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
@@ -375,6 +376,7 @@ class Mission(CommandDelivery):
         message = f"{drone_id} unreachable for {grace_s:g} s (mission.link_grace_s)"
         plugin = self.plugin_drones.get(drone_id)
         if plugin is not None:  # a relay, a replacement: the plugin's problem (SPEC §5), it plans without the drone
+            self.given_up[drone_id] = self.clock.monotonic()
             self.log("warn", f"plugin {plugin}: {message}; the plugin goes on")
             return
         self.end("link_lost", message)
