@@ -68,6 +68,7 @@ class Worker:
     at: Point
     alt: float  # metres above the ground station it flies at
     goal: Point | None  # where the script wants it now (a held goto's goal too)
+    home: Point | None = None  # where its return (its lost-link failsafe's too) takes it
 
 
 @dataclass(frozen=True)
@@ -217,7 +218,7 @@ class Chains:
         # drones on the ground, and relays climbing from it through the served drones' level
         self.grounded = [at for at, alt in others if alt < 1.0]
         self.parked = self.grounded + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
-        self.legs = [(w.at, w.at) for w in workers if w.alt >= 1.0]  # while the probe measures, they wait
+        self.legs = [(w.at, w.home or w.at) for w in workers if w.alt >= 1.0]  # while the probe measures, they wait
         for s in seen.values():
             if s.fresh and s.rtt_ms is not None and (self.base_rtt is None or s.rtt_ms < self.base_rtt):
                 self.base_rtt = s.rtt_ms
@@ -238,7 +239,7 @@ class Chains:
             self.probe = None
         for w in workers:
             self.covered[w.id] = self._nodes(now, self.chains.setdefault(w.id, []), seen, out)
-        self.legs = [(w.at, self.allowed(w.id, w.at, w.alt, w.goal or w.at)) for w in workers if w.alt >= 1.0]
+        self.legs = [(w.at, w.home or self.allowed(w.id, w.at, w.alt, w.goal or w.at)) for w in workers if w.alt >= 1.0]
         free = spare
         for w in workers:
             free = self._extend(now, w, seen, free, out)
@@ -443,12 +444,11 @@ class Chains:
         return next((p for p in candidates if room(p) >= 1.0), max(candidates, key=room))
 
     def _launch_clear(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
-        """No relay crossing the levels near the drones on the ground, no served drone over
-        one or going over one (PARKED_CLEAR_M across): the next relay takes off from one and
-        climbs through every lower level (ADR 0006). A relay crosses while in the air off the
-        duty level: on its way to a spot (near when that way passes within LAUNCH_CLEAR_M of
-        them), coming home, or sent in this plan; one sent and still on the ground goes first
-        (a worker 3.1 m from a relay climbing through its level: world 81)."""
+        """No relay crossing the levels near the drones on the ground, no served drone over one,
+        going over one or home over one (PARKED_CLEAR_M across; a failsafe's return passed 4.2 m
+        from one: world 81): the next relay takes off from one and climbs through every lower
+        level (ADR 0006). A relay crosses while off the duty level: to a spot (near when its way
+        passes within LAUNCH_CLEAR_M of them), coming home, or sent in this plan (it goes first)."""
         if out.moves or any(s.relay is None and not s.again for c in self.chains.values() for s in c):
             return False
         if any(segment_distance((*a, 0.0), (*b, 0.0), (*q, 0.0), (*q, 0.0)) < PARKED_CLEAR_M

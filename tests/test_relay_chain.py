@@ -222,9 +222,45 @@ def test_no_relay_takes_off_where_a_served_drone_is_let_go_over_the_drones_on_th
         assert (out.dispatch != []) is sent, (where, goal, out)
 
 
+def test_no_relay_takes_off_on_the_way_home_of_a_served_drone_returning() -> None:
+    """Corpus world 81: a worker's lost-link failsafe flew it home (its goto still the
+    script's, far out) and a relay took off on its way, 4.2 m from it. A returning
+    drone's way is home: the launch waits while that passes over a spare."""
+    spare = [((20.0, 14.0), 0.0)]
+    for home, sent in ((None, True), ((0.0, 0.0), False), ((0.0, 60.0), True)):
+        c = Chains(DUTY)
+        c.reach = Reach(lo=50.0, hi=51.0)
+        out = c.plan(0.0, [Worker("d1", (40.0, 28.0), 15.0, (300.0, 200.0), home)], {}, spare=1, others=spare)
+        assert (out.dispatch != []) is sent, (home, out)
+
+
 def test_the_probe_waits_too_while_a_worker_is_over_a_spare() -> None:
     c = Chains(DUTY, first_trial=60.0)
     spare = (at(20, 90), 0.0)
     assert c.plan(0.0, [Worker("d1", (2.0, 20.0), 15.0, at(200))], {}, spare=1, others=[spare]).dispatch == []
     out = c.plan(1.0, [Worker("d1", (12.0, 20.0), 15.0, at(200))], {}, spare=1, others=[spare])
     assert [k for k, _, _ in out.dispatch] == [PROBE]
+
+
+def test_a_worker_on_its_way_down_home_is_let_go_at_the_level_it_flies() -> None:
+    """Corpus world 53: a worker's goto home (at field level) is flown at the worker's
+    level until its last leg, but the leash judged the way at the goal's: 21 m below the
+    relays, nothing of it was covered and the worker was held where it was until the
+    time limit. Judged at 15 m, the chain covers the way home."""
+    from types import SimpleNamespace
+
+    from dronefleet.mission.script.geo import Position
+    from dronefleet.mission.script.relaying import Frame, Relays
+
+    field, field_alt = Position(40.6335, -8.6608, 8.0), 8.0
+    frame = Frame(field)
+    c = Chains(DUTY)
+    c.reach = Reach(lo=27.5, hi=28.75)
+    c.covered["d1"] = [((0.0, 0.0), 0.0), ((13.7, -9.6), DUTY), ((38.3, -20.0), DUTY)]
+    out_there = frame.world((55.2, -16.0))
+    worker = SimpleNamespace(id="d1", home=field, position=Position(out_there.lat, out_there.lon, field_alt + 15.0))
+    relays = Relays()
+    relays._chains, relays._frame, relays._served = c, frame, {"d1": worker}
+    verdict = relays.leash("d1", field.lat, field.lon, field_alt)  # home, on the ground
+    let_go = (0.0, 0.0) if verdict is None else frame.local(Position(verdict[0], verdict[1]))  # None: all the way
+    assert dist(let_go, (55.2, -16.0)) > 10.0, verdict

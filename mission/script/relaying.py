@@ -211,9 +211,11 @@ class Relays:
             if held is not None:
                 goal = Position(held[0], held[1], held[2])
             level = flight_altitude(d)  # where it flies, not the levels it climbs or lands through
+            cmd, home = d.cmd, d.home
             workers.append(chains.Worker(d.id, frame.local(d.position),
                                          level if level is not None else (_above(d, d.position.alt) or 0.0),
-                                         frame.local(goal) if goal is not None else None))
+                                         frame.local(goal) if goal is not None else None,
+                                         frame.local(home) if cmd is not None and cmd.name == "return" and home else None))
         seen = {}
         for rid, d in drones.items():
             link = d.link
@@ -260,7 +262,9 @@ class Relays:
         if ch is None or frame is None or d is None or drone_id not in ch.covered:
             return None
         here = _above(d, d.position.alt) or 0.0
-        above = _above(d, alt) if alt is not None else here
+        # A leg short of a lower goal keeps the drone's level (the descent is the last leg's):
+        # judged at the goal's, a worker on its way home to the field was held for good (world 53).
+        above = max(_above(d, alt) or 0.0, here) if alt is not None else here
         goal = frame.local(Position(lat, lon))
         at = frame.local(d.position)
         allowed = ch.allowed(drone_id, at, above or 0.0, goal)
