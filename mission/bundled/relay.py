@@ -126,7 +126,7 @@ def new_round(drone):
 
 
 def measured(drone):
-    # None while a relay is being assigned.
+    # No plan while a relay is being assigned.
     if not new_round(drone) or state["dispatching"]:
         return
     plan = relays.plan(list(served.values()), duty, crew, ground_spot(drone), state["scale"], steady=state["steady"],
