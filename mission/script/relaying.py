@@ -267,7 +267,7 @@ class Relays:
         above = max(_above(d, alt) or 0.0, here) if alt is not None else here
         goal = frame.local(Position(lat, lon))
         at = frame.local(d.position)
-        allowed = ch.allowed(drone_id, at, above or 0.0, goal)
+        allowed = ch.allowed(drone_id, at, above, goal)
         end, other = self._ways.clear(drone_id, (*at, here), (*allowed, above or here), self._everyone(frame),
                                       set(self._served), self.now(), ch.relays(), ch.launching())
         if chains.dist(end[:2], goal) < 0.5:
