@@ -2,16 +2,21 @@
 scores and decisions out. No I/O and no clock reads: the prober and the agent feed
 times and act on what comes back.
 
-Quality is measured, never derived from distance: each probe is a query to the
-peer's ping queryable over the real transport; a window of the last probes gives
-loss (unanswered share), mean RTT and jitter (mean change between consecutive
-RTTs), and a score in [0, 1] that falls with loss and with RTT past what a healthy
-radio hop shows.
+Quality is measured, never derived from distance (ADR 0003, "Link quality"). Loss is
+the loss of the path below any retransmitting transport: to the ground, each probe
+also sends a train of datagrams to the ground's echo (bus/datagram_echo.py) and the
+last `DELIVERY_TRAINS` trains give the share that came back (`DeliveryWindow`). To a
+neighbour, and to the ground when the drone's traffic crosses other drones (where no
+datagram follows it), each probe is a query to the peer's ping queryable and the
+window's unanswered share is the loss (`LinkWindow`). Mean RTT, jitter (mean change
+between consecutive RTTs) and a score in [0, 1] that falls with loss, to 0 at
+`LOSS_UNUSABLE`, and with RTT past what a healthy radio hop shows.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from collections import deque
 from dataclasses import dataclass
 from typing import Annotated, Literal
@@ -22,6 +27,13 @@ from msgspec import Meta
 WINDOW = 10  # probes per sliding window (one a second: the last 10 s)
 RTT_GOOD_MS = 50.0  # RTTs up to this cost nothing
 RTT_BAD_MS = 1000.0  # an RTT this long scores zero
+# A hop losing this share of its packets has no use left: quality 0, and 0.5 at half
+# of it. On a reliable transport a lost packet costs a retransmission (200 ms, then
+# doubling), and at 10 % loss telemetry already shows gaps over a second (ADR 0003);
+# from 20 % on, the link is lost within seconds.
+LOSS_UNUSABLE = 0.2
+TRAIN = 10  # datagrams per probe to the ground's echo
+DELIVERY_TRAINS = 2  # trains that the loss to the ground covers (the last 2 s at 1 Hz)
 
 LostLinkAction = Literal["hold", "return", "land", "continue"]
 
@@ -35,10 +47,20 @@ class LostLinkPolicy(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_f
 
 
 def quality_score(loss: float, rtt_ms: float | None) -> float:
+    """1 for a clean, fast hop; falling linearly with loss to 0 at `LOSS_UNUSABLE`, and
+    with RTT from `RTT_GOOD_MS` to 0 at `RTT_BAD_MS`; 0 with nothing answered."""
     if rtt_ms is None:
         return 0.0
     rtt_factor = 1.0 - min(1.0, max(0.0, (rtt_ms - RTT_GOOD_MS) / (RTT_BAD_MS - RTT_GOOD_MS)))
-    return round((1.0 - loss) * rtt_factor, 3)
+    loss_factor = 1.0 - min(1.0, max(0.0, loss) / LOSS_UNUSABLE)
+    return round(loss_factor * rtt_factor, 3)
+
+
+def _rtt_and_jitter(answered: list[float]) -> tuple[float | None, float | None]:
+    rtt = sum(answered) / len(answered) if answered else None
+    steps = [abs(b - a) for a, b in itertools.pairwise(answered)]
+    jitter = sum(steps) / len(steps) if steps else (0.0 if answered else None)
+    return (None if rtt is None else round(rtt, 3)), (None if jitter is None else round(jitter, 3))
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,15 +87,36 @@ class LinkWindow:
     def summary(self) -> LinkSummary:
         answered = [r for r in self._outcomes if r is not None]
         loss = 1.0 - len(answered) / len(self._outcomes) if self._outcomes else 1.0
-        rtt = sum(answered) / len(answered) if answered else None
-        steps = [abs(b - a) for a, b in itertools.pairwise(answered)]
-        jitter = sum(steps) / len(steps) if steps else (0.0 if answered else None)
-        return LinkSummary(
-            rtt_ms=None if rtt is None else round(rtt, 3),
-            jitter_ms=None if jitter is None else round(jitter, 3),
-            loss=round(loss, 3),
-            quality=quality_score(loss, rtt),
-        )
+        rtt, jitter = _rtt_and_jitter(answered)
+        return LinkSummary(rtt_ms=rtt, jitter_ms=jitter, loss=round(loss, 3), quality=quality_score(loss, rtt))
+
+
+class DeliveryWindow:
+    """The last `trains` datagram trains to the ground's echo: each datagram's round
+    trip in ms, or None if it or its echo was lost.
+
+    A datagram and its echo each cross the hop once, so the round trip is delivered
+    with probability (1 - p)² for a hop losing p of its packets either way; the loss
+    reported is that p, `1 - sqrt(delivered share)`: the loss of the packets that
+    cross the path, what the radio model (sim/radio.py) gives for a distance."""
+
+    def __init__(self, trains: int = DELIVERY_TRAINS) -> None:
+        self._trains: deque[list[float | None]] = deque(maxlen=trains)
+        self.echoed = False  # an echo ever came back: the ground serves one
+
+    def add(self, rtts_ms: list[float | None]) -> None:
+        self._trains.append(list(rtts_ms))
+        self.echoed = self.echoed or any(r is not None for r in rtts_ms)
+
+    def summary(self, transport_loss: float = 0.0) -> LinkSummary:
+        """`transport_loss`: the share of the same span's probes that the transport did
+        not answer in time (a stall the datagrams may not see): the loss is at least that."""
+        sent = [r for train in self._trains for r in train]
+        answered = [r for r in sent if r is not None]
+        delivered = len(answered) / len(sent) if sent else 0.0
+        loss = max(1.0 - math.sqrt(delivered), transport_loss)
+        rtt, jitter = _rtt_and_jitter(answered)
+        return LinkSummary(rtt_ms=rtt, jitter_ms=jitter, loss=round(loss, 3), quality=quality_score(loss, rtt))
 
 
 # ("link_lost", None), ("failsafe", action), ("link_restored", what happened meanwhile)

@@ -3,6 +3,12 @@ to each neighbour's `drone/<id>/ping`, over whatever path the mesh takes; each
 outcome feeds that peer's window, and a LinkQuality per peer goes out on
 `drone/<id>/link`. Neighbours are the drones whose liveliness token this agent sees.
 
+To the ground, each probe also sends a train of datagrams to the ground's echo
+(`echo`, bus/datagram_echo.py): while the drone's traffic takes its own hop and the
+ground has echoed once, the report's loss, RTT and jitter come from those datagrams,
+which nothing retransmits, so quality falls as the hop starts to lose packets and
+not only once it is gone (agent/link.py, ADR 0003).
+
 An answered ground probe is the agent's sign of the ground: `on_ground_contact` is
 called with its time, which drives the lost-link policy. Each report says whether the
 answers of its window came over the drone's own link to the peer (`hops` 1) or some
@@ -18,8 +24,9 @@ from collections.abc import Callable
 
 import msgspec
 
-from dronefleet.agent.link import WINDOW, LinkWindow
+from dronefleet.agent.link import DELIVERY_TRAINS, TRAIN, WINDOW, DeliveryWindow, LinkSummary, LinkWindow
 from dronefleet.bus.clock import Clock
+from dronefleet.bus.datagram_echo import EchoPort
 from dronefleet.bus.mesh_policy import RETRANSMITTED_MS
 from dronefleet.bus.port import Bus, BusError
 from dronefleet.schemas.codec import encode
@@ -38,7 +45,7 @@ class Ping(msgspec.Struct, frozen=True, kw_only=True):
 class LinkProber:
     def __init__(
         self, drone_id: str, bus: Bus, keys: Keys, clock: Clock, period_s: float,
-        on_ground_contact: Callable[[float], None], window: int = WINDOW,
+        on_ground_contact: Callable[[float], None], window: int = WINDOW, echo: EchoPort | None = None,
     ) -> None:
         self.drone_id = drone_id
         self.bus = bus
@@ -48,6 +55,8 @@ class LinkProber:
         self.on_ground_contact = on_ground_contact
         self.window = window
         self.windows: dict[str, LinkWindow] = {GROUND_PEER: LinkWindow(window)}
+        self.echo = echo
+        self.delivery = DeliveryWindow(DELIVERY_TRAINS)
         # per peer and probe of the window: answered, and over one link (None: unknown)
         self.linked: dict[str, deque[tuple[bool, bool | None]]] = {}
         self.neighbours: set[str] = set()
@@ -84,24 +93,60 @@ class LinkProber:
 
     async def probe_all(self) -> None:
         peers = [GROUND_PEER, *sorted(self.neighbours)]
-        outcomes = await asyncio.gather(*(self._probe(peer) for peer in peers))
-        now_ms = self.clock.time_ms()
+        train = asyncio.ensure_future(self._train()) if self.echo is not None else None
+        try:
+            outcomes = await asyncio.gather(*(self._probe(peer) for peer in peers))
+        except BaseException:
+            if train is not None:
+                train.cancel()
+            raise
+        ground: tuple[LinkWindow, bool | None, int | None] | None = None
         for peer, (rtt, direct) in zip(peers, outcomes, strict=True):
             window = self.windows[peer]
             window.add(rtt)
             linked = self.linked.setdefault(peer, deque(maxlen=self.window))
             linked.append((rtt is not None, direct))
             answers = [d for answered, d in linked if answered]
-            s = window.summary()
-            quality = LinkQuality(
-                drone_id=self.drone_id, timestamp=now_ms, peer=peer,
-                rtt_ms=s.rtt_ms, jitter_ms=s.jitter_ms, loss=s.loss, quality=s.quality,
-                hops=None if not answers or None in answers else (1 if all(answers) else 2),
-            )
-            try:
-                self.bus.publish(self.keys.link(self.drone_id), encode(quality), reliable=False)
-            except BusError as exc:
-                log.debug("%s: link quality not published: %s", self.drone_id, exc)
+            hops = None if not answers or None in answers else (1 if all(answers) else 2)
+            if peer == GROUND_PEER and train is not None:
+                ground = (window, direct, hops)  # reported once its datagrams are back
+            else:
+                self._report(peer, window.summary(), hops)
+        if train is not None and ground is not None:
+            self.delivery.add(await train)
+            window, direct, hops = ground
+            self._report(GROUND_PEER, self._ground_summary(window, direct), hops)
+
+    def _report(self, peer: str, s: LinkSummary, hops: int | None) -> None:
+        quality = LinkQuality(
+            drone_id=self.drone_id, timestamp=self.clock.time_ms(), peer=peer,
+            rtt_ms=s.rtt_ms, jitter_ms=s.jitter_ms, loss=s.loss, quality=s.quality, hops=hops,
+        )
+        try:
+            self.bus.publish(self.keys.link(self.drone_id), encode(quality), reliable=False)
+        except BusError as exc:
+            log.debug("%s: link quality not published: %s", self.drone_id, exc)
+
+    async def _train(self) -> list[float | None]:
+        """One train to the ground's echo, spread over half a period and answered
+        within the rest of it."""
+        assert self.echo is not None
+        spacing_s = self.period_s / 2 / TRAIN
+        try:
+            return await self.echo.train(TRAIN, spacing_s, timeout_s=self.period_s * 0.4)
+        except OSError as exc:  # no route at all: every datagram lost
+            log.debug("%s: echo train not sent: %s", self.drone_id, exc)
+            return [None] * TRAIN
+
+    def _ground_summary(self, window: LinkWindow, direct: bool | None) -> LinkSummary:
+        """The ground's report: from the datagrams while they measure the path (the
+        ground echoes, and the last answer did not come through another drone), else
+        from the probes."""
+        if not self.delivery.echoed or direct is False:
+            return window.summary()
+        recent = window.outcomes()[-DELIVERY_TRAINS:]
+        unanswered = sum(r is None for r in recent) / len(recent) if recent else 0.0
+        return self.delivery.summary(transport_loss=unanswered)
 
     async def _probe(self, peer: str) -> tuple[float | None, bool | None]:
         """The round trip in ms (None: unanswered), and whether the answer came over one link."""

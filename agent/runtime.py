@@ -32,6 +32,7 @@ from dronefleet.agent.neighbours import Neighbours, new_bridge_zids
 from dronefleet.agent.prober import LinkProber
 from dronefleet.agent.telemetry import to_telemetry
 from dronefleet.bus.clock import Clock, SystemClock
+from dronefleet.bus.datagram_echo import EchoPort, UdpEcho
 from dronefleet.bus.mesh_policy import unsure
 from dronefleet.bus.port import Bus, Declaration, QueryHandler, Sample, echo
 from dronefleet.schemas.about import About
@@ -126,8 +127,11 @@ class Redeclarable:
 
 class Agent:
     def __init__(
-        self, drone_id: str, config: AgentConfig, fc: FlightController, bus: Bus, clock: Clock
+        self, drone_id: str, config: AgentConfig, fc: FlightController, bus: Bus, clock: Clock,
+        echo: EchoPort | None = None,
     ) -> None:
+        """`echo`: datagram trains to the ground's echo, for the loss of the path
+        (agent/prober.py); without one, quality comes from the Zenoh probes alone."""
         self.drone_id = check_id(drone_id)
         self.config = config
         self.keys = Keys(config.namespace)
@@ -159,7 +163,7 @@ class Agent:
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
-            on_ground_contact=self._on_ground_contact, window=config.probe_window,
+            on_ground_contact=self._on_ground_contact, window=config.probe_window, echo=echo,
         )
 
     def _system(self, state: str, reason: str | None = None) -> None:
@@ -484,16 +488,21 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
                                   extra=secured)
         try:
             await _join(bus, Keys(config.namespace), drone_id)
-            agent = Agent(drone_id, config, fc, bus, clock)
-            if config.mesh_interface is None:
-                await agent.run()
-            else:
-                async with asyncio.TaskGroup() as tg:
-                    tg.create_task(agent.run(), name=f"{drone_id} agent")
-                    neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
-                                            own_endpoint(config.listen) or "", agent, extra=secured,
-                                            zids=bridge_zids)
-                    tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
+            echo = await UdpEcho.open(config.connect)
+            try:
+                agent = Agent(drone_id, config, fc, bus, clock, echo=echo)
+                if config.mesh_interface is None:
+                    await agent.run()
+                else:
+                    async with asyncio.TaskGroup() as tg:
+                        tg.create_task(agent.run(), name=f"{drone_id} agent")
+                        neighbours = Neighbours(drone_id, bus, config.mesh_interface, config.connect,
+                                                own_endpoint(config.listen) or "", agent, extra=secured,
+                                                zids=bridge_zids)
+                        tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
+            finally:
+                if echo is not None:
+                    echo.close()
         finally:
             await bus.close()
     finally:

@@ -38,6 +38,7 @@ from dronefleet.agent.config import AgentConfig
 from dronefleet.agent.fc_sim import SimFlightController
 from dronefleet.agent.runtime import Agent
 from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.datagram_echo import serve_echo
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.mesh_security import mesh_security
 from dronefleet.bus.zenoh_bus import ZenohBus
@@ -58,7 +59,7 @@ from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry
 from dronefleet.sim.field_sensor import world_field_sensor
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
-from dronefleet.sim.radio_air import RadioAir
+from dronefleet.sim.radio_air import AirEcho, RadioAir
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.vehicle import Vehicle
 from dronefleet.sim.world import DroneSpec, FieldSensorSpec, World
@@ -130,6 +131,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     try:
         bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
             config.security, "ground", config.listen, router=True, namespace=config.namespace))
+        echoes = await serve_echo(config.listen)  # the agents' delivery probes (link quality)
         try:
             station = GroundStation(config, bus, events)
             station.record_missions(data_dir / "missions")
@@ -153,6 +155,8 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
                     await asyncio.wait([http_task])
                     station_task.cancel()
         finally:
+            for echo in echoes:
+                echo.close()
             await bus.close()
     finally:
         store.close()
@@ -255,7 +259,8 @@ class SimField:
             self._fcs.append(fc)
             if self.air is not None:
                 self.air.tick()  # the new drone's links
-            agent = Agent(spec.id, self._agent_config(spec), fc, self._bus(spec.id), self.clock)
+            datagrams = AirEcho(self.air, spec.id) if self.air is not None else None
+            agent = Agent(spec.id, self._agent_config(spec), fc, self._bus(spec.id), self.clock, echo=datagrams)
             self._agent_runtimes[spec.id] = agent
             self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
             self._tasks.append(self._agents[spec.id])

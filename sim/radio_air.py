@@ -98,6 +98,15 @@ class RadioAir:
             at = self._in_order((a, b), at, at + spent)
         return at - now
 
+    def datagram(self, src: str, dst: str, stream: str = "") -> float | None:
+        """Seconds one datagram from src takes to reach dst over their own hop, or None:
+        lost. Nothing retransmits it, and it needs no Zenoh link, only the radio: the
+        ground's echo (bus/datagram_echo.py) as it fares in the air."""
+        link = self.links.get(_pair(self._node(src), self._node(dst)))
+        if link is None or src == dst:
+            return 0.0 if src == dst else None
+        return None if self._rng("datagram", src, dst, stream).random() < link.loss else link.delay_s
+
     def _in_order(self, hop: tuple[str, str], enters: float, arrives: float) -> float:
         """A hop is one stream: a message arrives no earlier than one that entered it
         before (head-of-line blocking behind a retransmission). Only messages that
@@ -225,6 +234,31 @@ class RadioAir:
             stale = futile(held, agent.ground_heard_at(), now) if agent is not None else set()
             chosen = choose(heard, set(held), stale) if needed else set()
             self.bridges[a] = {b: held.get(b, now) for b in sorted(chosen)}
+
+
+class AirEcho:
+    """The ground's datagram echo as a drone's agent sees it in fast time (the EchoPort
+    of bus/datagram_echo.py): each datagram and its echo cross the drone's own hop to
+    the ground with the radio model's loss, never retransmitted. A train is drawn at
+    once (the drone moves a few metres in its second) and answered after its round
+    trip on the virtual clock."""
+
+    def __init__(self, air: RadioAir, node: str) -> None:
+        self.air = air
+        self.node = node
+
+    async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
+        rtts: list[float | None] = []
+        for _ in range(count):
+            out = self.air.datagram(self.node, GROUND)
+            back = None if out is None else self.air.datagram(GROUND, self.node)
+            rtts.append(None if out is None or back is None else (out + back) * 1000.0)
+        answered = [r / 1000.0 for r in rtts if r is not None]
+        await self.air.sleep((count - 1) * spacing_s + (max(answered) if len(answered) == count else timeout_s))
+        return rtts
+
+    def close(self) -> None:
+        pass
 
 
 def _pair(a: str, b: str) -> tuple[str, str]:

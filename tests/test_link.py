@@ -2,10 +2,14 @@
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from dronefleet.agent.link import LinkWindow, LostLink, LostLinkPolicy, quality_score
+from dronefleet.agent.link import LOSS_UNUSABLE, DeliveryWindow, LinkWindow, LostLink, LostLinkPolicy, quality_score
 from dronefleet.sim.radio import RadioModel, Spot3, link_losses
 
 
@@ -17,7 +21,7 @@ def test_window_measures_loss_rtt_and_jitter_over_the_last_probes() -> None:
     assert s.loss == 0.5
     assert s.rtt_ms == 25.0
     assert s.jitter_ms == 10.0
-    assert s.quality == pytest.approx(0.5)
+    assert s.quality == 0.0  # half the probes unanswered: past LOSS_UNUSABLE
 
 
 def test_quality_falls_with_rtt_and_is_zero_without_answers() -> None:
@@ -27,6 +31,27 @@ def test_quality_falls_with_rtt_and_is_zero_without_answers() -> None:
     assert quality_score(1.0, None) == 0.0
     empty = LinkWindow()
     assert empty.summary().quality == 0.0 and empty.summary().loss == 1.0
+
+
+@given(st.floats(0, 1), st.floats(0, 1), st.floats(0, 2000))
+def test_quality_falls_as_loss_rises_and_is_half_at_half_the_unusable_loss(a: float, b: float, rtt_ms: float) -> None:
+    low, high = sorted((a, b))
+    assert quality_score(low, rtt_ms) >= quality_score(high, rtt_ms)
+    assert quality_score(LOSS_UNUSABLE / 2, 10.0) == 0.5
+    assert quality_score(high, rtt_ms) == 0.0 or high < LOSS_UNUSABLE
+
+
+@given(st.integers(0, 20), st.floats(0, 0.5))
+def test_delivery_loss_is_the_per_packet_loss_of_a_round_trip(echoed: int, transport_loss: float) -> None:
+    """A train's echoes cross the hop twice: delivered share (1 - p)², loss p."""
+    w = DeliveryWindow(trains=2)
+    outcomes: list[float | None] = [5.0] * echoed + [None] * (20 - echoed)
+    w.add(outcomes[:10])
+    w.add(outcomes[10:])
+    s = w.summary(transport_loss)
+    assert s.loss == pytest.approx(max(1 - math.sqrt(echoed / 20), transport_loss), abs=1e-3)
+    assert w.echoed == (echoed > 0)
+    assert (s.rtt_ms is None) == (echoed == 0)
 
 
 def test_lost_link_holds_then_returns_and_reports_on_restore() -> None:

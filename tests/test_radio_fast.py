@@ -229,12 +229,12 @@ async def test_a_drone_whose_lossy_link_closes_is_heard_through_its_bridge_at_on
         assert any(abs(t - closed_at) < 0.01 for t in published), (closed_at, published[-5:])
 
 
-async def hover_on_a_lossy_link(doubt_telemetry_rate_ms: int) -> dict[str, Any]:
+async def hover_on_a_lossy_link(doubt_telemetry_rate_ms: int, seed: int = SEED) -> dict[str, Any]:
     """One drone 10 s at 10 m from the laptop, then 40 s at DOUBT_M: when it published its
     telemetry, when the ground heard it."""
     at = north(10)
     async with Field([DroneSpec(id="drone01", lat=at[0], lon=at[1])], LostLinkPolicy(timeout_s=120, action="continue"),
-                     telemetry_rate_ms=1000, doubt_telemetry_rate_ms=doubt_telemetry_rate_ms) as f:
+                     seed, telemetry_rate_ms=1000, doubt_telemetry_rate_ms=doubt_telemetry_rate_ms) as f:
         registry = f.sim.station.registry
         agent = f.sim._agent_runtimes["drone01"]
         await f.until(lambda: f.state("drone01") == "ready", 10, "ready")
@@ -282,7 +282,12 @@ async def test_a_drone_in_doubt_of_the_ground_speaks_sooner() -> None:
     assert steps.count(0.25) > len(steps) / 2, steps
     assert [round(b - a, 2) for a, b in itertools.pairwise(same["lossy"])].count(0.25) == 0
     assert len(sooner["heard"]) > 1.5 * len(same["heard"]), (len(sooner["heard"]), len(same["heard"]))
-    seconds = [len({int(t) for t in run["heard"]}) for run in (sooner, same)]  # seconds in which it was heard
+    # In more of the seconds, over several seeds: one run's count of 40 seconds moves
+    # by one or two with anything that shifts a draw.
+    seconds = [0, 0]
+    for seed in range(SEED, SEED + 4):
+        for i, rate_ms in enumerate((250, 1000)):
+            seconds[i] += len({int(t) for t in (await hover_on_a_lossy_link(rate_ms, seed))["heard"]})
     assert seconds[0] > seconds[1], seconds
 
 

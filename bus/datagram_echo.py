@@ -1,0 +1,162 @@
+"""Delivery probes below the transport (SPEC §8, ADR 0003 "Link quality").
+
+Zenoh carries everything over TCP (or TLS), which retransmits what the radio loses:
+a probe sent as a Zenoh query always arrives while the link lives, a little late,
+so a hop losing a quarter of its packets looked perfect until it died. The loss of
+the path is therefore measured with datagrams that nothing retransmits (as ETX's
+broadcast probes, De Couto et al. 2003): the agent sends a short train of UDP
+datagrams to the ground's echo, and the share that comes back is the round-trip
+delivery of the hop.
+
+The ground answers on UDP at the port of each TCP/TLS endpoint it listens on (7447
+by default), which is the address every agent already dials. The echo answers only
+datagrams that start with `MAGIC` and are no longer than `MAX_DATAGRAM`, with the
+same bytes (no amplification), and carries nothing else.
+
+`EchoPort` is what the agent's prober needs; `UdpEcho` is it on real packets,
+`bus.memory.MediumEcho` in fast time (the same radio model, no retransmission).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import struct
+import time
+from collections.abc import Sequence
+from typing import Protocol, cast
+
+from dronefleet.schemas.endpoints import ip_endpoint
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"FLEET-ECHO\x01"
+MAX_DATAGRAM = 64
+_SEQ = struct.Struct("!Q")
+
+
+class EchoPort(Protocol):
+    async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
+        """Send `count` datagrams `spacing_s` apart; each one's round trip in ms, or None
+        if its echo did not come back within `timeout_s` of the last one sent."""
+        ...
+
+    def close(self) -> None: ...
+
+
+def echo_targets(endpoints: Sequence[str]) -> list[tuple[str, int]]:
+    """The (host, port) of each IP endpoint that a Zenoh link reaches over TCP or TLS:
+    where a ground's echo answers (UDP endpoints are Zenoh's own)."""
+    targets = []
+    for endpoint in endpoints:
+        parsed = ip_endpoint(endpoint)
+        if parsed is not None and parsed[0] in ("tcp", "tls") and parsed[2] != 0:
+            targets.append((parsed[1], parsed[2]))
+    return targets
+
+
+class _Client(asyncio.DatagramProtocol):
+    def __init__(self) -> None:
+        self.waiting: dict[int, asyncio.Future[float]] = {}
+
+    def datagram_received(self, data: bytes, addr: tuple[str | object, ...]) -> None:
+        if len(data) != len(MAGIC) + _SEQ.size or not data.startswith(MAGIC):
+            return
+        (seq,) = _SEQ.unpack_from(data, len(MAGIC))
+        future = self.waiting.get(seq)
+        if future is not None and not future.done():
+            future.set_result(time.monotonic())
+
+    def error_received(self, exc: Exception) -> None:  # an ICMP unreachable: the datagram is lost
+        log.debug("echo: %s", exc)
+
+
+class UdpEcho:
+    """Datagram trains from this drone to the ground's echo (`targets`: host, port).
+    A datagram goes to every target; the first echo counts."""
+
+    def __init__(self, transports: list[asyncio.DatagramTransport], protocol: _Client,
+                 targets: list[tuple[str, int]]) -> None:
+        self._transports = transports
+        self._protocol = protocol
+        self._targets = targets
+        self._seq = 0
+
+    @classmethod
+    async def open(cls, endpoints: Sequence[str]) -> UdpEcho | None:
+        """An echo client towards the ground endpoints; None if none is an IP endpoint."""
+        targets = echo_targets(endpoints)
+        if not targets:
+            return None
+        loop = asyncio.get_running_loop()
+        protocol = _Client()
+        transports: list[asyncio.DatagramTransport] = []
+        resolved: list[tuple[str, int]] = []
+        for host, port in targets:
+            try:
+                infos = await loop.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+            except OSError as exc:
+                log.warning("link echo: cannot resolve %s: %s", host, exc)
+                continue
+            family, _, _, _, address = infos[0]
+            transport, _ = await loop.create_datagram_endpoint(lambda: protocol, family=family)
+            transports.append(transport)
+            resolved.append((str(address[0]), int(address[1])))
+        return cls(transports, protocol, resolved) if transports else None
+
+    async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
+        loop = asyncio.get_running_loop()
+        sent: list[tuple[int, float, asyncio.Future[float]]] = []
+        for i in range(count):
+            if i:
+                await asyncio.sleep(spacing_s)
+            self._seq += 1
+            future: asyncio.Future[float] = loop.create_future()
+            self._protocol.waiting[self._seq] = future
+            datagram = MAGIC + _SEQ.pack(self._seq)
+            at = time.monotonic()
+            for transport, target in zip(self._transports, self._targets, strict=True):
+                try:
+                    transport.sendto(datagram, target)
+                except OSError:  # no route right now: lost
+                    pass
+            sent.append((self._seq, at, future))
+        try:
+            await asyncio.wait([f for _, _, f in sent], timeout=timeout_s)
+        finally:
+            for seq, _, _ in sent:
+                self._protocol.waiting.pop(seq, None)
+        return [(f.result() - at) * 1000.0 if f.done() and not f.cancelled() else None for _, at, f in sent]
+
+    def close(self) -> None:
+        for transport in self._transports:
+            transport.close()
+
+
+class _Server(asyncio.DatagramProtocol):
+    def __init__(self) -> None:
+        self.transport: asyncio.DatagramTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.DatagramTransport, transport)
+
+    def datagram_received(self, data: bytes, addr: tuple[str | object, ...]) -> None:
+        if self.transport is not None and len(data) <= MAX_DATAGRAM and data.startswith(MAGIC):
+            self.transport.sendto(data, addr)
+
+
+async def serve_echo(listen: Sequence[str]) -> list[asyncio.DatagramTransport]:
+    """The ground's echo on UDP at the port of each TCP/TLS endpoint in `listen`. A port
+    that cannot be bound is logged (the agents' quality then falls back to their Zenoh
+    probes), never fatal: the echo measures, it carries nothing."""
+    loop = asyncio.get_running_loop()
+    transports = []
+    for host, port in echo_targets(listen):
+        try:
+            transport, _ = await loop.create_datagram_endpoint(_Server, local_addr=(host, port))
+        except OSError as exc:
+            log.warning("link echo not served on udp %s:%d: %s", host, port, exc)
+            continue
+        transports.append(transport)
+    return transports
