@@ -27,6 +27,7 @@ from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundProcess, stop_all
 from tests.helpers import until
+from tests.test_field_network import OnBoard, RadioSim, command, drone
 
 GROUND = (40.633490, -8.660815)
 START_M = 20.0
@@ -117,10 +118,8 @@ async def fast_flyout(radio: RadioModel, speed_mps: float, seed: int) -> Flyout:
 
 
 async def real_flyout(tmp: Path, radio: RadioModel, speed_mps: float) -> Flyout:
-    """Needs CAP_NET_ADMIN (the emulated radio). Everything it starts is stopped."""
-    from tests.test_field_network import OnBoard, RadioSim, command, drone
-
-    tmp.mkdir(parents=True, exist_ok=True)
+    """Needs CAP_NET_ADMIN (the emulated radio); `tmp` must exist. Everything it
+    starts is stopped."""
     started: list[Any] = []
     try:
         ground = GroundProcess(tmp, zenoh_host="0.0.0.0")
