@@ -32,8 +32,8 @@ RTT_BAD_MS = 1000.0  # an RTT this long scores zero
 # doubling), and at 10 % loss telemetry already shows gaps over a second (ADR 0003);
 # from 20 % on, the link is lost within seconds.
 LOSS_UNUSABLE = 0.2
-TRAIN = 10  # datagrams per probe to the ground's echo
-DELIVERY_TRAINS = 2  # trains that the loss to the ground covers (the last 2 s at 1 Hz)
+TRAIN = 50  # datagrams per probe to the ground's echo (1 KB/s), spread over most of the period
+DELIVERY_TRAINS = 1  # trains that the loss to the ground covers: the last one (50 datagrams)
 
 LostLinkAction = Literal["hold", "return", "land", "continue"]
 

@@ -23,9 +23,10 @@ import asyncio
 import logging
 import socket
 import struct
+import threading
 import time
 from collections.abc import Sequence
-from typing import Protocol, cast
+from typing import Protocol
 
 from dronefleet.schemas.endpoints import ip_endpoint
 
@@ -34,6 +35,7 @@ log = logging.getLogger(__name__)
 MAGIC = b"FLEET-ECHO\x01"
 MAX_DATAGRAM = 64
 _SEQ = struct.Struct("!Q")
+STOP_POLL_S = 0.2  # how soon an echo thread sees that it is to stop
 
 
 class EchoPort(Protocol):
@@ -134,29 +136,50 @@ class UdpEcho:
             transport.close()
 
 
-class _Server(asyncio.DatagramProtocol):
-    def __init__(self) -> None:
-        self.transport: asyncio.DatagramTransport | None = None
+class EchoServer:
+    """The ground's echo on UDP at the port of each TCP/TLS endpoint in `listen`, one
+    thread per socket: an echo that waited for the ground's event loop (missions,
+    the API, the recorder) would count every busy moment of the laptop as radio loss.
+    A port that cannot be bound is logged (the agents' quality then comes from their
+    Zenoh probes), never fatal: the echo measures, it carries nothing."""
 
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = cast(asyncio.DatagramTransport, transport)
+    def __init__(self, listen: Sequence[str]) -> None:
+        self._sockets: list[socket.socket] = []
+        self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
+        for host, port in echo_targets(listen):
+            try:
+                family = socket.AF_INET6 if ":" in host else socket.AF_INET
+                sock = socket.socket(family, socket.SOCK_DGRAM)
+                sock.bind((host, port))
+            except OSError as exc:
+                log.warning("link echo not served on udp %s:%d: %s", host, port, exc)
+                continue
+            sock.settimeout(STOP_POLL_S)
+            self._sockets.append(sock)
+            thread = threading.Thread(target=self._serve, args=(sock,), name=f"echo udp {host}:{port}", daemon=True)
+            thread.start()
+            self._threads.append(thread)
 
-    def datagram_received(self, data: bytes, addr: tuple[str | object, ...]) -> None:
-        if self.transport is not None and len(data) <= MAX_DATAGRAM and data.startswith(MAGIC):
-            self.transport.sendto(data, addr)
+    @property
+    def bound(self) -> int:
+        return len(self._sockets)
 
+    def _serve(self, sock: socket.socket) -> None:
+        while not self._stop.is_set():
+            try:
+                data, addr = sock.recvfrom(MAX_DATAGRAM + 1)
+                if len(data) <= MAX_DATAGRAM and data.startswith(MAGIC):
+                    sock.sendto(data, addr)
+            except TimeoutError:
+                continue
+            except OSError:  # closed, or the sender unreachable for a moment
+                if self._stop.is_set():
+                    return
 
-async def serve_echo(listen: Sequence[str]) -> list[asyncio.DatagramTransport]:
-    """The ground's echo on UDP at the port of each TCP/TLS endpoint in `listen`. A port
-    that cannot be bound is logged (the agents' quality then falls back to their Zenoh
-    probes), never fatal: the echo measures, it carries nothing."""
-    loop = asyncio.get_running_loop()
-    transports = []
-    for host, port in echo_targets(listen):
-        try:
-            transport, _ = await loop.create_datagram_endpoint(_Server, local_addr=(host, port))
-        except OSError as exc:
-            log.warning("link echo not served on udp %s:%d: %s", host, port, exc)
-            continue
-        transports.append(transport)
-    return transports
+    def close(self) -> None:
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=2 * STOP_POLL_S)
+        for sock in self._sockets:
+            sock.close()

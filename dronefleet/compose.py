@@ -38,7 +38,7 @@ from dronefleet.agent.config import AgentConfig
 from dronefleet.agent.fc_sim import SimFlightController
 from dronefleet.agent.runtime import Agent
 from dronefleet.bus.clock import VirtualClock
-from dronefleet.bus.datagram_echo import serve_echo
+from dronefleet.bus.datagram_echo import EchoServer
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.mesh_security import mesh_security
 from dronefleet.bus.zenoh_bus import ZenohBus
@@ -131,7 +131,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     try:
         bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
             config.security, "ground", config.listen, router=True, namespace=config.namespace))
-        echoes = await serve_echo(config.listen)  # the agents' delivery probes (link quality)
+        echo = EchoServer(config.listen)  # the agents' delivery probes (link quality)
         try:
             station = GroundStation(config, bus, events)
             station.record_missions(data_dir / "missions")
@@ -155,8 +155,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
                     await asyncio.wait([http_task])
                     station_task.cancel()
         finally:
-            for echo in echoes:
-                echo.close()
+            echo.close()
             await bus.close()
     finally:
         store.close()

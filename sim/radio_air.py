@@ -240,21 +240,24 @@ class AirEcho:
     """The ground's datagram echo as a drone's agent sees it in fast time (the EchoPort
     of bus/datagram_echo.py): each datagram and its echo cross the drone's own hop to
     the ground with the radio model's loss, never retransmitted. A train is drawn at
-    once (the drone moves a few metres in its second) and answered after its round
-    trip on the virtual clock."""
+    once, halfway through its spread (the drone moves a few metres meanwhile; one draw
+    per datagram would cost the corpus a timer each), and answered on the virtual clock
+    when the last datagram would have come back."""
 
     def __init__(self, air: RadioAir, node: str) -> None:
         self.air = air
         self.node = node
 
     async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
+        spread_s = (count - 1) * spacing_s
+        await self.air.sleep(spread_s / 2)  # drawn where the drone is halfway through the train
         rtts: list[float | None] = []
         for _ in range(count):
             out = self.air.datagram(self.node, GROUND)
             back = None if out is None else self.air.datagram(GROUND, self.node)
             rtts.append(None if out is None or back is None else (out + back) * 1000.0)
         answered = [r / 1000.0 for r in rtts if r is not None]
-        await self.air.sleep((count - 1) * spacing_s + (max(answered) if len(answered) == count else timeout_s))
+        await self.air.sleep(spread_s / 2 + (max(answered) if len(answered) == count else timeout_s))
         return rtts
 
     def close(self) -> None:

@@ -47,6 +47,7 @@ class Flyout:
 
     reports: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, distance m, quality, loss)
     lost_at: float | None = None  # the ground first showed the drone `unknown`
+    track: list[tuple[float, float]] = field(default_factory=list)  # (t, distance m) from its telemetry
 
     def degraded_s(self) -> float | None:
         """How long the quality had stayed under DEGRADED when the ground lost the drone
@@ -62,6 +63,13 @@ class Flyout:
     def first_degraded_m(self) -> float | None:
         return next((d for _, d, q, _ in self.reports if q < DEGRADED), None)
 
+    def first_degraded_at(self) -> float | None:
+        return next((t for t, _, q, _ in self.reports if q < DEGRADED), None)
+
+    def reached_at(self, distance_m: float) -> float | None:
+        """When the drone first stood this far out."""
+        return next((t for t, d in self.track if d >= distance_m), None)
+
 
 def _distance(track: list[tuple[float, dict[str, Any]]], t: float) -> float:
     p = min(track, key=lambda tp: abs(tp[0] - t))[1]
@@ -72,7 +80,7 @@ def _flyout(said: list[tuple[float, str, dict[str, Any]]], lost_at: float | None
     track = [(t, m["position"]) for t, k, m in said if k.endswith("/telem") and m.get("position")]
     reports = [(t, _distance(track, t), m["quality"], m["loss"]) for t, k, m in said
                if k.endswith("/link") and m["peer"] == "ground"]
-    return Flyout(reports, lost_at)
+    return Flyout(reports, lost_at, [(t, distance_m(GROUND[0], GROUND[1], p["lat"], p["lon"])) for t, p in track])
 
 
 async def fast_flyout(radio: RadioModel, speed_mps: float, seed: int) -> Flyout:
@@ -110,7 +118,7 @@ async def fast_flyout(radio: RadioModel, speed_mps: float, seed: int) -> Flyout:
         far = north(radio.lost_m + 60)
         out = asyncio.ensure_future(sim.station.command("drone01", json.dumps(
             {"cmd": "goto", "command_id": "out", "lat": far[0], "lon": far[1], "speed": speed_mps}).encode()))
-        lost_at = await advance_until(lambda: state() == "unknown", 200)
+        lost_at = await advance_until(lambda: state() == "unknown", (radio.lost_m + 60) / speed_mps + 60)
         out.cancel()
     finally:
         await sim.close()

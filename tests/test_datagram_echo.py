@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import socket
 
-from dronefleet.bus.datagram_echo import MAGIC, UdpEcho, echo_targets, serve_echo
+from dronefleet.bus.datagram_echo import MAGIC, EchoServer, UdpEcho, echo_targets
 from tests.helpers import free_udp_base
 
 
@@ -17,16 +17,14 @@ def test_the_echo_answers_at_the_port_of_each_tcp_or_tls_endpoint() -> None:
 
 async def test_a_train_comes_back_from_the_ground_echo_and_is_lost_without_one() -> None:
     port = free_udp_base(1)
-    served = await serve_echo([f"tcp/127.0.0.1:{port}"])
+    served = EchoServer([f"tcp/127.0.0.1:{port}"])
     echo = await UdpEcho.open([f"tcp/127.0.0.1:{port}"])
-    assert echo is not None and len(served) == 1
+    assert echo is not None and served.bound == 1
     try:
         rtts = await echo.train(5, 0.01, timeout_s=1.0)
         assert len(rtts) == 5 and all(r is not None and 0 <= r < 1000 for r in rtts), rtts
     finally:
-        for transport in served:
-            transport.close()
-    await asyncio.sleep(0)  # the server's socket closes on the next loop turn
+        served.close()
     try:
         assert await echo.train(3, 0.01, timeout_s=0.2) == [None, None, None]
     finally:
@@ -35,7 +33,7 @@ async def test_a_train_comes_back_from_the_ground_echo_and_is_lost_without_one()
 
 async def test_the_echo_answers_only_its_own_datagrams_with_the_same_bytes() -> None:
     port = free_udp_base(1)
-    served = await serve_echo([f"tcp/127.0.0.1:{port}"])
+    served = EchoServer([f"tcp/127.0.0.1:{port}"])
     loop = asyncio.get_running_loop()
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.setblocking(False)
@@ -47,8 +45,7 @@ async def test_the_echo_answers_only_its_own_datagrams_with_the_same_bytes() -> 
             await loop.sock_sendall(s, probe)
             assert await asyncio.wait_for(loop.sock_recv(s, 1024), 2.0) == probe  # the first and only answer
         finally:
-            for transport in served:
-                transport.close()
+            served.close()
 
 
 async def test_a_ground_endpoint_that_is_no_ip_endpoint_gives_no_echo() -> None:

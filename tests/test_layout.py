@@ -1,7 +1,7 @@
 """The house (issue 33, SPEC §1): one top-level import package whose rooms are the
 folders at the root of the repository; no import circles among its modules (imports
-inside functions count, `if TYPE_CHECKING:` ones do not); no source file over 500
-lines. The layers themselves are import-linter's contracts (pyproject.toml)."""
+inside functions count, `if TYPE_CHECKING:` ones do not). Files are split where
+concepts separate, not at a line count (issue 56). The layers themselves are import-linter's contracts (pyproject.toml)."""
 
 from __future__ import annotations
 
@@ -78,11 +78,3 @@ def test_the_cycle_finder_finds_a_circle() -> None:
     graph.add_import(importer="p.b", imported="p.c")
     graph.add_import(importer="p.c", imported="p.a")
     assert _cycles(graph) == [["p.a", "p.b", "p.c"]]
-
-
-def test_no_source_file_over_500_lines() -> None:
-    sources = [p for room in (*ROOMS, "dronefleet") for p in (ROOT / room).rglob("*.py")
-               if "bundled" not in p.parts and not (room == "examples" and p.name != "__init__.py")]
-    assert len(sources) > 100
-    long = {str(p.relative_to(ROOT)): n for p in sources if (n := len(p.read_text(encoding="utf-8").splitlines())) > 500}
-    assert long == {}
