@@ -26,12 +26,12 @@ from dronefleet.bus.delivery import Inbox
 from dronefleet.bus.keyexpr import intersects, strip_parameters
 from dronefleet.bus.port import (
     LivelinessHandler,
+    NoRoute,
     QueryHandler,
     QueryRefused,
     QueryTimeout,
     Sample,
     SampleHandler,
-    Unreachable,
 )
 
 
@@ -193,7 +193,7 @@ class MemoryBus:
         matches = [(d, h) for d, h in net.queryables
                    if intersects(d.keyexpr, key) and net.reachable(self.node, d.owner.node)]
         if not matches:
-            raise Unreachable(f"no queryable for {key}")
+            raise NoRoute(f"no queryable for {key}")
         decl, handler = matches[0]
         path = net.medium.path(self.node, decl.owner.node) if net.medium is not None else None
         reply = await self._query(decl, handler, key, selector, payload, timeout_s)

@@ -40,6 +40,12 @@ class Unreachable(BusError):
     """Nobody answered a query: no queryable matches (the drone is not there)."""
 
 
+class NoRoute(Unreachable):
+    """No queryable matches the key here and now: the drone is not there, or its
+    declaration has not reached this node yet (a drone that just registered through
+    a neighbour)."""
+
+
 class QueryTimeout(Unreachable):
     """A queryable exists but did not answer in time."""
 

@@ -35,12 +35,12 @@ from dronefleet.bus.delivery import Inbox
 from dronefleet.bus.port import (
     BusError,
     LivelinessHandler,
+    NoRoute,
     QueryHandler,
     QueryRefused,
     QueryTimeout,
     Sample,
     SampleHandler,
-    Unreachable,
 )
 
 log = logging.getLogger(__name__)
@@ -305,7 +305,7 @@ class ZenohBus:
             if reply.err is not None:
                 errors.append(reply.err.payload.to_string())
         if not errors:
-            raise Unreachable(f"no queryable answers {selector}")
+            raise NoRoute(f"no queryable answers {selector}")
         if any(e == "Timeout" for e in errors):
             raise QueryTimeout(f"no reply from {selector} within {timeout_s:g} s")
         raise QueryRefused(f"{selector}: {'; '.join(errors)}")

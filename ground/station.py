@@ -22,7 +22,7 @@ import msgspec
 
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_security import relays_of
-from dronefleet.bus.port import Bus, Declaration, QueryRefused, Sample, Unreachable, echo
+from dronefleet.bus.port import Bus, Declaration, NoRoute, QueryRefused, Sample, Unreachable, echo
 from dronefleet.bus.recording import now_ns_of
 from dronefleet.ground.airspace import Airspace
 from dronefleet.ground.config import GroundConfig
@@ -60,6 +60,8 @@ from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 log = logging.getLogger(__name__)
 TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late
 WATCH_QUEUE = 2048
+ROUTE_RETRY_FIRST_S = 0.05  # a command to a heard drone with no route yet is asked again after this, doubling …
+ROUTE_RETRY_MAX_S = 0.5  # … up to this, until the command deadline
 _reply_decoder = msgspec.json.Decoder(CommandReply)
 _bundle_reply_decoder = msgspec.json.Decoder(BundleReply)
 
@@ -283,7 +285,7 @@ class GroundStation:
         """Query the agent's queryable and hold it to its reply (`accepted`, `reason`)."""
         if self.recordings is not None:
             self.recordings.sent(key, payload)
-        raw = await self.bus.query(key, payload, timeout_s=self.config.command_timeout_ms / 1000)
+        raw = await self._query_within(key, payload, self.config.command_timeout_ms / 1000)
         try:
             reply = decoder.decode(raw)
         except msgspec.MsgspecError as exc:
@@ -292,6 +294,25 @@ class GroundStation:
             reason = reply.reason or "refused by the agent"
             raise CommandRejected(409, reason, code=FENCE if reason.startswith(FENCE) else None)
         return reply
+
+    async def _query_within(self, key: str, payload: bytes, deadline_s: float) -> bytes:
+        """The agent's reply within `deadline_s`. A drone the ground hears but whose
+        queryable has not reached this router yet (one that registered a moment ago
+        through a neighbour: its telemetry came first) is asked again, sooner at first,
+        until the deadline: no query reached it, so asking again sends nothing twice.
+        Only then NoRoute, saying how long it was tried."""
+        start = self.clock.monotonic()
+        pause_s = ROUTE_RETRY_FIRST_S
+        while True:
+            left_s = deadline_s - (self.clock.monotonic() - start)
+            try:
+                return await self.bus.query(key, payload, timeout_s=max(left_s, ROUTE_RETRY_FIRST_S))
+            except NoRoute:
+                if left_s <= pause_s:
+                    raise NoRoute(f"no route to {key} within {deadline_s:g} s: its agent's queryable has not "
+                                  "reached the ground (the drone is heard, its commands are not)") from None
+            await self.clock.sleep(pause_s)
+            pause_s = min(pause_s * 2, ROUTE_RETRY_MAX_S)
 
     def _body(self, drone_id: str, body: bytes) -> dict[str, Any]:
         """A JSON object body for `drone_id`, with drone_id and timestamp set."""
