@@ -22,7 +22,17 @@ from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.geo import destination, distance_m
 from tests.harness import ChildProcess, GroundProcess
 from tests.helpers import until
-from tests.test_field_network import GROUND, RADIO_A, RadioSim, command, drone, log_lines, processes, state_is  # noqa: F401
+from tests.test_field_network import (  # noqa: F401
+    GROUND,
+    RADIO_A,
+    RadioSim,
+    command,
+    drone,
+    log_lines,
+    processes,
+    radio_slot,
+    state_is,
+)
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 
@@ -64,35 +74,37 @@ async def test_a_healthy_drone_stays_heard_while_its_link_to_a_neighbour_turns_l
             reply = await http.post("/drone/drone03/cmd", json={"cmd": "arm"})
             assert reply.status_code in (200, 409), reply.text  # 409: not ready yet (its health), never 504
             assert time.monotonic() - sent < 3.0
-            await command(http, "drone02", cmd="arm")
-            await command(http, "drone02", cmd="takeoff", alt=10)
-            await until(lambda: state_is(http, "drone02", "hold"), 60, "drone02 hovering")
-            start = time.monotonic()
+            # drone02 flies out and back twice alone (a bundle: out there the ground
+            # cannot reach it), ending where it took off from.
             far = at(92, BEARING)
-            for _ in range(2):
-                await command(http, "drone02", cmd="goto", lat=far[0], lon=far[1], speed=8)
-                await until(lambda: _near(http, "drone02", far), 60, "drone02 out at 92 m")
-                await until(lambda: _commanded(http, "drone02", r), 60, "drone02 told to come back")
-                await until(lambda: _near(http, "drone02", r), 60, "drone02 back at 55 m")
+            legs = [{"cmd": "goto", "lat": p[0], "lon": p[1], "speed": 8} for p in (far, r, far, r)]
+            bundle = {"on_link_loss": "continue", "timeout_s": 300, "steps": [{"cmd": "takeoff", "alt": 10}, *legs]}
+            await command(http, "drone02", cmd="arm")
+            pushed = await http.post("/drone/drone02/bundle", json=bundle)
+            assert pushed.status_code == 200, pushed.text
+            start = time.monotonic()
+            await until(lambda: _near(http, "drone02", far), 60, "drone02 on its way out")
+            state = await until(lambda: _bundle_done(http, "drone02", pushed.json()["bundle_id"]), 180, "drone02 back at 55 m")
             end = time.monotonic()
+            assert state == "done", state  # it flew every leg
             lines = await log_lines(http, "drone01")
     finally:
         await watcher.close()
     during = [t for t in heard if start <= t <= end]
     gaps = [b - a for a, b in zip([start, *during], [*during, end], strict=True)]
+    assert end - start > 15 and len(during) >= 4 * (end - start), (end - start, len(during))
     assert max(gaps) < GAP_S, f"drone01 unheard {max(gaps):.2f} s at 5 Hz"
     assert not [t for t, alive in tokens if not alive], tokens
     assert not [line for line in lines if "Link lost" in line], lines
 
 
-async def _near(http: httpx.AsyncClient, drone_id: str, spot: tuple[float, float]) -> bool:
+async def _near(http: httpx.AsyncClient, drone_id: str, spot: tuple[float, float], within_m: float = 40) -> bool:
     view = await drone(http, drone_id)
     pos = ((view or {}).get("telem") or {}).get("position")
-    return pos is not None and distance_m(spot[0], spot[1], pos["lat"], pos["lon"]) < 3
+    return pos is not None and distance_m(spot[0], spot[1], pos["lat"], pos["lon"]) < within_m
 
 
-async def _commanded(http: httpx.AsyncClient, drone_id: str, spot: tuple[float, float]) -> bool:
-    """Send it back to `spot`; True once the agent took the command (out of the
-    laptop's reach it may take a few tries)."""
-    r = await http.post(f"/drone/{drone_id}/cmd", json={"cmd": "goto", "lat": spot[0], "lon": spot[1], "speed": 8})
-    return r.status_code == 200
+async def _bundle_done(http: httpx.AsyncClient, drone_id: str, bundle_id: str) -> str | None:
+    r = await http.get(f"/drone/{drone_id}/bundle/{bundle_id}")
+    ended = r.status_code == 200 and r.json()["state"] in ("done", "failed", "ended", "cancelled")
+    return str(r.json()["state"]) if ended else None
