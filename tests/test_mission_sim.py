@@ -290,6 +290,18 @@ async def test_a_subroutine_stopped_before_it_ran_is_finished() -> None:
     assert not any("did not stop" in line for line in log), log
 
 
+async def test_any_verb_may_be_handed_to_run_as_a_subroutine() -> None:
+    """Issue 56: `wait(run(land, d))` failed the mission with 'call stack is not deep
+    enough (in subroutine land)': the verb was the first frame of its subroutine."""
+    script = (
+        "d = assign(any_drone)\nwait(run(arm, d))\nwait(run(takeoff, d, 5*m))\n"
+        "wait(run(land, d))\nprint(f'{d.id} landed')\n"
+    )
+    record, _, log = await fly(script)
+    assert cause(record) == ("finished", "success"), record.message
+    assert any(line.endswith("landed") for line in log), log
+
+
 async def test_the_simulation_time_limit_has_its_own_cause() -> None:
     record, _, log = await fly("while True:\n    sleep(1)\n", max_s=30)
     assert (record.status, record.cause) == ("cancelled", "time_limit"), record

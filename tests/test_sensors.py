@@ -211,3 +211,33 @@ async def test_a_carried_type_without_fields_is_announced_without_values_as_fast
     finally:
         task.cancel()
     assert lines[0] == "d1 sonar None"
+
+
+async def test_a_reading_with_fields_reads_by_name_as_attribute_and_as_item() -> None:
+    """`fields` carry names from configuration (`pm2.5` cannot be an attribute): a
+    mission reads each both ways; an undeclared name is None either way (issue 56)."""
+    field = SimField(World(), 2)
+    await field.start()
+    bus = field._bus()
+
+    async def air() -> None:
+        while True:
+            bus.publish(Keys().sensor("drone02", "air"), encode(SensorReading(
+                drone_id="drone02", timestamp=field.clock.time_ms(), type="air", fields={"pm2.5": 12.0, "co_ppm": 4.0})))
+            await field.clock.sleep(0.5)
+
+    task = asyncio.ensure_future(air())
+    try:
+        script = textwrap.dedent('''
+            d = assign(sensor="air")
+            wait(d)
+            a = d.sensor.air
+            print(f"pm {a['pm2.5']} co {a['co_ppm']} = {a.co_ppm}; none {a['no2']}")
+        ''')
+        record = await field.run_mission(script, max_s=60)
+        log = [line.message for line in field.mission_log(record.mission_id)]
+    finally:
+        task.cancel()
+        await field.close()
+    assert (record.status, record.cause) == ("finished", "success"), record.message
+    assert "pm 12.0 co 4.0 = 4.0; none None" in log, log

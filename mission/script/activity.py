@@ -20,7 +20,10 @@ def script_line(mission: Mission) -> int | None:
     innermost frame compiled from it); None when only a plugin's code is on the stack."""
     code = getattr(mission, "code", None)
     filename = getattr(code, "co_filename", None)
-    frame: FrameType | None = sys._getframe(2)
+    # The verb's caller and outward. Not sys._getframe(2): a verb handed to `run` as a
+    # subroutine (`run(land, d)`) starts a greenlet's stack with no frame above it,
+    # and _getframe raised "call stack is not deep enough".
+    frame: FrameType | None = sys._getframe(1).f_back
     while frame is not None:
         if frame.f_code.co_filename == filename:
             return frame.f_lineno

@@ -83,8 +83,10 @@ class CommandView:
 
 
 class Fields:
-    """A reading declared with fields (`drone.sensor.gas.co_ppm`): each field an attribute;
-    one the reading did not carry is None, one the sensor does not declare an error."""
+    """A reading declared with fields: each field by name, as an attribute
+    (`drone.sensor.gas.co_ppm`) or an item (`drone.sensor.gas["pm2.5"]`, for names that
+    cannot be attributes; the wire carries a JSON object). One the reading did not carry
+    is None, one the sensor does not declare an error."""
 
     __slots__ = ("_declared", "_kind", "_values")
 
@@ -100,6 +102,13 @@ class Fields:
             return self._values[name]
         if self._declared and name not in self._declared:
             raise AttributeError(f"the {self._kind} sensor has no field {name!r} (declared: {', '.join(sorted(self._declared))})")
+        return None
+
+    def __getitem__(self, name: str) -> Any:
+        if name in self._values:
+            return self._values[name]
+        if self._declared and name not in self._declared:
+            raise KeyError(f"the {self._kind} sensor has no field {name!r} (declared: {', '.join(sorted(self._declared))})")
         return None
 
     def __repr__(self) -> str:
