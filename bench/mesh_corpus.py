@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import functools
 import math
 import os
 import random
@@ -42,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import httpx  # noqa: E402
 
 from bench.verdict import ScenarioFailed  # noqa: E402
+from dronefleet.bus.port import Sample  # noqa: E402
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.geo import destination  # noqa: E402
 from dronefleet.sim.radio import RadioModel  # noqa: E402
@@ -131,7 +133,7 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
         watcher = await ZenohBus.open("client", [f"tcp/127.0.0.1:{ground.zenoh_port}"])
         try:
             for d in healthy:
-                watcher.subscribe(f"drone/{d}/telem", lambda s, d=d: heard[d].append(time.monotonic()))
+                watcher.subscribe(f"drone/{d}/telem", functools.partial(_arrived, heard[d]))
             watcher.watch_liveliness("drone/*/alive", lambda key, alive: _token(tokens, key, alive))
             async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
                 await _first_commands(http, [d.id for d in sc.drones], first, deadline_s=90)
@@ -152,6 +154,10 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
         during = [t for t in heard[d] if start <= t <= end]
         gaps[d] = max(b - a for a, b in zip([start, *during], [*during, end], strict=True))
     return Outcome(gaps, tokens, lost, unknown, first)
+
+
+def _arrived(times: list[float], sample: Sample) -> None:
+    times.append(time.monotonic())
 
 
 def _token(tokens: dict[str, int], key: str, alive: bool) -> None:
