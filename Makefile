@@ -103,6 +103,8 @@ bench: $(STAMP)
 	$(BIN)/python bench/mesh.py  # needs CAP_NET_ADMIN (root), as fleet sim --radio
 	$(BIN)/python bench/mesh_stall.py --runs 1  # root too
 	$(BIN)/python bench/link_flyout.py --runs 2  # root too
+	$(BIN)/python bench/mesh_corpus.py --scenarios 3  # root too
+	$(BIN)/python bench/relay_real_packets.py  # root too; 5 min
 	$(BIN)/python bench/no_ground_flight.py --minutes 1
 	$(BIN)/python bench/example_hashes.py  # the bytes each example writes (compare before/after a refactoring)
 
