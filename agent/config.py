@@ -16,6 +16,7 @@ from msgspec import Meta
 
 from dronefleet.agent.link import LostLinkPolicy
 from dronefleet.schemas.about import DEFAULT_KIND, DEFAULT_ROLES, Role, SensorDeclaration
+from dronefleet.schemas.commands import DEFAULT_RETURN_ALT_M
 from dronefleet.schemas.config import Security
 from dronefleet.schemas.endpoints import AGENT_PORT, check_endpoints, ip_endpoint, plain_endpoint
 from dronefleet.schemas.fence import Geofence
@@ -39,7 +40,7 @@ class AgentConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     doubt_telemetry_rate_ms: Annotated[int, Meta(ge=20, le=60_000)] = 250
     acceptance_radius: Annotated[float, Meta(gt=0.0, le=100.0)] = 0.5
     takeoff_altitude: Annotated[float, Meta(gt=0.0, le=1000.0)] = 15.0
-    return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = 15.0
+    return_altitude: Annotated[float, Meta(ge=0.0, le=1000.0)] = DEFAULT_RETURN_ALT_M
     max_speed: Annotated[float, Meta(gt=0.0, le=50.0)] = 5.0
     namespace: str = ""
     # What the drone is (SPEC §2 About): published on drone/<id>/about for the ground and missions.

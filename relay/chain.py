@@ -26,7 +26,7 @@ times in five, 20 % one in thirteen.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from dronefleet.relay.hop import Reach, bottleneck
@@ -42,6 +42,7 @@ ON_SPOT_M = 3.0
 LAUNCH_CLEAR_M = 15.0  # a relay is sent when the last one has flown this far from the drones on the ground
 LAUNCH_TIMEOUT_S = 40.0  # a relay assigned this long ago and still on the ground never took off: another is sent
 PARKED_CLEAR_M = 6.0  # a held drone is not held over a drone on the ground (across)
+CLEAR_AHEAD_M = 3 * PARKED_CLEAR_M  # a held drone beside one is let on this far toward its goal to clear it
 RELAYS_APART_M = 7.0  # relays hover on one level: spots of different chains keep this apart
 MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node before it
 SPIKE_MS = 30.0  # a window's mean RTT this far above the best seen held two retransmissions (+200 ms / 10 each)
@@ -184,7 +185,12 @@ class Chains:
         """How far toward `goal` the worker may fly now: the last point of the straight
         way there that a proven node covers (the goal itself when all of it is)."""
         if not self.reach.known:
-            return at  # while the probe measures, each drone waits where it took off (none crosses another's way)
+            # While the probe measures, each drone waits where it took off (none crosses
+            # another's way) — but never beside a drone on the ground: that drone may be
+            # the next relay to climb, and no relay launches while a flying drone is that
+            # close to the drones on the ground (`_launch_clear`). Drones standing closer
+            # than PARKED_CLEAR_M (a row at the spawn gap) held every launch for ever.
+            return self._clear_ahead(at, goal)
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
         reach = self.reach.lo * MARGIN
 
@@ -205,7 +211,22 @@ class Chains:
                 return goal
         while not self._clear(best) and dist(best, at) > 0.5:  # held short of a parked drone, not over it
             best = toward(best, at, 1.0)
-        return best
+        return best if self._clear(best) else self._clear_ahead(at, goal, inside)
+
+    def _clear_ahead(self, at: Point, goal: Point, inside: Callable[[Point], bool] = lambda p: True) -> Point:
+        """`at` if no drone on the ground stands within PARKED_CLEAR_M of it; else the
+        first point toward `goal` that is clear (and `inside` what covers it), else `at`."""
+        if self._clear(at):
+            return at
+        for k in range(1, int(CLEAR_AHEAD_M) + 1):
+            p = toward(at, goal, float(k))
+            if dist(p, at) < k - 0.5:  # the goal is nearer: nowhere clear ahead
+                break
+            if not inside(p):
+                break
+            if self._clear(p):
+                return p
+        return at
 
     # ---- one plan ---------------------------------------------------------------------
 

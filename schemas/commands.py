@@ -167,6 +167,9 @@ Command = (
 COMMAND_TYPES: dict[str, type[_Command]] = {
     t.__struct_config__.tag: t for t in Command.__args__
 }
+# Metres above home at which an agent flies a return (`return`, the lost-link failsafe)
+# unless its configuration says otherwise (agent config `return_altitude`).
+DEFAULT_RETURN_ALT_M = 15.0
 OFFBOARD_SETPOINTS = (PositionNed, VelocityNed, VelocityBody, Attitude, AttitudeRate)
 
 

@@ -21,6 +21,7 @@ from dronefleet.mission.script.geo import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
 from dronefleet.relay import planner, ways
+from dronefleet.schemas.commands import DEFAULT_RETURN_ALT_M
 from dronefleet.sim.projection import LocalFrame
 
 if TYPE_CHECKING:
@@ -118,10 +119,13 @@ class Relays:
         return planner.duty_altitude(index, self.params(**inputs), flying)
 
     def above_flights(self, served: Sequence[Any], margin: Any) -> float:
-        """Metres above home that clear every served drone's flight altitude by `margin`
-        (the agents' default takeoff altitude, 15 m, for a drone not flying yet)."""
-        flying = [a for a in map(flight_altitude, served) if a is not None] or [15.0]
-        return round(max(flying) + units.length(margin, "margin"), 1)
+        """Metres above home that clear by `margin` every level a served drone flies:
+        its flight altitude, and the level its return takes it home at (the agents'
+        default return altitude: `home(d)` after the survey flew its drone under relays
+        3 m above it). A fleet configured with a higher `return_altitude` is not known
+        here (About does not carry it)."""
+        flying = [a for a in map(flight_altitude, served) if a is not None]
+        return round(max([*flying, DEFAULT_RETURN_ALT_M]) + units.length(margin, "margin"), 1)
 
     def params(self, **inputs: Any) -> planner.Params:
         lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
