@@ -28,9 +28,9 @@ from dronefleet.sim.corpus import CorpusWorld, generate
 # given, as an operator would (the plugin's default is the first drone's home, which in
 # the corpus stands up to 40 m from the laptop).
 MODES = {
-    "measured": 'enable("relay", ground=[{lat:.7f}, {lon:.7f}])',
+    "measured": 'enable("relay", mode="measured", ground=[{lat:.7f}, {lon:.7f}])',
     "distance": 'enable("relay", mode="distance", ground=[{lat:.7f}, {lon:.7f}])',
-    "chain": 'enable("relay", mode="chain", ground=[{lat:.7f}, {lon:.7f}])',
+    "chain": 'enable("relay", ground=[{lat:.7f}, {lon:.7f}])',  # the default
     "none": None,
 }
 CONNECTED_GAP_S = 3.0  # issue 32: a worker counts as connected while the ground hears it this often

@@ -53,13 +53,13 @@ MAPPING = {
     "distance": Experiment("mapping, distance mode", "relay_mapping.py", "relay.yml", ("drone01",),
                            f'enable("relay", mode="distance", target_dist=50 * m, base_alt=5 * m, alt_diff=5 * m, {GROUND})'),
     "measured": Experiment("mapping, measured mode", "relay_mapping.py", "relay.yml", ("drone01",),
-                           f'enable("relay", min_quality=0.6, step=4 * m, base_alt=5 * m, alt_diff=5 * m, {GROUND})'),
+                           f'enable("relay", mode="measured", min_quality=0.6, step=4 * m, base_alt=5 * m, alt_diff=5 * m, {GROUND})'),
 }
 TWO_WAYS = {
     "distance": Experiment("two ways, distance mode", "relay_two_ways.py", "relay_two_ways.yml", ("drone01", "drone02"),
                            f'enable("relay", mode="distance", target_dist=50 * m, {GROUND})', max_s=400.0),
     "measured": Experiment("two ways, measured mode", "relay_two_ways.py", "relay_two_ways.yml", ("drone01", "drone02"),
-                           f'enable("relay", {GROUND})', max_s=400.0),
+                           f'enable("relay", mode="measured", {GROUND})', max_s=400.0),
 }
 ALL = {**{f"mapping-{k}": v for k, v in MAPPING.items()}, **{f"two-ways-{k}": v for k, v in TWO_WAYS.items()}}
 

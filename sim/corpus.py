@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.radio import RadioModel
-from dronefleet.sim.world import BatteryModel, DroneSpec, Spot, World
+from dronefleet.sim.world import ROW_SPACING_M, BatteryModel, DroneSpec, Spot, World
 
 ORIGIN = Spot(lat=40.634125, lon=-8.660336, alt=8.2)
 MIN_QUALITY = 0.6  # the plugin's default bar (the corpus's first bound measured hops there)
@@ -39,6 +39,9 @@ HOLDING_LOSS = 0.1  # the longest hop that keeps a 3-s gap loses this share (ben
 SPAWN_GAP_M = 7.0  # drones spawn at least this far apart (flying drones keep 5 m)
 MIN_BEARING_GAP = 45.0  # degrees between two workers' directions
 LAYOUTS = ("row", "grid", "ring", "scatter", "offset")
+USER_LAYOUTS = ("file-row", "cluster")  # drones one ROW_SPACING_M apart, as world files place them
+USER_LAYOUT_SHARE = 0.35  # of the worlds
+USER_CLUSTER_M = (3.0, 12.0)  # a cluster's first corner this far from the laptop
 TRANSIT_SPEED = 8.0  # m/s out to the area and home
 # Far worlds fly for minutes: a battery that lasts about 25 minutes keeps the corpus
 # about connectivity, not endurance (the replacement plugin is another story).
@@ -144,6 +147,12 @@ def generate(seed: int) -> CorpusWorld:
     n_spares = rng.randint(2, 8)
     layout = rng.choice(LAYOUTS)
     spots = _spawn(rng, layout, n_workers + n_spares, radio.good_m)
+    # Layouts as a user writes them (issue 53), drawn on a stream of their own so that
+    # the worlds that keep a layout above keep everything else too.
+    users = random.Random(f"relay-corpus-user-layout:{seed}")
+    if users.random() < USER_LAYOUT_SHARE:
+        layout = users.choice(USER_LAYOUTS)
+        spots = _user_spawn(users, layout, n_workers + n_spares)
     ids = [f"drone{i + 1:02d}" for i in range(len(spots))]
     bearings = _bearings(rng, n_workers)
     surveys = []
@@ -201,6 +210,22 @@ def _spawn(rng: random.Random, layout: str, n: int, good_m: float) -> list[tuple
             cand = (rng.uniform(g, reach), rng.uniform(0.0, 360.0))
             if all(_apart(cand, o) >= g for o in offsets):
                 offsets.append(cand)
+    return [destination(ORIGIN.lat, ORIGIN.lon, d, b % 360.0) for d, b in offsets]
+
+
+def _user_spawn(rng: random.Random, layout: str, n: int) -> list[tuple[float, float]]:
+    """Where a user's world file puts `n` drones: `file-row` is the world file's default
+    (`count:`, a row east from the laptop's own spot, ROW_SPACING_M apart: the first
+    drone stands on the laptop); `cluster` a small listed block beside the laptop, the
+    same gap apart, its first corner USER_CLUSTER_M off in any direction."""
+    g = ROW_SPACING_M
+    if layout == "file-row":
+        offsets = [(g * i, 90.0) for i in range(n)]
+    else:
+        turn = rng.uniform(0.0, 360.0)
+        cols = math.ceil(math.sqrt(n))
+        off = rng.uniform(*USER_CLUSTER_M)
+        offsets = [_polar(off + g * (i // cols), g * (i % cols), turn) for i in range(n)]
     return [destination(ORIGIN.lat, ORIGIN.lon, d, b % 360.0) for d, b in offsets]
 
 

@@ -124,7 +124,7 @@ CAUSES = {
     "twice": ('enable("counter")\nenable("counter")\n', "plugin_param", "already enabled"),
     "callback_fails": ('enable("faulty")\nd = assign()\nsleep(5)\n', "plugin_error", "ZeroDivisionError"),
     "relay_mode": ('enable("relay", mode="chains")\nd = assign()\nsleep(5)\n', "plugin_error",
-                   "relay: mode must be one of measured, distance, chain, not 'chains'"),
+                   "relay: mode must be one of chain, measured, distance, not 'chains'"),
 }
 
 

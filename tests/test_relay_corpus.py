@@ -14,7 +14,8 @@ from dronefleet import relay_corpus as rc
 from dronefleet import relay_experiments as rx
 from dronefleet.compose import SimField
 from dronefleet.schemas.geo import distance_m
-from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, generate, hop_m
+from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, USER_LAYOUTS, generate, hop_m
+from dronefleet.sim.world import ROW_SPACING_M
 
 SEEDS = range(200)
 
@@ -35,14 +36,18 @@ def test_worlds_cover_what_the_issue_asks_and_replay_from_their_seed() -> None:
                 assert min(gap, 360 - gap) >= MIN_BEARING_GAP - 0.1
         spots = [(d.lat, d.lon) for d in w.world.spawn() if d.lat is not None and d.lon is not None]
         assert len(spots) == len(w.world.drones)
+        gap = ROW_SPACING_M if w.layout in USER_LAYOUTS else SPAWN_GAP_M  # a world file's row: 5 m
         for i, (lat, lon) in enumerate(spots):
             for other in spots[i + 1:]:
-                assert distance_m(lat, lon, *other) >= SPAWN_GAP_M - 0.01, w.describe()
+                assert distance_m(lat, lon, *other) >= gap - 0.01, w.describe()
         # a chain every hop_m reaches each farthest corner; one relay fewer could not
         for s, chain in zip(w.surveys, w.needs.chains, strict=True):
             assert (chain + 1) * w.needs.hop_m >= s.farthest_m > chain * w.needs.hop_m
         assert w.needs.lower_bound == max(w.needs.chains) and w.needs.enough == sum(w.needs.chains)
-    assert {w.layout for w in worlds} == {"row", "grid", "ring", "scatter", "offset"}
+    assert {w.layout for w in worlds} == {"row", "grid", "ring", "scatter", "offset", "file-row", "cluster"}
+    # the world file's default row stands on the laptop's own spot
+    assert any(w.layout == "file-row" and distance_m(w.world.drones[0].lat or 0, w.world.drones[0].lon or 0,
+                                                     w.world.origin.lat, w.world.origin.lon) < 0.01 for w in worlds)
     assert 0.2 < sum(w.spares_suffice for w in worlds) / len(worlds) < 0.9
 
 

@@ -29,7 +29,7 @@ crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
 state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "planned": None, "dispatching": 0, "followed": [],
          "leaving": {}, "duty": None, "until": {}, "lanes": {}, "gone": set(), "failures": {}}
-MODES = ("measured", "distance", "chain")
+MODES = ("chain", "measured", "distance")
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
 PLAN_EVERY_S = 0.9  # plans at most this often: a drone in doubt of the ground speaks every 250 ms
 steps = step  # the bundle steps' builder: the input `step` (a length) takes its name once enabled
@@ -366,7 +366,7 @@ def main(drone):
 
 
 plugin(id="relay", type=monitoring,
-       input={"mode": (str, "measured"), "min_quality": (float, 0.6), "base_alt": (float, 5.0),
+       input={"mode": (str, "chain"), "min_quality": (float, 0.6), "base_alt": (float, 5.0),
               "alt_diff": (float, 5.0), "step": (float, 4.0), "min_separation": (float, 5.0),
               "target_dist": (float, 50.0), "good_m": (float, 60.0), "lost_m": (float, 100.0),
               "ground": (list, [])},
