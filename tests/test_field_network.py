@@ -508,7 +508,7 @@ async def test_survey_bundles_beyond_radio_range_continue_alone_or_return(tmp_pa
 
 
 RELAYED = """
-enable("relay", ground=[GROUND_LAT, GROUND_LON])
+enable("relay", mode="measured", ground=[GROUND_LAT, GROUND_LON])  # the model-first planner; the default (chain) on real packets: bench/relay_real_packets.py
 d = assign("drone01")
 arm(d)
 takeoff(d, 10*m)
