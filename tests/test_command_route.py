@@ -16,23 +16,13 @@ from dronefleet.bus.port import NoRoute
 from dronefleet.compose import SimField
 from dronefleet.schemas.codec import encode
 from dronefleet.schemas.commands import CommandReply
-from dronefleet.sim.world import World
+from tests.test_ground_input import field  # noqa: F401 (the fast-time field: the real station, two drones)
 
 
-@pytest.fixture
-async def field() -> SimField:  # type: ignore[misc]
-    sim = SimField(World(), 2)
-    await sim.start()
-    try:
-        yield sim
-    finally:
-        await sim.close()
-
-
-def _heard_as(field: SimField, drone_id: str) -> None:
+def _heard_as(sim: SimField, drone_id: str) -> None:
     """A node the ground hears as `drone_id` (drone01's telemetry under its name)."""
-    telem = msgspec.structs.replace(field.station.registry.telemetry("drone01"), drone_id=drone_id)
-    field._bus(drone_id).publish(f"drone/{drone_id}/telem", encode(telem))
+    telem = msgspec.structs.replace(sim.station.registry.telemetry("drone01"), drone_id=drone_id)
+    sim._bus(drone_id).publish(f"drone/{drone_id}/telem", encode(telem))
 
 
 async def _answer(selector: str, payload: bytes) -> bytes:
@@ -40,7 +30,7 @@ async def _answer(selector: str, payload: bytes) -> bytes:
 
 
 @pytest.mark.parametrize("late_s", [0.0, 0.3, 2.0])
-async def test_a_heard_drone_whose_queryable_comes_late_takes_the_command(field: SimField, late_s: float) -> None:
+async def test_a_heard_drone_whose_queryable_comes_late_takes_the_command(field: SimField, late_s: float) -> None:  # noqa: F811
     await field.clock.advance(1.0)
     _heard_as(field, "drone09")
     await field.clock.advance(0.1)
@@ -62,7 +52,7 @@ async def test_a_heard_drone_whose_queryable_comes_late_takes_the_command(field:
         served.close()
 
 
-async def test_past_the_deadline_a_heard_drone_with_no_route_is_named(field: SimField) -> None:
+async def test_past_the_deadline_a_heard_drone_with_no_route_is_named(field: SimField) -> None:  # noqa: F811
     await field.clock.advance(1.0)
     _heard_as(field, "drone09")
     await field.clock.advance(0.1)

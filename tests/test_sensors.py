@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import subprocess
 import textwrap
+from collections.abc import Coroutine
 from pathlib import Path
 from typing import Any
 
@@ -104,21 +105,14 @@ async def test_a_mission_reads_and_assigns_by_any_sensor_type() -> None:
                         encode(SensorReading(drone_id="drone02", timestamp=field.clock.time_ms(), type="humidity", value=value, unit="%")))
             await field.clock.sleep(0.5)
 
-    task = asyncio.ensure_future(humidity())
-    try:
-        script = textwrap.dedent('''
-            d = assign(sensor="humidity")
-            first = d.sensor.humidity
-            wait(d)
-            wait(d)
-            print(f"{d.id} humidity {first} then {d.sensor.humidity}; temperature {d.sensor.temperature}")
-            assert d.sensor.humidity > first
-        ''')
-        record = await field.run_mission(script, max_s=60)
-        log = [line.message for line in field.mission_log(record.mission_id)]
-    finally:
-        task.cancel()
-        await field.close()
+    record, log = await _beside(field, humidity(), '''
+        d = assign(sensor="humidity")
+        first = d.sensor.humidity
+        wait(d)
+        wait(d)
+        print(f"{d.id} humidity {first} then {d.sensor.humidity}; temperature {d.sensor.temperature}")
+        assert d.sensor.humidity > first
+    ''')
     assert (record.status, record.cause) == ("finished", "success"), record.message
     assert "Assigned drone02 (a drone with humidity)" in log
     (line,) = [m for m in log if "humidity" in m and m.startswith("drone02")]
@@ -226,18 +220,24 @@ async def test_a_reading_with_fields_reads_by_name_as_attribute_and_as_item() ->
                 drone_id="drone02", timestamp=field.clock.time_ms(), type="air", fields={"pm2.5": 12.0, "co_ppm": 4.0})))
             await field.clock.sleep(0.5)
 
-    task = asyncio.ensure_future(air())
+    record, log = await _beside(field, air(), '''
+        d = assign(sensor="air")
+        wait(d)
+        a = d.sensor.air
+        print(f"pm {a['pm2.5']} co {a['co_ppm']} = {a.co_ppm}; none {a['no2']}")
+    ''')
+    assert (record.status, record.cause) == ("finished", "success"), record.message
+    assert "pm 12.0 co 4.0 = 4.0; none None" in log, log
+
+
+async def _beside(field: SimField, sensor: Coroutine[Any, Any, None], script: str) -> tuple[Any, list[str]]:
+    """Run `script` in `field` while `sensor` publishes; the record and the mission's log.
+    The field is closed after."""
+    task = asyncio.ensure_future(sensor)
     try:
-        script = textwrap.dedent('''
-            d = assign(sensor="air")
-            wait(d)
-            a = d.sensor.air
-            print(f"pm {a['pm2.5']} co {a['co_ppm']} = {a.co_ppm}; none {a['no2']}")
-        ''')
-        record = await field.run_mission(script, max_s=60)
-        log = [line.message for line in field.mission_log(record.mission_id)]
+        record = await field.run_mission(textwrap.dedent(script), max_s=60)
+        return record, [line.message for line in field.mission_log(record.mission_id)]
     finally:
         task.cancel()
         await field.close()
-    assert (record.status, record.cause) == ("finished", "success"), record.message
-    assert "pm 12.0 co 4.0 = 4.0; none None" in log, log
+
