@@ -120,6 +120,7 @@ class Chains:
         self.stuck: dict[str, str] = {}
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
+        self.flying: dict[str, Point] = {}  # the served drones in the air, where they are (last plan)
         self.grounded: list[Point] = []  # the drones on the ground: where the next relay takes off
         self.legs: list[tuple[Point, Point]] = []  # the served drones in the air: where each is, how far it may go
 
@@ -190,7 +191,7 @@ class Chains:
             # the next relay to climb, and no relay launches while a flying drone is that
             # close to the drones on the ground (`_launch_clear`). Drones standing closer
             # than PARKED_CLEAR_M (a row at the spawn gap) held every launch for ever.
-            return self._clear_ahead(at, goal)
+            return self._clear_ahead(worker, at, goal)
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
         reach = self.reach.lo * MARGIN
 
@@ -211,20 +212,23 @@ class Chains:
                 return goal
         while not self._clear(best) and dist(best, at) > 0.5:  # held short of a parked drone, not over it
             best = toward(best, at, 1.0)
-        return best if self._clear(best) else self._clear_ahead(at, goal, inside)
+        return best if self._clear(best) else self._clear_ahead(worker, at, goal, inside)
 
-    def _clear_ahead(self, at: Point, goal: Point, inside: Callable[[Point], bool] = lambda p: True) -> Point:
+    def _clear_ahead(self, worker: str, at: Point, goal: Point, inside: Callable[[Point], bool] = lambda p: True) -> Point:
         """`at` if no drone on the ground stands within PARKED_CLEAR_M of it; else the
-        first point toward `goal` that is clear (and `inside` what covers it), else `at`."""
+        first point toward `goal` that is clear of them and of the other flying drones
+        (a goto that close to another's spot is refused, SPEC §11), and `inside` what
+        covers it; else `at`."""
         if self._clear(at):
             return at
+        others = [q for w, q in self.flying.items() if w != worker]
         for k in range(1, int(CLEAR_AHEAD_M) + 1):
             p = toward(at, goal, float(k))
             if dist(p, at) < k - 0.5:  # the goal is nearer: nowhere clear ahead
                 break
             if not inside(p):
                 break
-            if self._clear(p):
+            if self._clear(p) and all(dist(p, q) >= PARKED_CLEAR_M for q in others):
                 return p
         return at
 
@@ -240,6 +244,7 @@ class Chains:
         self.grounded = [at for at, alt in others if alt < 1.0]
         self.parked = self.grounded + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
         self.legs = [(w.at, w.home or w.at) for w in workers if w.alt >= 1.0]  # while the probe measures, they wait
+        self.flying = {w.id: w.at for w in workers if w.alt >= 1.0}
         for s in seen.values():
             if s.fresh and s.rtt_ms is not None and (self.base_rtt is None or s.rtt_ms < self.base_rtt):
                 self.base_rtt = s.rtt_ms
