@@ -217,7 +217,8 @@ async def test_a_link_closing_is_told_to_the_session_at_its_end() -> None:
     a router whose link to another closes hears of it; a closed watch hears nothing."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     ground = await ZenohBus.open("router", listen=[endpoint])
-    drone = await ZenohBus.open("router", connect=[endpoint])
+    # A listener of its own: a router's default is tcp/[::]:7447, which another test may hold.
+    drone = await ZenohBus.open("router", connect=[endpoint], listen=[f"tcp/127.0.0.1:{free_port()}"])
     told: list[str] = []
     closed = asyncio.Event()
 
