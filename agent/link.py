@@ -108,13 +108,11 @@ class DeliveryWindow:
         self._trains.append(list(rtts_ms))
         self.echoed = self.echoed or any(r is not None for r in rtts_ms)
 
-    def summary(self, transport_loss: float = 0.0) -> LinkSummary:
-        """`transport_loss`: the share of the same span's probes that the transport did
-        not answer in time (a stall the datagrams may not see): the loss is at least that."""
+    def summary(self) -> LinkSummary:
         sent = [r for train in self._trains for r in train]
         answered = [r for r in sent if r is not None]
         delivered = len(answered) / len(sent) if sent else 0.0
-        loss = max(1.0 - math.sqrt(delivered), transport_loss)
+        loss = 1.0 - math.sqrt(delivered)
         rtt, jitter = _rtt_and_jitter(answered)
         return LinkSummary(rtt_ms=rtt, jitter_ms=jitter, loss=round(loss, 3), quality=quality_score(loss, rtt))
 

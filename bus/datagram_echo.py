@@ -14,7 +14,7 @@ datagrams that start with `MAGIC` and are no longer than `MAX_DATAGRAM`, with th
 same bytes (no amplification), and carries nothing else.
 
 `EchoPort` is what the agent's prober needs; `UdpEcho` is it on real packets,
-`bus.memory.MediumEcho` in fast time (the same radio model, no retransmission).
+`sim.radio_air.AirEcho` in fast time (the same radio model, no retransmission).
 """
 
 from __future__ import annotations

@@ -98,14 +98,17 @@ class RadioAir:
             at = self._in_order((a, b), at, at + spent)
         return at - now
 
-    def datagram(self, src: str, dst: str, stream: str = "") -> float | None:
+    def datagram(self, src: str, dst: str) -> float | None:
         """Seconds one datagram from src takes to reach dst over their own hop, or None:
         lost. Nothing retransmits it, and it needs no Zenoh link, only the radio: the
         ground's echo (bus/datagram_echo.py) as it fares in the air."""
+        if src == dst:
+            return 0.0
         link = self.links.get(_pair(self._node(src), self._node(dst)))
-        if link is None or src == dst:
-            return 0.0 if src == dst else None
-        return None if self._rng("datagram", src, dst, stream).random() < link.loss else link.delay_s
+        if link is None:
+            return None
+        rng = self._rng("datagram", src, dst, "")  # the stream every seeded run drew from so far
+        return None if rng.random() < link.loss else link.delay_s
 
     def _in_order(self, hop: tuple[str, str], enters: float, arrives: float) -> float:
         """A hop is one stream: a message arrives no earlier than one that entered it

@@ -14,6 +14,7 @@ import asyncio
 import json
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -26,8 +27,8 @@ from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundProcess, stop_all
-from tests.helpers import until
-from tests.test_field_network import OnBoard, RadioSim, command, drone
+from tests.helpers import advance_until, until
+from tests.test_field_network import OnBoard, RadioSim, command, state_is
 
 GROUND = (40.633490, -8.660815)
 START_M = 20.0
@@ -95,30 +96,24 @@ async def fast_flyout(radio: RadioModel, speed_mps: float, seed: int) -> Flyout:
             (clock.monotonic(), s.key, json.loads(s.payload))), maxsize=100_000)
         registry = sim.station.registry
 
-        async def advance_until(predicate: Any, max_s: float) -> float:
-            for _ in range(round(max_s * 10)):
-                if predicate():
-                    return clock.monotonic()
-                await clock.advance(0.1)
-            raise AssertionError(f"not within {max_s} simulated s")
-
         def state() -> str:
             return registry.info("drone01").state if "drone01" in registry else "unheard"
 
         async def command(**body: Any) -> None:
             body["command_id"] = f"flyout-{body['cmd']}"
             task = asyncio.ensure_future(sim.station.command("drone01", json.dumps(body).encode()))
-            await advance_until(task.done, 30)
+            await advance_until(sim, task.done, 30)
             task.result()
 
-        await advance_until(lambda: state() == "ready", 10)
+        await advance_until(sim, lambda: state() == "ready", 10)
         await command(cmd="arm")
         await command(cmd="takeoff", alt=ALT_M)
-        await advance_until(lambda: state() == "hold", 60)
+        await advance_until(sim, lambda: state() == "hold", 60)
         far = north(radio.lost_m + 60)
         out = asyncio.ensure_future(sim.station.command("drone01", json.dumps(
             {"cmd": "goto", "command_id": "out", "lat": far[0], "lon": far[1], "speed": speed_mps}).encode()))
-        lost_at = await advance_until(lambda: state() == "unknown", (radio.lost_m + 60) / speed_mps + 60)
+        await advance_until(sim, lambda: state() == "unknown", (radio.lost_m + 60) / speed_mps + 60)
+        lost_at = clock.monotonic()
         out.cancel()
     finally:
         await sim.close()
@@ -140,20 +135,16 @@ async def real_flyout(tmp: Path, radio: RadioModel, speed_mps: float) -> Flyout:
         started.append(sim)
         await sim.up()
         async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-            async def state() -> str | None:
-                d = await drone(http, "drone01")
-                return None if d is None else str(d["info"]["state"])
-
-            await until(lambda: _is(state, "ready"), 60, "drone01 ready at the ground")
+            await until(partial(state_is, http, "drone01", "ready"), 60, "drone01 ready at the ground")
             onboard = OnBoard(tmp, sim.netns("drone01"), "drone01")
             started.append(onboard)
             await until(lambda: onboard.messages("/link"), 30, "link reports on board")
             await command(http, "drone01", cmd="arm")
             await command(http, "drone01", cmd="takeoff", alt=ALT_M)
-            await until(lambda: _is(state, "hold"), 60, "drone01 hovering")
+            await until(partial(state_is, http, "drone01", "hold"), 60, "drone01 hovering")
             far = north(radio.lost_m + 60)
             await command(http, "drone01", cmd="goto", lat=far[0], lon=far[1], speed=speed_mps)
-            await until(lambda: _is(state, "unknown"), 120, "the ground losing drone01")
+            await until(partial(state_is, http, "drone01", "unknown"), 120, "the ground losing drone01")
             lost_at = time.time()
         said = [(m["timestamp"] / 1000.0, f"drone/drone01/{kind}", m)
                 for kind in ("telem", "link") for m in onboard.messages(f"/{kind}")]
@@ -162,6 +153,3 @@ async def real_flyout(tmp: Path, radio: RadioModel, speed_mps: float) -> Flyout:
     finally:
         stop_all(reversed(started))
 
-
-async def _is(state: Any, wanted: str) -> bool:
-    return await state() == wanted
