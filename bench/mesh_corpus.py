@@ -5,7 +5,9 @@ bearings and distances — *healthy* ones whose own hop to the laptop stays in g
 range, *failing* neighbours (one or two) near the edge of range, and sometimes a drone
 beyond a failing neighbour, reachable only through it — and each failing neighbour
 fails in a random way: flying out past the edge and back (a task bundle, twice),
-flapping across the edge (short legs, four times), or frozen (its agent and sensors
+flapping across the edge (short legs, four times), a loss ramp set directly on its
+radio (0 to 90 % of packets dropped over 20 s where it stands, held 5 s, then cleared;
+nftables in its namespace, whatever the distance says), or frozen (its agent and sensors
 SIGSTOPped for 20 s). The laptop is the real `fleet ground`; the drones are `fleet sim
 WORLD --agents --radio`.
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import functools
+import itertools
 import math
 import os
 import random
@@ -53,7 +56,8 @@ from tests.test_field_network import GROUND, RadioSim  # noqa: E402
 
 GAP_S = 1.5
 COMMAND_S = 3.0
-FAILURES = ("flyout", "flapping", "frozen")
+FAILURES = ("flyout", "flapping", "ramp", "frozen")
+RAMP = (20.0, 900, 5.0)  # seconds to ramp, loss at the top (1/1000ths), seconds held there
 FROZEN_S = 20.0
 WATCH_S = 45.0  # at most this long for the failures to play out
 
@@ -107,6 +111,7 @@ def scenario(seed: int) -> Scenario:
 @dataclass
 class Outcome:
     gaps: dict[str, float]  # healthy drone -> longest gap at the ground (s)
+    gap_at: dict[str, float]  # healthy drone -> when that gap began (s into the failures)
     token_losses: dict[str, int]
     link_lost: dict[str, int]
     unknown: dict[str, int]
@@ -149,11 +154,11 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
             await watcher.close()
     finally:
         stop_all(reversed(started))
-    gaps = {}
+    gaps, gap_at = {}, {}
     for d in healthy:
-        during = [t for t in heard[d] if start <= t <= end]
-        gaps[d] = max(b - a for a, b in zip([start, *during], [*during, end], strict=True))
-    return Outcome(gaps, tokens, lost, unknown, first)
+        during = [start, *(t for t in heard[d] if start <= t <= end), end]
+        gaps[d], gap_at[d] = max((b - a, a - start) for a, b in itertools.pairwise(during))
+    return Outcome(gaps, gap_at, tokens, lost, unknown, first)
 
 
 def _arrived(times: list[float], sample: Sample) -> None:
@@ -226,6 +231,9 @@ async def _one(http: httpx.AsyncClient, sim: RadioSim, sc: Scenario, d: Drone) -
                 os.kill(int(pid), signal.SIGCONT)
         await asyncio.sleep(5)
         return
+    if d.failure == "ramp":
+        await _ramp(sim.netns(d.id))
+        return
     if d.failure == "flyout":
         out = [d.spot(sc.radio.lost_m * 0.95), d.spot()] * 2
     else:  # flapping: short legs across the edge of good range
@@ -243,6 +251,30 @@ async def _one(http: httpx.AsyncClient, sim: RadioSim, sc: Scenario, d: Drone) -
         if rec.status_code == 200 and rec.json()["state"] != "running":
             return
         await asyncio.sleep(1.0)
+
+
+async def _ramp(netns: str) -> None:
+    """Drop a rising share of everything in and out of the drone's radio, then clear it."""
+    ramp_s, top, hold_s = RAMP
+
+    def loss(k: int) -> None:
+        rules = "" if k <= 0 else "".join(
+            f"add rule inet fleet_ramp {hook} {side} \"radio0\" numgen random mod 1000 < {k} drop\n"
+            for hook, side in (("in", "iifname"), ("out", "oifname")))
+        subprocess.run(["ip", "netns", "exec", netns, "nft", "-f", "-"], check=True, text=True, input=(
+            "table inet fleet_ramp {}\ndelete table inet fleet_ramp\n"
+            "table inet fleet_ramp {\n chain in { type filter hook input priority 0; policy accept; }\n"
+            " chain out { type filter hook output priority 0; policy accept; }\n}\n" + rules))
+
+    try:
+        steps = 20
+        for i in range(1, steps + 1):
+            loss(round(top * i / steps))
+            await asyncio.sleep(ramp_s / steps)
+        await asyncio.sleep(hold_s)
+    finally:
+        loss(0)
+    await asyncio.sleep(5)
 
 
 async def main() -> int:
@@ -265,7 +297,7 @@ async def main() -> int:
         commands_all += len(out.first_command_s)
         commands_ok += len(out.first_command_s) - len(slow)
         worst_gap = max([worst_gap, *out.gaps.values()])
-        gaps = ", ".join(f"{d} {g:.2f} s" for d, g in out.gaps.items())
+        gaps = ", ".join(f"{d} {g:.2f} s (at {out.gap_at[d]:.0f} s)" for d, g in out.gaps.items())
         print(f"seed {seed}: {sc.describe()}; healthy gaps {gaps}; "
               f"{'ok' if not bad else 'FAILED ' + ', '.join(bad)}; first commands "
               f"{'ok' if not slow else 'SLOW ' + ', '.join(slow)}", flush=True)
