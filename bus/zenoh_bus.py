@@ -26,6 +26,7 @@ import json
 import logging
 import os
 import re
+import threading
 from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
@@ -55,6 +56,7 @@ _PRIORITIES = ("control", "real_time", "interactive_high", "interactive_low", "d
 # the ground waited there behind a handshake over a lossy hop (8 s, ADR 0003).
 # Read once when Zenoh starts its runtimes: set before it does; an operator's wins.
 RX_THREADS = 4
+CLOSE_WAIT_S = 2.0  # `session.close()` may block ~10 s with a lossy link open (upstream #2675): not waited longer
 ACC_THREADS = 2
 os.environ.setdefault("ZENOH_RUNTIME", f"(rx: (worker_threads: {RX_THREADS}), acc: (worker_threads: {ACC_THREADS}))")
 
@@ -358,4 +360,35 @@ class ZenohBus:
             except zenoh.ZError:
                 pass
         self._publishers.clear()
-        self._session.close()
+        await self._close_session()
+
+    async def _close_session(self) -> None:
+        """`session.close()` on a daemon thread, waited CLOSE_WAIT_S at most: with a link
+        to a peer that went silent or lossy it blocks about 10 s before it gives up
+        (upstream #2675, a regression of #2012 by #2173; fix #2733 not released), and a
+        ground told to stop must stop (the process exits with that thread unfinished)."""
+        loop = asyncio.get_running_loop()
+        done = loop.create_future()
+
+        def close() -> None:
+            try:
+                self._session.close()
+            except zenoh.ZError as exc:
+                log.info("zenoh: closing the session: %s", exc)
+            finally:
+                try:
+                    loop.call_soon_threadsafe(_settle, done)
+                except RuntimeError:
+                    pass  # the loop is gone: nobody waits
+
+        threading.Thread(target=close, name="zenoh-close", daemon=True).start()
+        try:
+            await asyncio.wait_for(asyncio.shield(done), CLOSE_WAIT_S)
+        except TimeoutError:
+            log.warning("zenoh: the session did not close within %g s (a link to a silent peer; upstream #2675); "
+                        "going on without waiting", CLOSE_WAIT_S)
+
+
+def _settle(done: asyncio.Future[None]) -> None:
+    if not done.done():
+        done.set_result(None)

@@ -97,7 +97,9 @@ class Slot:
 
 @dataclass
 class ChainPlan:
-    dispatch: list[tuple[str, Point, float]] = field(default_factory=list)  # (slot key, spot, hold seconds or 0)
+    # (slot key, spot, hold seconds or 0, where the relay takes off: a free drone's spot
+    # whose column no flying drone comes near; None: any free drone, none stands known)
+    dispatch: list[tuple[str, Point, float, Point | None]] = field(default_factory=list)
     moves: list[tuple[str, Point, float]] = field(default_factory=list)  # (relay, spot, seconds to dwell before coming back; 0: stay)
     home: list[str] = field(default_factory=list)
     failed: list[str] = field(default_factory=list)  # relays assigned that never took off: the plan goes on without them
@@ -121,7 +123,9 @@ class Chains:
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
         self.flying: dict[str, Point] = {}  # the served drones in the air, where they are (last plan)
-        self.grounded: list[Point] = []  # the drones on the ground: where the next relay takes off
+        self.grounded: list[Point] = []  # the drones on the ground (one may be the next relay)
+        self.spares: list[Point] = []  # where the free drones stand that may be sent as relays
+        self.site: Point | None = None  # the spare the next relay is to take off from (`_launch_clear`)
         self.legs: list[tuple[Point, Point]] = []  # the served drones in the air: where each is, how far it may go
 
     # ---- what the plugin asks -------------------------------------------------------
@@ -235,13 +239,15 @@ class Chains:
     # ---- one plan ---------------------------------------------------------------------
 
     def plan(self, now: float, workers: Sequence[Worker], seen: Mapping[str, Seen], spare: int,
-             others: Sequence[tuple[Point, float]] = ()) -> ChainPlan:
+             others: Sequence[tuple[Point, float]] = (), spares: Sequence[Point] = ()) -> ChainPlan:
         """`workers`: the mission's drones to keep connected; `seen`: the relays on duty
         (by id); `spare`: drones free to be sent as relays; `others`: every other node
-        of the mesh (spot, altitude), which a probe's traffic may pass through."""
+        of the mesh (spot, altitude), which a probe's traffic may pass through; `spares`:
+        where the free drones stand (a relay is sent from one whose column is clear)."""
         out = ChainPlan()
         # drones on the ground, and relays climbing from it through the served drones' level
         self.grounded = [at for at, alt in others if alt < 1.0]
+        self.spares = [at for at in spares if any(dist(at, q) < 0.5 for q in self.grounded)]
         self.parked = self.grounded + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
         self.legs = [(w.at, w.home or w.at) for w in workers if w.alt >= 1.0]  # while the probe measures, they wait
         self.flying = {w.id: w.at for w in workers if w.alt >= 1.0}
@@ -358,7 +364,7 @@ class Chains:
             self.safe = self._off_parked(ORIGIN, toward(ORIGIN, spot, flat(self.reach.lo, self.duty_alt)), {})
         if self.probe is None:
             self.probe = Slot(spot, None, now, None, trial)
-            out.dispatch.append((PROBE, spot, DWELL_S + 4.0))
+            out.dispatch.append((PROBE, spot, DWELL_S + 4.0, self.site))
             out.notes.append(f"probe: trying a hop of {trial:.0f} m")
         else:
             assert self.probe.relay is not None
@@ -418,7 +424,7 @@ class Chains:
             if free <= 0 or now - chain[again].asked_at <= DISPATCH_TIMEOUT_S or not self._launch_clear(seen, out):
                 return free
             chain[again].asked_at = now
-            out.dispatch.append((f"{w.id}#{again}", chain[again].spot, 0.0))
+            out.dispatch.append((f"{w.id}#{again}", chain[again].spot, 0.0, self.site))
             return free - 1
         goal = w.goal or w.at
         hop = self.reach.lo * MARGIN
@@ -446,7 +452,7 @@ class Chains:
                                 f"{self.duty_alt:g} m up: relays cannot bring {w.id} to its goal")
             return free
         chain.append(Slot(spot, None, now))
-        out.dispatch.append((key, spot, 0.0))
+        out.dispatch.append((key, spot, 0.0, self.site))
         return free - 1
 
     def _off_parked(self, back: Point, spot: Point, seen: Mapping[str, Seen]) -> Point:
@@ -470,28 +476,43 @@ class Chains:
         return next((p for p in candidates if room(p) >= 1.0), max(candidates, key=room))
 
     def _launch_clear(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
-        """No relay crossing the levels near the drones on the ground, no served drone over one,
-        going over one or home over one (PARKED_CLEAR_M across; a failsafe's return passed 4.2 m
-        from one: world 81): the next relay takes off from one and climbs through every lower
-        level (ADR 0006). A relay crosses while off the duty level: to a spot (near when its way
-        passes within LAUNCH_CLEAR_M of them), coming home, or sent in this plan (it goes first)."""
+        """Whether a relay may take off now, and from where (`site`). It climbs through
+        every lower level (ADR 0006), so it takes off from a free drone's spot whose
+        column no served drone is over, going over, or going home over (PARKED_CLEAR_M
+        across), of those the one farthest from them; and only while no other relay
+        crosses the levels near that column: to a spot (near when its way passes within
+        LAUNCH_CLEAR_M of it), coming home, or sent in this plan (it goes first). With
+        no free drone's spot known, every drone on the ground counts as the one."""
+        self.site = None
         if out.moves or any(s.relay is None and not s.again for c in self.chains.values() for s in c):
             return False
-        if any(segment_distance((*a, 0.0), (*b, 0.0), (*q, 0.0), (*q, 0.0)) < PARKED_CLEAR_M
-               for a, b in self.legs for q in self.grounded):
-            return False  # where it goes too: one let on as a relay was sent stopped 4.9 m from it (world 192)
         ways = {relay: spots for relay, spots in self._spots().items() if relay not in self.idle}
         for rid, o in seen.items():
             if o.fresh and o.alt <= 1.0 and rid in ways:
                 return False  # sent, not yet up: one takes off at a time
             if rid not in ways and o.alt > 1.0:
                 return False  # coming home (heard or not)
-            if not o.fresh or o.alt <= 1.0 or abs(o.alt - self.duty_alt) <= 2.0:
-                continue  # on the ground, or on its duty level
-            for to in ways[rid]:
-                if any(segment_distance((*o.at, 0.0), (*to, 0.0), (*q, 0.0), (*q, 0.0)) < LAUNCH_CLEAR_M for q in self.parked):
-                    return False
+        sites = self.spares or self.grounded
+        if not sites:
+            return True  # no drone known on the ground: whichever goes, nothing stands near it
+
+        def room(q: Point) -> float:
+            return min([segment_distance((*a, 0.0), (*b, 0.0), (*q, 0.0), (*q, 0.0)) for a, b in self.legs] + [math.inf])
+
+        clear = [q for q in sites if room(q) >= PARKED_CLEAR_M and not self._crossed(q, seen, ways)]
+        if not clear or (not self.spares and len(clear) < len(sites)):
+            return False  # not knowing which drone goes, every one must be clear
+        self.site = max(clear, key=lambda q: (room(q), -dist(q, ORIGIN))) if self.spares else None
         return True
+
+    def _crossed(self, q: Point, seen: Mapping[str, Seen], ways: Mapping[str, list[Point]]) -> bool:
+        """A relay off its duty level flies to a spot past `q` within LAUNCH_CLEAR_M across."""
+        for rid, o in seen.items():
+            if not o.fresh or o.alt <= 1.0 or abs(o.alt - self.duty_alt) <= 2.0 or rid not in ways:
+                continue  # on the ground, on its duty level, or not the plan's
+            if any(segment_distance((*o.at, 0.0), (*to, 0.0), (*q, 0.0), (*q, 0.0)) < LAUNCH_CLEAR_M for to in ways[rid]):
+                return True
+        return False
 
     def _release(self, workers: Iterable[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:
         """The last relay of a chain its worker no longer needs goes home — when no

@@ -85,6 +85,7 @@ class Ways:
     waiting: dict[str, float] = field(default_factory=dict)  # worker → since when it waits for another
     wants: dict[str, Point3] = field(default_factory=dict)  # worker → where its leg would go, all of it
     declared: dict[str, float] = field(default_factory=dict)  # worker → when its leg was last declared
+    gives_way: dict[str, str] = field(default_factory=dict)  # worker → the drone it waits for now
 
     def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
               now: float, relays: Collection[str] = (), launching: bool = False) -> tuple[Point3, str | None]:
@@ -131,14 +132,17 @@ class Ways:
         first = blocker(1.0, False)
         if first is None:
             self.waiting.pop(drone, None)
+            self.gives_way.pop(drone, None)
             self._declare(drone, (at, to), now)
             return to, None
         # Two drones each waiting on the other: the first by name goes; anyone kept
         # waiting YIELD_LIMIT_S goes too. Either keeps AROUND_M from where others are.
         since = self.waiting.setdefault(drone, now)
         relaxed = (first in self.waiting and drone < first) or now - since >= YIELD_LIMIT_S
+        self.gives_way[drone] = first
         if relaxed and blocker(1.0, True) is None:
             self.waiting.pop(drone, None)
+            self.gives_way.pop(drone, None)
             self._declare(drone, (at, to), now)
             return to, first
         lo, hi = 0.0, 1.0
@@ -151,8 +155,39 @@ class Ways:
         end = _along(at, to, lo)
         if relaxed and math.dist(at, end) < MIN_LEG_M and drone > first and first in others:
             end = self._aside(at, others[first], self.wants.get(first), others, drone)
+        if math.dist(at, end) < MIN_LEG_M and self._first_of_jam(drone):
+            end = self._out_of_jam(at, to, obstacles, near)
         self._declare(drone, (at, end), now)
         return end, first
+
+    def _first_of_jam(self, drone: str) -> bool:
+        """Whether `drone` waits in a ring of workers each waiting for the next (three
+        took off side by side, each in another's way): the first of the ring by name."""
+        ring, o = [drone], self.gives_way.get(drone)
+        while o is not None and o not in ring:
+            ring.append(o)
+            o = self.gives_way.get(o)
+        return o == drone and drone == min(ring)
+
+    @staticmethod
+    def _out_of_jam(at: Point3, to: Point3, obstacles: list[tuple[str, Point3, Point3, float, bool]],
+                    near: list[float]) -> Point3:
+        """The way out of a ring of waiting workers: a leg of CLEAR_M, in whichever of 16
+        headings comes closer to no drone nor way (what any drone already that near may
+        fly), leaving the most room around it up to CLEAR_M, then getting nearest its
+        goal; `at` when none does. The ring's others wait where they are meanwhile."""
+        best: tuple[float, float] | None = None
+        end = at
+        for k in range(16):
+            a = 2 * math.pi * k / 16
+            p = (at[0] + CLEAR_M * math.cos(a), at[1] + CLEAR_M * math.sin(a), at[2])
+            if any(segment_distance(at, p, b0, b1) < clear for (_, b0, b1, _, _), clear in zip(obstacles, near, strict=True)):
+                continue
+            room = min([segment_distance(p, p, b0, b1) for _, b0, b1, _, _ in obstacles] + [CLEAR_M])
+            key = (round(room, 1), -math.dist(p, to))
+            if best is None or key > best:
+                best, end = key, p
+        return end
 
     def _declare(self, drone: str, leg: tuple[Point3, Point3], now: float) -> None:
         self.legs[drone] = leg

@@ -74,7 +74,7 @@ def test_a_probe_measures_the_hop_then_chains_are_laid_on_it_and_the_worker_is_l
     c = Chains(DUTY, first_trial=60.0)
     w = Worker("d1", at(10), 15.0, at(200))
     out = c.plan(0.0, [w], {}, spare=3)
-    assert [k for k, _, _ in out.dispatch] == [PROBE] and c.stuck == {}
+    assert [d[0] for d in out.dispatch] == [PROBE] and c.stuck == {}
     assert math.hypot(dist(out.dispatch[0][1], (0, 0)), DUTY) == pytest.approx(60.0)  # the model's range, in 3-D
     # held near the laptop meanwhile: at most the floor from it
     edge = c.allowed("d1", w.at, w.alt, w.goal)  # type: ignore[arg-type]
@@ -96,7 +96,7 @@ def test_a_probe_measures_the_hop_then_chains_are_laid_on_it_and_the_worker_is_l
     out = c.plan(250.0, [w], {"r1": seen(c.safe or (0, 0))}, spare=3)
     (relay, first, back), = out.moves
     assert out.dispatch == []  # not while a relay is sent across in the same plan
-    (key, second, _), = c.plan(251.0, [w], {"r1": seen(c.safe or (0, 0))}, spare=3).dispatch
+    (key, second, _, _), = c.plan(251.0, [w], {"r1": seen(c.safe or (0, 0))}, spare=3).dispatch
     assert relay == "r1" and back == 0 and math.hypot(dist(first, (0, 0)), DUTY) == pytest.approx(hop, abs=0.5)
     assert key == "d1#1" and dist(first, second) == pytest.approx(hop, abs=0.5)
     c.joined(key, "r2")
@@ -176,11 +176,11 @@ def test_a_relay_assigned_and_still_on_the_ground_is_given_up_and_its_slot_asked
     c = Chains(DUTY)
     c.reach = Reach(lo=50.0, hi=51.0)
     w = Worker("d1", at(10), 15.0, at(150))
-    (key, spot, _), = c.plan(0.0, [w], {}, spare=5).dispatch
+    (key, spot, _, _), = c.plan(0.0, [w], {}, spare=5).dispatch
     c.joined(key, "r1")
     assert c.plan(LAUNCH_TIMEOUT_S - 1, [w], {"r1": seen(at(5, 90), alt=0.0)}, spare=5).failed == []
     out = c.plan(LAUNCH_TIMEOUT_S + 1, [w], {"r1": seen(at(5, 90), alt=0.0)}, spare=5)
-    assert out.failed == ["r1"] and out.dispatch == [(key, spot, 0.0)]  # its slot, asked for again in place
+    assert out.failed == ["r1"] and out.dispatch == [(key, spot, 0.0, None)]  # its slot, asked for again in place
     assert c.plan(LAUNCH_TIMEOUT_S + 2, [w], {}, spare=5).dispatch == []  # once
     c.joined(key, "r2")
     assert "r2" in c.relays() and "r1" not in c.relays()
@@ -239,7 +239,7 @@ def test_the_probe_waits_too_while_a_worker_is_over_a_spare() -> None:
     spare = (at(20, 90), 0.0)
     assert c.plan(0.0, [Worker("d1", (2.0, 20.0), 15.0, at(200))], {}, spare=1, others=[spare]).dispatch == []
     out = c.plan(1.0, [Worker("d1", (12.0, 20.0), 15.0, at(200))], {}, spare=1, others=[spare])
-    assert [k for k, _, _ in out.dispatch] == [PROBE]
+    assert [d[0] for d in out.dispatch] == [PROBE]
 
 
 def test_a_worker_on_its_way_down_home_is_let_go_at_the_level_it_flies() -> None:
@@ -264,3 +264,21 @@ def test_a_worker_on_its_way_down_home_is_let_go_at_the_level_it_flies() -> None
     verdict = relays.leash("d1", field.lat, field.lon, field_alt)  # home, on the ground
     let_go = (0.0, 0.0) if verdict is None else frame.local(Position(verdict[0], verdict[1]))  # None: all the way
     assert dist(let_go, (55.2, -16.0)) > 10.0, verdict
+
+
+def test_a_relay_takes_off_from_a_spare_whose_column_no_flying_drone_is_near() -> None:
+    """Workers that took off among the spares (a cluster a spawn gap apart): while one
+    flies 5 m beside a spare, a relay is sent from another whose column is clear; with
+    no spare's spot known, no relay goes until every drone on the ground is clear."""
+    spares = [(0.0, 0.0), (0.0, 5.0), (5.0, 0.0), (20.0, 20.0)]
+    worker = Worker("d1", (5.0, 5.0), 15.0, at(200))  # 5 m from three of them
+    ground = [(p, 0.0) for p in spares]
+    out = Chains(DUTY, first_trial=60.0).plan(0.0, [worker], {}, spare=4, others=ground, spares=spares)
+    (key, _, _, site), = out.dispatch
+    assert key == PROBE and site == (20.0, 20.0)
+    assert Chains(DUTY, first_trial=60.0).plan(0.0, [worker], {}, spare=4, others=ground).dispatch == []
+    # every spare within reach of a flying drone's column: none goes
+    crowded = Worker("d1", (2.5, 2.5), 15.0, at(200))
+    near = [(0.0, 0.0), (0.0, 5.0), (5.0, 0.0)]
+    out = Chains(DUTY, first_trial=60.0).plan(0.0, [crowded], {}, spare=3, others=[(p, 0.0) for p in near], spares=near)
+    assert out.dispatch == []

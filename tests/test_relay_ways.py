@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from dronefleet.relay.ways import CLEAR_M, YIELD_LIMIT_S, Point3, Ways, segment_distance
 
@@ -136,3 +138,57 @@ def test_two_workers_each_in_the_others_way_the_later_steps_aside() -> None:
     assert other == "drone01" and abs(abs(end[0]) - (CLEAR_M + 1)) < 0.01 and end[1:] == two[1:]  # across drone01's way
     end, other = ways.clear("drone01", one, (0, 100, 15), {"drone02": end}, workers, now=YIELD_LIMIT_S + 5)
     assert end == (0, 100, 15) and other is None
+
+
+# ---- properties over random crowds (ADR 0006: separation and liveness) ------------------
+
+SPEED_M_S = 5.0
+TICK_S = 0.5
+
+
+def _fly_crowd(spots: list[Point3], goals: list[Point3], ticks: int) -> tuple[list[Point3], float]:
+    """Workers that took off at `spots` fly toward `goals` as the ways let them (each
+    evaluated in turn every tick, the leg flown at SPEED_M_S) and land there; where they
+    ended, and by how much two flying drones came closer than 5 m or than they took off
+    (negative: they did)."""
+    ways, names = Ways(), [f"drone{i + 1:02d}" for i in range(len(spots))]
+    at = dict(zip(names, spots, strict=True))
+    goal = dict(zip(names, goals, strict=True))
+    least = math.inf
+    start = {(a, b): math.dist(at[a], at[b]) for a in names for b in names if a < b}
+    for tick in range(ticks):
+        for d in names:
+            if math.dist(at[d], goal[d]) < 0.5:
+                at[d] = (*goal[d][:2], 0.0)  # landed there: out of the others' way
+            if at[d][2] == 0.0:
+                continue
+            end, _ = ways.clear(d, at[d], goal[d], {o: p for o, p in at.items() if o != d}, set(names), tick * TICK_S)
+            step = min(SPEED_M_S * TICK_S, math.dist(at[d], end))
+            if step > 0:
+                u = [(e - a) / math.dist(at[d], end) for a, e in zip(at[d], end, strict=True)]
+                at[d] = (at[d][0] + u[0] * step, at[d][1] + u[1] * step, at[d][2] + u[2] * step)
+        for (a, b), first in start.items():
+            if at[a][2] > 0 and at[b][2] > 0:
+                least = min(least, math.dist(at[a], at[b]) - min(first, 5.0))
+    return [at[d] for d in names], least
+
+
+@settings(max_examples=200, deadline=None)
+@given(n=st.integers(2, 4), spacing=st.floats(5.0, 7.0), rows=st.integers(1, 2), turn=st.floats(0, 360),
+       bearings=st.lists(st.floats(0, 360), min_size=4, max_size=4), out=st.floats(60, 200))
+def test_workers_that_took_off_side_by_side_all_get_out_and_never_close_in(
+        n: int, spacing: float, rows: int, turn: float, bearings: list[float], out: float) -> None:
+    """Workers standing a spawn gap apart in a row or a small grid, each sent to a
+    random bearing: every one reaches its goal (no ring waits for ever) and no two come
+    closer than 5 m, or than they took off, whichever is less."""
+    t = math.radians(turn)
+    spots = []
+    for i in range(n):
+        r, c = divmod(i, math.ceil(n / rows))
+        x, y = r * spacing, c * spacing
+        spots.append((x * math.cos(t) - y * math.sin(t), x * math.sin(t) + y * math.cos(t), 15.0))
+    goals = [(out * math.cos(math.radians(b)), out * math.sin(math.radians(b)), 15.0) for b in bearings[:n]]
+    assume(all(math.dist(g, h) > 2 * CLEAR_M for i, g in enumerate(goals) for h in goals[i + 1:]))
+    ends, least = _fly_crowd(spots, goals, ticks=int(3 * (out + 100) / (SPEED_M_S * TICK_S)))
+    assert least > -0.1  # each moves on where the others were a tick before: a few centimetres
+    assert all(math.dist(e[:2], g[:2]) < 0.5 for e, g in zip(ends, goals, strict=True)), list(zip(ends, goals, strict=True))

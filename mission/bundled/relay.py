@@ -224,8 +224,8 @@ def chain(drone):
         print(note)
     for rid, spot, hold in plan.moves:
         run(chain_go, crew[rid], spot, hold)
-    for spot, hold, key in plan.dispatch:
-        run(chain_dispatch, key, spot, hold)
+    for spot, hold, key, launcher in plan.dispatch:
+        run(chain_dispatch, key, spot, hold, launcher)
     for rid in plan.home:
         run(chain_home, crew[rid])
     for rid in plan.failed:
@@ -251,8 +251,8 @@ def outbound(relay):
     return state["duty"] + state["lanes"][relay.id] * TRANSIT_M
 
 
-def chain_dispatch(key, spot, hold):
-    relay = assign(any_relay)
+def chain_dispatch(key, spot, hold, launcher):
+    relay = assign(launcher)  # from where the plan found its column clear
     # Above every relay still out, also when sent again: its old, lower level had one
     # come down through the level of one flying out over its spot (corpus world 140).
     state["lanes"][relay.id] = max([n for r, n in state["lanes"].items() if r in crew], default=0) + 1

@@ -152,7 +152,7 @@ class CommandDelivery:
                 stuck_since = (stuck_since or now) if stuck else None
                 if stuck and stuck_since is not None and now - stuck_since >= LEASH_LIMIT_S:
                     raise self.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
-                if (sent is None or distance_m(lat, lon, *sent) > LEASH_STEP_M) and \
+                if (sent is None or distance_m(lat, lon, *sent) > LEASH_STEP_M or self._idle_at(drone_id, sent, (lat, lon))) and \
                         await self._leash_step(drone_id, {**body, "lat": lat, "lon": lon, **self._leg_level(drone_id, goal[2])}):
                     sent = (lat, lon)
                 await self.next_telemetry(drone_id)
@@ -160,6 +160,15 @@ class CommandDelivery:
             self.leashed.pop(drone_id, None)
         if said:
             self.log("info", f"{drone_id}: nothing holds it any more; going on to its goal")
+
+    def _idle_at(self, drone_id: str, sent: tuple[float, float], edge: tuple[float, float]) -> bool:
+        """The drone stands where its last leg took it and the edge moved, if less than
+        LEASH_STEP_M: a short leg is sent too (a drone just outside what covers it, told
+        back 1.3 m, was never sent and held to the time limit)."""
+        t = self.station.registry.telemetry(drone_id) if drone_id in self.station.registry else None
+        if t is None or t.position is None or distance_m(*edge, *sent) < 0.5:
+            return False
+        return distance_m(t.position.lat, t.position.lon, *sent) < LEASH_STEP_M
 
     def _leg_level(self, drone_id: str, alt: float | None) -> dict[str, float]:
         """A leg short of the goal keeps the drone's level when the goal is lower: the

@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from dronefleet.mission.lifecycle import assignment as a
 from dronefleet.mission.lifecycle.delivery import Leash
 from dronefleet.mission.script import units
 from dronefleet.mission.script.geo import Position, as_position
@@ -62,7 +63,9 @@ class ChainOrders:
     """One plan of mode "chain": what the plugin does now."""
 
     moves: list[tuple[str, Position, float]]  # (relay, spot, seconds a probe dwells there before coming back; 0: stays)
-    dispatch: list[tuple[Position, float, str]]  # (spot, dwell as above, the slot's key for `chain_joined`)
+    # (spot, dwell as above, the slot's key for `chain_joined`, what to assign: the free
+    # drone that may relay nearest the spot it is to take off from)
+    dispatch: list[tuple[Position, float, str, Any]]
     home: list[str]
     notes: list[str]
     failed: list[str]  # relays assigned that never took off: their slots are asked for again
@@ -227,12 +230,28 @@ class Relays:
             seen[rid] = chains.Seen(frame.local(d.position), _above(d, d.position.alt) or 0.0,
                                     link.loss if link is not None else None, link.rtt_ms if link is not None else None,
                                     fresh, link.hops if link is not None else None)
-        result = self._chains.plan(now, workers, seen, self.spare(), self._mesh_nodes(frame, set(seen) | set(self._served)))
+        result = self._chains.plan(now, workers, seen, self.spare(), self._mesh_nodes(frame, set(seen) | set(self._served)),
+                                   self._spare_spots(frame))
         return ChainOrders(
             moves=[(rid, frame.world(pt), hold) for rid, pt, hold in result.moves],
-            dispatch=[(frame.world(pt), hold, key) for key, pt, hold in result.dispatch],
+            dispatch=[(frame.world(pt), hold, key, self._launcher(frame, site)) for key, pt, hold, site in result.dispatch],
             home=result.home, notes=result.notes, failed=result.failed,
         )
+
+    def _spare_spots(self, frame: Frame) -> list[chains.Point]:
+        """Where the free drones that may relay stand."""
+        if self._mission is None:
+            return []
+        return [frame.local(Position(c.lat, c.lon)) for c in self._mission.free_candidates()
+                if c.relay and c.lat is not None and c.lon is not None]
+
+    @staticmethod
+    def _launcher(frame: Frame, site: chains.Point | None) -> a.Request:
+        """A drone that may relay; the one nearest `site` when the plan named where."""
+        if site is None:
+            return a.AnyRelay()
+        p = frame.world(site)
+        return a.AllOf((a.AnyRelay(), a.Near(p.lat, p.lon)))
 
     def _mesh_nodes(self, frame: Frame, besides: set[str]) -> list[tuple[chains.Point, float]]:
         """Every other drone the ground knows (spot, metres above field level): all route."""
