@@ -49,6 +49,7 @@ from dronefleet.bus.mesh_policy import (
     futile,
     rate,
 )
+from dronefleet.bus.sockets import shutdown_tcp_to
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
 from dronefleet.schemas.endpoints import ip_endpoint, plain_endpoint
 
@@ -212,10 +213,26 @@ class Neighbours:
         if zid in self._zid_of:
             self.free_zids.append(self._zid_of.pop(zid))
         log.info("%s: link through neighbour %s closed", self.drone_id, zid)
+        heard = self.heard.get(zid)
+        where = _host_port(heard.locator) if heard is not None else None
+        if where is not None:
+            # Its link first, at once: the session's own close takes ~10 s over a lossy
+            # hop and leaves the link open, unread, holding the neighbour (bus/sockets.py).
+            await asyncio.to_thread(shutdown_tcp_to, *where)
         try:
             await asyncio.to_thread(session.close)
         except zenoh.ZError:
             pass
+
+
+def _host_port(locator: str) -> tuple[str, int] | None:
+    """`tcp/10.231.0.5:7448` as ('10.231.0.5', 7448); None for what is not TCP over IPv4."""
+    proto, _, rest = locator.partition("/")
+    host, _, port = rest.split("#")[0].rpartition(":")
+    try:
+        return (str(ipaddress.IPv4Address(host)), int(port)) if proto in ("tcp", "tls") else None
+    except ValueError:
+        return None
 
 
 def new_bridge_zids() -> frozenset[str]:
