@@ -67,7 +67,7 @@ class LinkProber:
         """The probe to the ground now out has waited longer than a clean round trip
         takes (`bus.mesh_policy.RETRANSMITTED_MS`): it is lost or retransmitted, whatever
         its outcome. Waiting for that had a worker's link counted clean while its loss
-        climbed to 80 % (fast-time corpus, world 42)."""
+        climbed to 80 % (fast-time corpus)."""
         return self._ground_sent is not None and (now - self._ground_sent) * 1000 > RETRANSMITTED_MS
 
     def on_liveliness(self, key: str, alive: bool) -> None:

@@ -73,7 +73,7 @@ class Redeclarable:
 
     After the mesh routed a drone another way, the ground's router could hold no route
     to its `cmd` queryable while its telemetry flowed (twice in 5 real-packet runs of
-    corpus world 206, ADR 0003): a declaration is not always carried again over the new
+    one corpus world, ADR 0003): a declaration is not always carried again over the new
     way. `refresh` declares the other of two forms that match the same key (`K`, then
     `K/**`, a new resource to every router, so it travels the mesh anew), then
     undeclares the old one. While both are declared a query can reach both: for

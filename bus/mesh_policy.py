@@ -42,10 +42,10 @@ def good(answers: Sequence[bool], held: bool) -> bool:
     `HELD_WINDOW`. A scout and its Hello must both cross, so a clean hop (1 % loss)
     misses one round in fifty; two misses in five, a few times in a thousand rounds,
     had closed the only way of a relay chain to the ground for 6 s while it had another
-    good neighbour, the next relay out (fast-time corpus, world 31). A bridge to a
+    good neighbour, the next relay out (fast-time corpus). A bridge to a
     neighbour flying off still goes within a round of the two misses: a longer memory
     (7 of 10) kept a worker's hop back down its chain, the fewest-hop way, until it
-    was lost (world 13: 3 s unheard)."""
+    was lost (3 s unheard)."""
     return rate(answers) >= GOOD_RATE or (held and rate(answers, HELD_WINDOW) >= GOOD_RATE)
 
 
@@ -65,7 +65,7 @@ def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str], futile: set
     before others (unless `futile`: they did not bring the ground back, and other good
     ones are tried before them — a relay with three good neighbours held the worker and
     the relay beyond, equally good, and not the one toward the laptop, and its chain was
-    unheard 30 s; fast-time corpus, world 21), then best first, up to `MAX_BRIDGES`. Only when no neighbour is
+    unheard 30 s; fast-time corpus), then best first, up to `MAX_BRIDGES`. Only when no neighbour is
     good: the open bridges answering at least `KEEP_RATE` over the last rounds or
     `HELD_KEEP_RATE` over `HELD_WINDOW` stay (a drone's only way, 14 % loss, missed
     three scouts of five and was closed: unheard 6 s, relay mode measured in
@@ -97,7 +97,7 @@ def unsure(last_rtts_ms: Sequence[float | None]) -> bool:
     takes bridges to good neighbours *before* its direct link is lost, so that when its
     lease runs out (2 s of silence) the traffic has a way at once: waiting for the loss
     first, then a round to choose and a handshake, left a worker crossing the edge of
-    the laptop's range unheard for 4 s (fast-time corpus, world 6; ADR 0006)."""
+    the laptop's range unheard for 4 s (fast-time corpus, ADR 0006)."""
     return any(r is None or r > RETRANSMITTED_MS for r in list(last_rtts_ms)[-UNSURE_PROBES:])
 
 

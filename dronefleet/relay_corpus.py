@@ -35,9 +35,9 @@ MODES = {
 }
 CONNECTED_GAP_S = 3.0  # issue 32: a worker counts as connected while the ground hears it this often
 MIN_SEPARATION_M = 5.0
-# A mission's simulated time at most. Three workers each 500-750 m out whose spares
-# make one chain at a time take turns for it: worlds 9 and 159 finish at 2534 and
-# 2646 s and were cut at 2400 s (ADR 0006, eighth session).
+# A mission's simulated time at most. Three workers 500-750 m out whose spares make one
+# chain at a time take turns for it and finish at about 2500-2650 s, and were cut at
+# 2400 s (docs/bench/relay-lab-notes.md, eighth session).
 MAX_S = 3600.0
 
 

@@ -295,9 +295,9 @@ class Chains:
 
     def _learn(self, now: float, nodes: Sequence[tuple[Point, float]], seen: Mapping[str, Seen], out: ChainPlan) -> None:
         """The probe on its spot for a whole window proves its own hop to the laptop when
-        every answer came over that link (its report's `hops`; in world 63 the ring of
-        spares around the laptop made every trial prove only the hop through one of
-        them: 40 m on a radio good to 56), else the bottleneck of its best path to the
+        every answer came over that link (its report's `hops`; a ring of spares around
+        the laptop made every trial prove only the hop through one of them: 40 m on a
+        radio good to 56), else the bottleneck of its best path to the
         laptop; or, failing, that its own hop to the laptop does not hold
         (were that link lossless it would be up and, one hop being fewest, taken)."""
         slot = self.probe
@@ -518,12 +518,12 @@ class Chains:
         """The last relay of a chain its worker no longer needs goes home — when no
         other relay is climbing out or coming home: one crossing the levels at a time (a
         relay flying home on its level passed over one climbing from the ground, 1.4 m
-        apart: corpus world 99)."""
+        apart)."""
         hop = self.reach.lo * MARGIN
         held = self._spots()
-        # one going home counts out of reach too (world 107: a relay flying home lost its link,
-        # and the next one went); one of the plan's counts until it is on its spot (world 53:
-        # a relay climbing out passed the duty level as another was sent home over it)
+        # one going home counts out of reach too (a relay flying home lost its link, and the
+        # next one went); one of the plan's counts until it is on its spot (a relay climbing
+        # out passed the duty level as another was sent home over it)
         crossing = any(o.alt > 1.0 if rid not in held else o.fresh and not any(self._on_spot(o, p) for p in held[rid])
                        for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
         for w in workers:
@@ -533,7 +533,7 @@ class Chains:
             before = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain[:-1]]
             places = [w.at] + ([w.goal] if w.goal is not None else [])
             # on the ground going nowhere, it needs none (one landed at a home beyond the
-            # laptop's hop kept its relay on duty to the time limit: world 161)
+            # laptop's hop kept its relay on duty to the time limit)
             needed = not (w.alt < 1.0 and w.goal is None) and not all(covers(before, p, w.alt, hop) for p in places)
             rid = chain[-1].relay
             if needed:

@@ -12,7 +12,7 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
   there), or within AROUND_M of where any other drone is now (relays keep their own
   levels: relay/chain.py), or within CLEAR_M of the column of a relay sent from the
   ground or not yet above the worker's level, which climbs (or lands) through it (a
-  worker flew over a spare as it took off, 3.1 m from it: corpus worlds 81, 119, 135);
+  worker flew over a spare as it took off, 3.1 m from it);
 - cut to nothing, the worker waits where it is; the other drone's way clears as it
   flies (its remaining leg is from where it is now);
 - a worker already closer than that to another (they take off side by side) may fly
@@ -20,7 +20,7 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
 - two workers each waiting on the other: the first by name goes; a worker kept waiting
   YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is, and
   CLEAR_M from the way of one that set out meanwhile (two kept waiting as long went in
-  the same second and crossed 2.6 m apart: world 92); the later by name, if it still
+  the same second and crossed 2.6 m apart); the later by name, if it still
   cannot move, steps aside out of the other's way.
 """
 
@@ -94,7 +94,7 @@ class Ways:
         every other drone is; `workers`: the leashed drones (their legs are declared);
         `relays`: drones sent as relays (one still on the ground is about to take off);
         `launching`: a relay is asked for and not assigned yet (any drone on the ground
-        may be the one: a worker's leg was laid over a spare as it was assigned, world 137)."""
+        may be the one: a worker's leg was laid over a spare as it was assigned)."""
         self.wants[drone] = to
         top = max(at[2], to[2])
         obstacles: list[tuple[str, Point3, Point3, float, bool]] = []  # (drone, from, to, clearance, a way)
@@ -196,7 +196,7 @@ class Ways:
     def _aside(self, at: Point3, other: Point3, wants: Point3 | None, others: Mapping[str, Point3],
                drone: str) -> Point3:
         """Two drones that took off side by side and each want to pass where the other
-        is (corpus world 48 waited for ever): the later by name steps aside, across the
+        is (else both wait for ever): the later by name steps aside, across the
         way the other wants to go, until that way is CLEAR_M off; where the other wants
         to go nowhere, away from it. `at` when that step would come near another drone."""
         ox, oy = other[0], other[1]

@@ -254,7 +254,7 @@ def outbound(relay):
 def chain_dispatch(key, spot, hold, launcher):
     relay = assign(launcher)  # from where the plan found its column clear
     # Above every relay still out, also when sent again: its old, lower level had one
-    # come down through the level of one flying out over its spot (corpus world 140).
+    # come down through the level of one flying out over its spot.
     state["lanes"][relay.id] = max([n for r, n in state["lanes"].items() if r in crew], default=0) + 1
     crew[relay.id] = relay
     state["gone"].discard(relay.id)
@@ -274,7 +274,7 @@ def chain_go(relay, spot, hold, first=None):
     here = relay.position
     if first is None and hold == 0 and here.distance(spot) <= 3 and abs(here.alt - levels(relay, duty)) <= 2:
         # a renewal where it hovers: no climb to its level and back (it crossed the level of
-        # a relay flying by on it: corpus worlds 39, 60, 107)
+        # a relay flying by on it)
         plan = [steps.move(to=spot, alt=levels(relay, duty) * m)]
     else:
         plan = (first or []) + [steps.move(to=here, alt=levels(relay, up) * m),
@@ -290,8 +290,8 @@ def chain_go(relay, spot, hold, first=None):
     record = push(relay, plan, on_link_loss="continue", timeout=(CHAIN_DUTY_S + 300) * s)
     if record.state == "failed" and relay.id in crew and relay.id not in state["gone"]:
         # Its slot is asked for again. Seen: a relay sent home and at once again, armed
-        # still after landing, which PX4 then disarmed before its takeoff step (corpus
-        # world 63; the slot waited for it until the time limit).
+        # still after landing, which PX4 then disarmed before its takeoff step (the
+        # slot waited for it until the time limit).
         relays.chain_failed(relay.id)
         chain_failed(relay, f"its duty failed at step {record.step + 1} ({record.reason})")
 
@@ -333,7 +333,7 @@ def chain_leave(relay, why, keep_s=0):
 def come_down(relay):
     """Home on its own transit level, then down where no drone flies below it. (A return
     to launch flies a cone-limited altitude near home, where the relays' levels met:
-    two relays going home came within 2.6-3.9 m in corpus worlds 18, 42, 66, 85.)"""
+    two relays going home came within 2.6-3.9 m.)"""
     up = levels(relay, outbound(relay)) * m
     # One bundle: a relay whose chain went home before it flies on without the link.
     push(relay, [steps.move(to=relay.position, alt=up), steps.move(to=relays.landing_spot(relay), alt=up, speed=10 * m / s)],

@@ -61,6 +61,7 @@ RESUME_TRIES = 3
 HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
 ARRIVED_M, ARRIVED_S = 1.0, 10.0  # a goto whose drone stands this close to its target this long has ended
 LEASH_LIMIT_S = 120.0  # a goto held this long with no drone free for the relays it needs ends the mission
+HOLD_LIMIT_S = 600.0  # a goto held this long without its edge moving ends the mission, whatever holds it
 LEASH_STEP_M = 2.0  # a held goto is sent on when the edge moves this far
 
 
@@ -135,11 +136,14 @@ class CommandDelivery:
     async def _on_leash(self, drone_id: str, body: dict[str, Any]) -> None:
         """A goto beyond what the relays cover goes as far as they do, and on as they
         arrive (`leash`); held with no drone free for the relays it needs, for
-        LEASH_LIMIT_S, the mission ends `requirements` naming them."""
+        LEASH_LIMIT_S, the mission ends `requirements` naming them. Liveness (ADR 0006):
+        held for any reason with its edge never moving LEASH_STEP_M for HOLD_LIMIT_S,
+        the mission ends `requirements` saying what held it, never a silent hold."""
         goal = (float(body["lat"]), float(body["lon"]), float(body["alt"]) if "alt" in body else None)
         sent: tuple[float, float] | None = None
         said: str | None = None
         stuck_since: float | None = None
+        edge: tuple[float, float, float] | None = None  # where the edge stood, and since when
         try:
             while self.leash is not None and (verdict := self.leash(drone_id, *goal)) is not None:
                 lat, lon, stuck, why = verdict
@@ -152,6 +156,12 @@ class CommandDelivery:
                 stuck_since = (stuck_since or now) if stuck else None
                 if stuck and stuck_since is not None and now - stuck_since >= LEASH_LIMIT_S:
                     raise self.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
+                if edge is None or distance_m(lat, lon, edge[0], edge[1]) > LEASH_STEP_M:
+                    edge = (lat, lon, now)
+                elif now - edge[2] >= HOLD_LIMIT_S:
+                    raise self.fail("requirements", f"{drone_id} held {why} for {HOLD_LIMIT_S:g} s, "
+                                                    f"{distance_m(lat, lon, goal[0], goal[1]):.0f} m short of its goal"
+                                                    + (f": {stuck}" if stuck else ""))
                 if (sent is None or distance_m(lat, lon, *sent) > LEASH_STEP_M or self._idle_at(drone_id, sent, (lat, lon))) and \
                         await self._leash_step(drone_id, {**body, "lat": lat, "lon": lon, **self._leg_level(drone_id, goal[2])}):
                     sent = (lat, lon)
@@ -173,7 +183,7 @@ class CommandDelivery:
     def _leg_level(self, drone_id: str, alt: float | None) -> dict[str, float]:
         """A leg short of the goal keeps the drone's level when the goal is lower: the
         descent is the last leg's. (A goto home at field level, held 65 m short, flew its
-        leg down to the ground and could go no further: corpus world 53.)"""
+        leg down to the ground and could go no further.)"""
         t = self.station.registry.telemetry(drone_id) if drone_id in self.station.registry else None
         if alt is None or t is None or t.position is None or t.position.alt <= alt:
             return {}
@@ -319,7 +329,7 @@ class CommandDelivery:
         unanswered, it is sent again as a command is (the same bundle id: the agent runs
         it once). Sent once only, a relay's homeward bundle lost on a lossy hop unwound
         the plugin's routine and left the relay hovering on its spot, where another passed
-        1.1 m from it (corpus world 81)."""
+        1.1 m from it."""
         self.check_assigned(drone_id)
         self._pushed += 1  # fast time replays exactly: its ids come from the mission
         bundle_id = f"b-{self.id}-{self._pushed}" if self.deterministic else new_bundle_id()
@@ -346,7 +356,7 @@ class CommandDelivery:
         """Past its timeout (the agent ends it then) a bundle whose end was not heard is
         read from the agent's record, again every OVERDUE_RETRY_S: a relay's homeward
         bundle whose end went down with a lossy link kept its routine waiting to the
-        time limit, nothing else sent to it (corpus world 53)."""
+        time limit, nothing else sent to it."""
         await self.clock.sleep(max(0.0, pending.deadline - self.clock.monotonic()) + OVERDUE_S)
         while not pending.done.done():
             self._catch_up(pending)
@@ -355,7 +365,7 @@ class CommandDelivery:
     def _bundles_ended_by(self, drone_id: str, newer: str | None = None) -> None:
         """A command or bundle the drone accepted ends the bundle it was running (SPEC §6).
         Its own end may have gone down with a link that dropped (a relay's duty bundle:
-        corpus world 185 waited for one until the time limit): the agent's record of
+        its routine waited for that end until the time limit): the agent's record of
         every bundle of this mission still running there is read again."""
         for pending in list(self._bundles.values()):
             if pending.drone_id == drone_id and pending.bundle_id != newer and not pending.done.done():

@@ -286,7 +286,7 @@ class Relays:
             return None
         here = _above(d, d.position.alt) or 0.0
         # A leg short of a lower goal keeps the drone's level (the descent is the last leg's):
-        # judged at the goal's, a worker on its way home to the field was held for good (world 53).
+        # judged at the goal's, a worker on its way home to the field was held for good.
         above = max(_above(d, alt) or 0.0, here) if alt is not None else here
         goal = frame.local(Position(lat, lon))
         at = frame.local(d.position)
