@@ -186,6 +186,12 @@ def _names_auxiliary(request: Request) -> bool:
     return any(isinstance(p, (ById, ByRole, AnyRelay)) for p in parts_of(request))
 
 
+def relay_preference(c: Candidate) -> tuple[bool, bool]:
+    """Which free drones `any_relay` takes first (lowest): those declared for it, then
+    the auxiliary ones, then the others."""
+    return (RELAY not in c.roles, not c.auxiliary)
+
+
 def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
     """The best free drone for one request, or Unfulfilled."""
     parts = parts_of(request)
@@ -205,7 +211,7 @@ def choose(request: Request, free: Sequence[Candidate]) -> Candidate:
             raise Unfulfilled(request, "no free drone reports a position")
         return min(located, key=lambda c: (_distance(c, place.lat, place.lon), -c.battery, c.drone_id))
     if any(isinstance(p, AnyRelay) for p in parts):  # those declared for it, then the auxiliary ones, then the others
-        return min(fitting, key=lambda c: (RELAY not in c.roles, not c.auxiliary, len(c.sensors), -c.battery, c.drone_id))
+        return min(fitting, key=lambda c: (*relay_preference(c), len(c.sensors), -c.battery, c.drone_id))
     # Keep rare sensors, and the right to relay, free for whoever needs them.
     return min(fitting, key=lambda c: (len(c.sensors), c.relay, -c.battery, c.drone_id))
 

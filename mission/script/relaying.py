@@ -239,11 +239,14 @@ class Relays:
         )
 
     def _spare_spots(self, frame: Frame) -> list[chains.Point]:
-        """Where the free drones that may relay stand."""
+        """Where the free drones stand that `any_relay` would take first (those declared
+        for it, else the auxiliary ones, else any that may relay)."""
         if self._mission is None:
             return []
-        return [frame.local(Position(c.lat, c.lon)) for c in self._mission.free_candidates()
-                if c.relay and c.lat is not None and c.lon is not None]
+        able = [c for c in self._mission.free_candidates() if c.relay and c.lat is not None and c.lon is not None]
+        best = min(map(a.relay_preference, able), default=None)
+        return [frame.local(Position(c.lat, c.lon)) for c in able
+                if a.relay_preference(c) == best and c.lat is not None and c.lon is not None]
 
     @staticmethod
     def _launcher(frame: Frame, site: chains.Point | None) -> a.Request:
