@@ -214,25 +214,15 @@ class Neighbours:
             self.free_zids.append(self._zid_of.pop(zid))
         log.info("%s: link through neighbour %s closed", self.drone_id, zid)
         heard = self.heard.get(zid)
-        where = _host_port(heard.locator) if heard is not None else None
-        if where is not None:
+        where = ip_endpoint(heard.locator) if heard is not None else None
+        if where is not None and where[0] in ("tcp", "tls"):
             # Its link first, at once: the session's own close takes ~10 s over a lossy
             # hop and leaves the link open, unread, holding the neighbour (bus/sockets.py).
-            await asyncio.to_thread(shutdown_tcp_to, *where)
+            await asyncio.to_thread(shutdown_tcp_to, where[1], where[2])
         try:
             await asyncio.to_thread(session.close)
         except zenoh.ZError:
             pass
-
-
-def _host_port(locator: str) -> tuple[str, int] | None:
-    """`tcp/10.231.0.5:7448` as ('10.231.0.5', 7448); None for what is not TCP over IPv4."""
-    proto, _, rest = locator.partition("/")
-    host, _, port = rest.split("#")[0].rpartition(":")
-    try:
-        return (str(ipaddress.IPv4Address(host)), int(port)) if proto in ("tcp", "tls") else None
-    except ValueError:
-        return None
 
 
 def new_bridge_zids() -> frozenset[str]:

@@ -243,10 +243,10 @@ class Relays:
         for it, else the auxiliary ones, else any that may relay)."""
         if self._mission is None:
             return []
-        able = [c for c in self._mission.free_candidates() if c.relay and c.lat is not None and c.lon is not None]
-        best = min(map(a.relay_preference, able), default=None)
-        return [frame.local(Position(c.lat, c.lon)) for c in able
-                if a.relay_preference(c) == best and c.lat is not None and c.lon is not None]
+        able = [(a.relay_preference(c), c.lat, c.lon) for c in self._mission.free_candidates()
+                if c.relay and c.lat is not None and c.lon is not None]
+        best = min((rank for rank, _, _ in able), default=None)
+        return [frame.local(Position(lat, lon)) for rank, lat, lon in able if rank == best]
 
     @staticmethod
     def _launcher(frame: Frame, site: chains.Point | None) -> a.Request:
