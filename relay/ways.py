@@ -39,6 +39,7 @@ YIELD_LIMIT_S = 20.0
 FRESH_LEG_S = 2.0  # a way declared this lately is kept off even by a worker kept waiting
 SEARCH_STEPS = 12  # halvings of the leg when looking for its clear part
 MIN_LEG_M = 3.0  # a leg cut shorter than this does not get the drone anywhere (the leash sends legs of 2 m or more)
+NEAR_SLACK_M = 1e-6  # a drone already nearer than it should be may fly a leg this much nearer (rounding), no more: it crept 1 cm a tick
 
 
 def _sub(a: Point3, b: Point3) -> Point3:
@@ -118,7 +119,7 @@ class Ways:
             else:
                 self.legs.pop(o, None)  # landed: its way is flown
         # Already closer than that (workers take off side by side): not closer still.
-        near = [min(clear, segment_distance(at, at, a, b) - 0.01) for _, a, b, clear, _ in obstacles]
+        near = [min(clear, segment_distance(at, at, a, b) - NEAR_SLACK_M) for _, a, b, clear, _ in obstacles]
 
         def blocker(t: float, relaxed: bool) -> str | None:
             end = _along(at, to, t)
