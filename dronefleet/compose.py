@@ -43,7 +43,7 @@ from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.mesh_security import mesh_security
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.ground.api import create_app
-from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.config import DEFAULT_CEILING_M, GroundConfig
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
@@ -210,7 +210,7 @@ class SimField:
         self.config = ground_config or GroundConfig(data_dir=str(self.data_dir))
         self.agent_config = agent_config or AgentConfig(telemetry_rate_ms=telemetry_rate_ms)
         if world.geofence is not None:  # the world's fence, unless the caller set one
-            if self.config.geofence == Geofence():
+            if self.config.geofence == Geofence(max_alt_m=DEFAULT_CEILING_M):  # none configured
                 self.config = msgspec.structs.replace(self.config, geofence=world.geofence)
             if self.agent_config.geofence == Geofence():
                 self.agent_config = msgspec.structs.replace(self.agent_config, geofence=world.geofence)
@@ -360,7 +360,7 @@ class SimField:
         while not task.done():
             if self.clock.monotonic() - start >= max_s and not limited:
                 limited = True
-                message = f"simulation time limit of {max_s:g} s reached"
+                message = f"simulation time limit of {max_s:g} s reached" + self._still_doing(mission_id)
                 self.station.log_ground("warn", message)
                 self.manager.cancel(mission_id, "time_limit", message)
             self._fly_log()
@@ -368,6 +368,17 @@ class SimField:
         # One more telemetry period so the series shows the state the mission left.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000)
         return task.result()
+
+    def _still_doing(self, mission_id: str) -> str:
+        """What a mission's subroutines were doing when time ran out (a mission that waits
+        on the world — a sensor, a field alarm — says what for)."""
+        assert self.manager is not None
+        doing = []
+        for a in self.manager.lanes(mission_id).subroutines.values():
+            if a.event in ("waiting", "verb") and a.plugin is None:
+                what = f"waiting on {a.waiting_on}" if a.event == "waiting" and a.waiting_on else a.verb
+                doing.append(f"{a.name}: {what}" + (f" at line {a.line}" if a.line is not None else ""))
+        return f"; still running: {'; '.join(doing)}" if doing else ""
 
     async def until(self, predicate: Callable[[], bool], max_s: float = 600.0) -> None:
         """Let virtual time pass (in small steps) until `predicate` holds."""

@@ -20,6 +20,7 @@ from dronefleet.ground.cli import _cell, _fail, _request, aligned, auth_headers,
 
 EXIT_CODES = {"finished": 0, "failed": 1, "cancelled": 3}
 ENDED = frozenset(EXIT_CODES)
+PREFLIGHT_WAIT_S = 240.0  # the ground stops a preflight after 180 s (ground/planning.py) and may queue it behind another
 
 
 @click.group()
@@ -54,12 +55,20 @@ def outcome(record: dict[str, Any]) -> str:
 @click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--name", default="", help="A label for `fleet mission list` (default: the file name).")
 @click.option("--watch", "-w", is_flag=True, help="Print the mission's log until it ends; exit with its outcome.")
-def submit(url: str, script: Path, name: str, watch: bool) -> None:
-    """Send SCRIPT to the ground; prints the mission id."""
+@click.option("--no-preflight", is_flag=True,
+              help="Fly it without its preflight (fast time against the live fleet first); the ground logs that you did.")
+def submit(url: str, script: Path, name: str, watch: bool, no_preflight: bool) -> None:
+    """Send SCRIPT to the ground; prints the mission id.
+
+    The ground first flies it in fast time against the fleet as it is now (its
+    preflight): a mission that would fail is not flown, and this exits 1 naming the
+    line, the simulated time and the cause."""
     source = _read_script(script)
-    params = {"name": name or script.name}
+    params = {"name": name or script.name, "preflight": "false" if no_preflight else "true"}
+    if not no_preflight:
+        click.echo("preflight: flying it in fast time against the live fleet …", err=True)
     if not watch:
-        created = _request("POST", url, "/mission", content=source.encode(), params=params).json()
+        created = _submit(url, source, params)
         click.echo(created["mission_id"])
         return
     import httpx  # the ground extra
@@ -70,7 +79,7 @@ def submit(url: str, script: Path, name: str, watch: bool) -> None:
             "GET", url.rstrip("/") + "/events", params=[("types", "mission"), ("types", "mission_log")],
             timeout=httpx.Timeout(10.0, read=None), headers=auth_headers(),
         ) as stream:
-            created = _request("POST", url, "/mission", content=source.encode(), params=params).json()
+            created = _submit(url, source, params)
             mission_id = created["mission_id"]
             click.echo(f"mission {mission_id} submitted")
             for kind, data in _sse(stream.iter_lines()):
@@ -87,6 +96,20 @@ def submit(url: str, script: Path, name: str, watch: bool) -> None:
         click.echo(f"stopped watching; the mission goes on (cancel: fleet mission cancel {mission_id})", err=True)
         raise SystemExit(130) from None
     _fail("the ground closed the event stream before the mission ended")
+
+
+def _submit(url: str, source: str, params: dict[str, str]) -> dict[str, Any]:
+    created: dict[str, Any] = _request("POST", url, "/mission", content=source.encode(), params=params,
+                                       timeout=PREFLIGHT_WAIT_S).json()
+    if created.get("preflight"):
+        click.echo(_preflight_line(created["preflight"]), err=True)
+    return created
+
+
+def _preflight_line(p: dict[str, Any]) -> str:
+    left = ", ".join(f"{d} {b:.0%}" for d, b in sorted(p["battery_left"].items()) if b is not None)
+    return (f"preflight passed: {p['status']} {p.get('cause') or ''} after {p['t_s']:g} s simulated "
+            f"({p['wall_s']:.1f} s on the ground)" + (f"; battery left: {left}" if left else ""))
 
 
 def _sse(lines: Any) -> Any:
@@ -178,11 +201,17 @@ def import_(plan: Path, drone_id: str | None, out: Path | None, fence_out: Path 
 
 @mission.command()
 @click.argument("script", type=click.Path(exists=True, dir_okay=False, path_type=Path))
-def check(script: Path) -> None:
-    """Check SCRIPT statically (syntax and sandbox rules) without running it."""
-    from dronefleet.mission.script.sandbox import check_mission
+@click.option("--plugins-dir", type=click.Path(exists=True, file_okay=False, path_type=Path),
+              help="Also know the verbs of the plugin scripts in this directory (besides the bundled ones).")
+def check(script: Path, plugins_dir: Path | None) -> None:
+    """Check SCRIPT without running it: syntax, sandbox rules, names defined nowhere
+    (with the nearest known one), verbs called with arguments they do not take, a
+    drone's attributes and units where literals show them. What only flying shows is
+    the preflight's (`fleet mission submit`)."""
+    from dronefleet.mission.script.checks import check_script
+    from dronefleet.mission.script.plugins import PluginLibrary
 
-    problems = check_mission(_read_script(script), filename=str(script))
+    problems = check_script(_read_script(script), str(script), PluginLibrary.default(plugins_dir).verbs())
     for p in problems:
         click.echo(f"{script}:{p.line}:{p.column}: {p.kind} error: {p.message}", err=True)
     if problems:
@@ -216,8 +245,9 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     import logging
 
     from dronefleet.compose import simulate as run
+    from dronefleet.mission.script.checks import first_problem
     from dronefleet.mission.script.plugins import PluginLibrary, parse_enable, plugin_summary
-    from dronefleet.mission.script.sandbox import ScriptError, compile_mission
+    from dronefleet.mission.script.sandbox import ScriptError
     from dronefleet.schemas.config import writable_dir
     from dronefleet.sim.world import load_world
 
@@ -239,7 +269,7 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         enable[plugin_id] = plugin_inputs
     source = _read_script(script)
     try:
-        compile_mission(source, filename=str(script))
+        first_problem(source, str(script), library.verbs())
     except ScriptError as exc:
         _fail(f"{script}:{exc.line}:{exc.column}: {exc.message}")
     if not logging.getLogger().isEnabledFor(logging.DEBUG):  # the mission's own lines are echoed

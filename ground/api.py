@@ -34,11 +34,19 @@ from dronefleet.ground.config import ROLE_RANK, ApiToken
 from dronefleet.ground.dashboard_routes import DashboardAssets, dashboard_config, dashboard_file, index
 from dronefleet.ground.describe import Level
 from dronefleet.ground.eventlog import format_line
-from dronefleet.ground.plan_routes import Planner, check_mission_script, export_mission_plan, simulate_mission
+from dronefleet.ground.plan_routes import (
+    Planner,
+    check_mission_script,
+    export_mission_plan,
+    plugin_verbs,
+    simulate_mission,
+)
+from dronefleet.ground.preflight import Preflight, PreflightUnavailable, run_preflight
 from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
 from dronefleet.mission.lifecycle.record import Activity, MissionLogLine, MissionRecord
+from dronefleet.mission.script.checks import first_problem
 from dronefleet.mission.script.plugins import PluginListing
 from dronefleet.mission.script.qgc_plan import NotAPlan, import_plan
 from dronefleet.mission.script.sandbox import ScriptError
@@ -67,6 +75,7 @@ class DroneView(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
 
 class MissionCreated(msgspec.Struct, frozen=True, kw_only=True):
     mission_id: str
+    preflight: Preflight | None = None  # what the preflight predicted; None when skipped
 
 
 class PlanImported(msgspec.Struct, frozen=True, kw_only=True):
@@ -239,21 +248,45 @@ async def _text(request: Request[Any, Any, Any], what: str, detail: dict[str, An
 
 @post(
     "/mission", status_code=201, operation_class=text_operation("The mission script (Python DSL, SPEC §5), as text."),
-    responses=_errors(400, 413), summary="Submit a mission script; 201 with its id, 400 with line/column when it does not compile",
+    responses=_errors(400, 413, 422),
+    summary="Submit a mission script; 201 with its id and its preflight, 400 with line/column when its text is wrong, "
+            "422 when its preflight (fast time against the live fleet) fails or cannot run",
 )
 async def submit_mission(
     missions: MissionManager,
+    station: GroundStation,
+    planner: Planner,
     request: Request[Any, Any, Any],
     name: Annotated[str, Parameter(max_length=200, description="a label for lists")] = "",
+    preflight: Annotated[bool, Parameter(description="fly it in fast time against the live fleet first (false: "
+                                                     "skip on purpose, logged)")] = True,
 ) -> Response[MissionCreated]:
     source = await _text(request, "script", {"line": None, "column": None})
     if not isinstance(source, str):
         return source
+    verbs = plugin_verbs(missions)
     try:
-        record = missions.submit(source, name, submitted_by=_who(request))
+        first_problem(source, plugin_verbs=verbs)
     except ScriptError as exc:
         return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
-    return Response(MissionCreated(mission_id=record.mission_id), status_code=201)
+    report = None
+    if preflight and station.config.mission.preflight:
+        try:
+            report = await run_preflight(station, planner, source, verbs)
+        except PreflightUnavailable as exc:
+            return _error(422, f"preflight could not run: {exc} (submit with --no-preflight / ?preflight=false "  # type: ignore[return-value]
+                               "to fly it anyway)")
+        if not report.passed:
+            return _error(422, report.failure(), msgspec.to_builtins(report))  # type: ignore[return-value]
+    try:
+        record = missions.submit(source, name, submitted_by=_who(request),
+                                 notes=[report.summary()] if report is not None else None)
+    except ScriptError as exc:
+        return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
+    if not preflight:
+        station.log_ground("warn", f"Mission {record.mission_id} submitted without its preflight"
+                                   + (f" by {_who(request)}" if _who(request) else ""))
+    return Response(MissionCreated(mission_id=record.mission_id, preflight=report), status_code=201)
 
 
 @post(

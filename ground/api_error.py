@@ -23,6 +23,7 @@ REASONS = {
     404: "no such drone, field sensor, mission or route",
     409: "the drone cannot run this command now, or the mission already ended (reason given)",
     413: "the script is too large",
+    422: "the mission's preflight (fast time against the live fleet) failed, naming line, simulated time and cause; or it could not run",
     502: "the agent answered with an error",
     503: "the ground is busy with another simulation, or a simulation ran out of time",
     504: "the drone's agent did not answer (unreachable)",

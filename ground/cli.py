@@ -45,7 +45,7 @@ def _request(method: str, url: str, path: str, **kwargs: Any) -> httpx.Response:
 
     kwargs["headers"] = {**kwargs.get("headers", {}), **auth_headers()}
     try:
-        response = httpx.request(method, url.rstrip("/") + path, timeout=10.0, **kwargs)
+        response = httpx.request(method, url.rstrip("/") + path, **{"timeout": 10.0, **kwargs})
     except httpx.TransportError as exc:
         _fail(f"cannot reach the ground at {url}: {exc} (is `fleet ground` running? see --url)")
     if response.status_code >= 400:

@@ -60,6 +60,8 @@ class DashboardSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
             raise ValueError(f"dashboard.tiles must contain {', '.join(missing)} (e.g. https://tiles.example/{{z}}/{{x}}/{{y}}.png)")
 
 
+DEFAULT_CEILING_M = 120.0  # geofence.max_alt_m when the configuration gives none (m above home)
+
 Role = Literal["viewer", "operator", "admin"]
 ROLE_RANK: dict[str, int] = {"viewer": 0, "operator": 1, "admin": 2}
 
@@ -107,7 +109,9 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     event_telemetry_ms: Annotated[int, Meta(ge=0, le=60_000)] = 500  # /events: one telemetry per drone per period
     command_timeout_ms: Annotated[int, Meta(ge=100, le=60_000)] = 3000  # waiting for an agent's reply
     link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
-    geofence: Geofence = msgspec.field(default_factory=Geofence)  # SPEC §11: refused at the ground (409 geofence)
+    # SPEC §11: refused at the ground (409 geofence). With no max_alt_m, DEFAULT_CEILING_M:
+    # most airspace rules stop at 120 m above ground; a site that may go higher says so.
+    geofence: Geofence = msgspec.field(default_factory=Geofence)
     security: Security = msgspec.field(default_factory=Security)  # SPEC §9: sign every command and bundle
     api: ApiSettings = msgspec.field(default_factory=ApiSettings)  # SPEC §9: bearer tokens and roles
     dashboard: DashboardSettings = msgspec.field(default_factory=DashboardSettings)  # SPEC §10: the web page at GET /
@@ -116,6 +120,9 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
         check_endpoints(listen=self.listen)
         if self.battery.critical > self.battery.low:
             raise ValueError("battery.critical must not exceed battery.low")
+        if self.geofence.max_alt_m is None:
+            msgspec.structs.force_setattr(self, "geofence",
+                                          msgspec.structs.replace(self.geofence, max_alt_m=DEFAULT_CEILING_M))
 
     @property
     def plugins_path(self) -> Path:

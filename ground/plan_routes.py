@@ -4,6 +4,8 @@ before anything flies (ground/planning.py does the work)."""
 
 from __future__ import annotations
 
+import asyncio
+from pathlib import Path
 from typing import Any
 
 from litestar import Request, Response, post
@@ -11,18 +13,26 @@ from litestar import Request, Response, post
 from dronefleet.ground.api_error import error_response, error_specs, json_operation, text_operation
 from dronefleet.ground.planning import ExportBody, Prediction, SimulateBody, decode_body, live_world, predict
 from dronefleet.ground.station import GroundStation
+from dronefleet.mission.hosting.manager import MissionManager
+from dronefleet.mission.script.checks import check_script, first_problem
 from dronefleet.mission.script.qgc_plan import Waypoint, export_plan
-from dronefleet.mission.script.sandbox import ScriptError, check_mission, compile_mission
+from dronefleet.mission.script.sandbox import ScriptError
 from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.sim.world import World
 
 MAX_BODY_BYTES = 256 * 1024
 
 
 class Planner:
-    """One prediction at a time: each takes a core of the ground's machine for seconds."""
+    """One prediction at a time: each takes a core of the ground's machine for seconds
+    (the planner's are refused while one runs; a submission's preflight waits its turn)."""
 
     def __init__(self) -> None:
-        self.busy = False
+        self.lock = asyncio.Lock()
+
+
+def plugin_verbs(missions: MissionManager) -> frozenset[str]:
+    return missions.plugins.verbs() if missions.plugins is not None else frozenset()
 
 
 async def _body(request: Request[Any, Any, Any]) -> bytes | Response[Any]:
@@ -34,43 +44,54 @@ async def _body(request: Request[Any, Any, Any]) -> bytes | Response[Any]:
 
 @post("/mission/check", status_code=200, responses=error_specs(413),
       operation_class=text_operation("A mission script (Python DSL, SPEC §5), as text."),
-      summary="Check a mission script without running it: every syntax and sandbox problem with its line and column")
-async def check_mission_script(request: Request[Any, Any, Any]) -> Response[Any]:
+      summary="Check a mission script without running it: every syntax, sandbox, name, call and unit problem "
+              "with its line and column")
+async def check_mission_script(missions: MissionManager, request: Request[Any, Any, Any]) -> Response[Any]:
     body = await _body(request)
     if not isinstance(body, bytes):
         return body
     source = body.decode("utf-8", "replace")
-    problems = [p.detail() for p in check_mission(source)]
+    problems = [p.detail() for p in check_script(source, plugin_verbs=plugin_verbs(missions))]
     return Response({"ok": not problems, "problems": problems})
 
 
 @post("/mission/simulate", status_code=200, responses=error_specs(400, 413, 503),
       operation_class=json_operation(SimulateBody, "The script and how much simulated time it may take (s)."),
       summary="Fly a script in fast time against the live fleet (positions, batteries, fence); nothing flies")
-async def simulate_mission(station: GroundStation, planner: Planner, request: Request[Any, Any, Any]) -> Response[Prediction]:
+async def simulate_mission(station: GroundStation, planner: Planner, missions: MissionManager,
+                           request: Request[Any, Any, Any]) -> Response[Prediction]:
     body = await _body(request)
     if not isinstance(body, bytes):
         return body
     try:
         wanted: SimulateBody = decode_body(body, SimulateBody, "simulate")
-        compile_mission(wanted.source)
-        reg = station.registry
-        gs = station.config.dashboard.ground_station
-        world = live_world([(reg.info(d), reg.telemetry(d)) for d in reg.ids()], station.config.geofence,
-                           (gs.lat, gs.lon) if gs is not None else None)
+        first_problem(wanted.source, plugin_verbs=plugin_verbs(missions))
+        world = live_world_of(station)
     except ScriptError as exc:
         return error_response(400, str(exc), exc.detail())  # type: ignore[return-value]
     except InvalidMessage as exc:
         return error_response(400, exc.reason, {"field": exc.field})  # type: ignore[return-value]
-    if planner.busy:
+    if planner.lock.locked():
         return error_response(503, "another simulation is running on the ground; try again when it ends")  # type: ignore[return-value]
-    planner.busy = True
-    try:
-        return Response(await predict(wanted.source, world, wanted.max_s))
-    except (TimeoutError, InvalidMessage) as exc:
-        return error_response(503, str(exc))  # type: ignore[return-value]
-    finally:
-        planner.busy = False
+    async with planner.lock:
+        try:
+            return Response(await predict(wanted.source, world, wanted.max_s, plugins_dir(station)))
+        except (TimeoutError, InvalidMessage) as exc:
+            return error_response(503, str(exc))  # type: ignore[return-value]
+
+
+def plugins_dir(station: GroundStation) -> Path | None:
+    """The ground's own plugins (besides the bundled ones), for a prediction to load too."""
+    path = station.config.plugins_path.expanduser()
+    return path if path.is_dir() else None
+
+
+def live_world_of(station: GroundStation) -> World:
+    """The world of a prediction: the fleet as the ground knows it now."""
+    reg = station.registry
+    gs = station.config.dashboard.ground_station
+    return live_world([(reg.info(d), reg.telemetry(d)) for d in reg.ids()], station.config.geofence,
+                      (gs.lat, gs.lon) if gs is not None else None, station.config.mission.flight_drain_per_s)
 
 
 @post("/mission/plan/export", status_code=200, responses=error_specs(400, 413),

@@ -27,7 +27,7 @@ from msgspec import Meta
 
 from dronefleet.schemas.about import Role
 from dronefleet.schemas.errors import InvalidMessage
-from dronefleet.sim.world import DroneSpec, Spot, World
+from dronefleet.sim.world import BatteryModel, DroneSpec, Spot, World
 
 log = logging.getLogger(__name__)
 SIMULATION_WALL_S = 180.0  # a prediction that takes longer on this machine is stopped
@@ -88,9 +88,11 @@ def decode_body(body: bytes, kind: type[Any], what: str) -> Any:
         raise InvalidMessage(f"{what}: not JSON: {exc}") from None
 
 
-def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float, float] | None) -> World:
+def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float, float] | None,
+               drain_per_s: float = BatteryModel().drain_per_s) -> World:
     """The world of a prediction from (DroneInfo, Telemetry) pairs: drones without a
-    position are left out (nothing to fly from)."""
+    position are left out (nothing to fly from). Batteries drain `drain_per_s` in flight
+    down to empty (no floor: a real pack runs out)."""
     specs = []
     for info, telem in drones:
         pos = telem.position if telem is not None else None
@@ -107,7 +109,8 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
     origin = Spot(lat=specs[0].lat or 0.0, lon=specs[0].lon or 0.0, alt=specs[0].alt or 0.0)
     station = Spot(lat=ground[0], lon=ground[1]) if ground else None
     fence = geofence if geofence is not None and (geofence.polygon or geofence.max_alt_m is not None) else None
-    return World(origin=origin, ground_station=station, drones=specs, geofence=fence)
+    return World(origin=origin, ground_station=station, drones=specs, geofence=fence,
+                 battery=BatteryModel(drain_per_s=drain_per_s, floor=0.0))
 
 
 def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -> Prediction:
@@ -133,8 +136,10 @@ def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -
                       duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:])
 
 
-async def predict(source: str, world: World, max_s: float, wall_s: float = SIMULATION_WALL_S) -> Prediction:
-    """Run `fleet mission simulate` on `source` in `world` in a child process."""
+async def predict(source: str, world: World, max_s: float, plugins_dir: Path | None = None,
+                  wall_s: float = SIMULATION_WALL_S) -> Prediction:
+    """Run `fleet mission simulate` on `source` in `world` in a child process, with the
+    bundled plugins and those in `plugins_dir`."""
     import yaml
 
     with tempfile.TemporaryDirectory(prefix="fleet-predict-") as tmp:
@@ -142,7 +147,8 @@ async def predict(source: str, world: World, max_s: float, wall_s: float = SIMUL
         (d / "plan.py").write_text(source, encoding="utf-8")
         (d / "world.yml").write_text(yaml.safe_dump(msgspec.to_builtins(world)), encoding="utf-8")
         args = [sys.executable, "-m", "dronefleet", "mission", "simulate", str(d / "plan.py"), "--world", str(d / "world.yml"),
-                "--out", str(d / "out"), "--max-time", str(max_s), "--no-plots"]
+                "--out", str(d / "out"), "--max-time", str(max_s), "--no-plots",
+                *(["--plugins-dir", str(plugins_dir)] if plugins_dir is not None else [])]
         started = time.monotonic()
         proc = await asyncio.create_subprocess_exec(*args, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
                                                     stderr=asyncio.subprocess.STDOUT)

@@ -30,6 +30,13 @@ class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     # may allocate beyond the runtime's own memory, and the CPU time it may use in all.
     max_memory_mb: Annotated[int, Meta(ge=16, le=1_048_576)] = 1024
     max_cpu_s: Annotated[float, Meta(ge=1, le=1_000_000)] = 3600.0
+    # Before a submitted mission flies, the ground flies it in fast time against the live
+    # fleet (ground/preflight.py); one that fails is refused (422). Simulated seconds it may run.
+    preflight: bool = True
+    preflight_max_s: Annotated[float, Meta(ge=10, le=86_400)] = 1800.0
+    # What a predicted flight drains from a battery, a fraction per second in the air (the
+    # preflight's and the planner's; 0.0008: a full pack lasts about 20 minutes of flight).
+    flight_drain_per_s: Annotated[float, Meta(ge=0, le=0.1)] = 0.0008
 
 
 class Security(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

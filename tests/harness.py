@@ -218,6 +218,9 @@ class GroundProcess(ChildProcess):
         self.url = f"http://127.0.0.1:{self.http_port}"
         self.data_dir = data_dir or tmp / "ground-data"
         cfg = tmp / f"ground-{self.http_port}.yml"
+        # Missions here are tested for how they fly; each submission's preflight (fast time
+        # against the live fleet first, on by default) is tested in test_preflight.py.
+        config = {**config, "mission": {"preflight": False, **config.get("mission", {})}}
         cfg.write_text(yaml.safe_dump(config))
         super().__init__(
             fleet_command(

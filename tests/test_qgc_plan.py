@@ -22,6 +22,7 @@ from dronefleet.ground.config import GroundConfig
 from dronefleet.mission.script.qgc_plan import NotAPlan, Waypoint, export_plan, import_plan
 from dronefleet.mission.script.sandbox import check_mission
 from dronefleet.schemas.config import load_config
+from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import fleet_command
@@ -115,7 +116,9 @@ async def test_qgroundcontrols_own_plan_flies_to_its_end_through_every_waypoint_
     imported = import_plan(QGC_PLAN.read_text(), "drone01")
     assert [line.split(":")[0] for line in imported.left_out] == ["item 5", "item 6", "item 8"]
     assert len(imported.waypoints) == 5 and imported.end == "land"
-    field = SimField(World(origin=Spot(lat=lat, lon=lon, alt=alt), drones=[DroneSpec(id="drone01")]), 1)
+    # its waypoints reach 150 m above home: a site that allows that says so (the default ceiling is 120 m)
+    world = World(origin=Spot(lat=lat, lon=lon, alt=alt), drones=[DroneSpec(id="drone01")], geofence=Geofence(max_alt_m=200))
+    field = SimField(world, 1)
     await field.start()
     try:
         record = await field.run_mission(imported.script, max_s=3600)

@@ -298,7 +298,8 @@ export class Planner {
   async submit() {
     if (!(await this.ready())) return;
     const r = await call("POST", "/mission", { text: $("plan-script").value });
-    $("plan-status").textContent = r.ok ? `submitted as mission ${r.data.mission_id}` : r.message;
+    const pre = r.ok && r.data.preflight ? ` (preflight passed: ${r.data.preflight.t_s} s simulated)` : "";
+    $("plan-status").textContent = r.ok ? `submitted as mission ${r.data.mission_id}${pre}` : r.message;
     if (r.ok) this.submitted = r.data.mission_id;
   }
 

@@ -26,6 +26,7 @@ from dronefleet.mission.hosting.isolation import IsolatedMission
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import Activity, CommandResult, MissionLogLine, MissionRecord
+from dronefleet.mission.script.checks import first_problem
 from dronefleet.mission.script.plugins import PluginLibrary
 from dronefleet.mission.script.sandbox import compile_mission
 from dronefleet.mission.script.script import ScriptMission
@@ -177,15 +178,19 @@ class MissionManager:
     # ---- operations ----------------------------------------------------------------
 
     def submit(self, source: str, name: str = "", enable: dict[str, dict[str, Any]] | None = None,
-               submitted_by: str | None = None) -> MissionRecord:
-        """Compile (ScriptError → 400 with line/column), record as pending, start.
+               submitted_by: str | None = None, notes: builtins.list[str] | None = None) -> MissionRecord:
+        """Check and compile (ScriptError → 400 with line/column), record as pending, start.
 
         `enable` maps plugin ids to inputs, enabled before the script's first line
-        (`fleet mission simulate --enable`)."""
+        (`fleet mission simulate --enable`); `notes` are its log's first lines (the
+        preflight's prediction)."""
         mission_id = self.store.next_id()
+        first_problem(source, f"<mission {mission_id}>", self.plugins.verbs() if self.plugins is not None else ())
         code = compile_mission(source, filename=f"<mission {mission_id}>")
         record = MissionRecord(mission_id=mission_id, name=name, submitted_by=submitted_by)
         self.store.create(record, source)
+        for note in notes or []:
+            self.store.append(mission_id, MissionLogLine(timestamp=self.clock.time_ms(), level="info", message=note))
         if submitted_by is not None:  # the audit trail (SPEC §9)
             self.station.log_ground("info", f"Mission {mission_id} submitted by {submitted_by}")
         mission: Running

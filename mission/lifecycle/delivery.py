@@ -487,10 +487,16 @@ async def leave(station: FleetPort, mission_id: str, drone_id: str, *, critical:
             # Never hold a drone on its way home (outside a fence, say). On the ground a
             # cancel is harmless and clears a return whose end the ground never heard.
             action = "cancel"
+        pos = telem.position
+        where = f"at {pos.lat:.6f}, {pos.lon:.6f}, {pos.rel_alt:.1f} m above home" if pos is not None else "(no position)"
         if action is not None:
             try:
                 await station.command(drone_id, json.dumps({"cmd": action}).encode(), mission_id)
-                log("info", f"{drone_id}: {'return to launch' if action == 'return' else 'hold'} at mission end")
+                log("info", f"{drone_id}: {'return to launch' if action == 'return' else 'hold'} at mission end, {where}")
             except Exception as exc:  # noqa: BLE001 - the drone is released anyway
-                log("warn", f"{drone_id}: could not {action} at mission end: {exc}")
+                log("warn", f"{drone_id}: could not {action} at mission end ({exc}): left {where}")
+        elif flying:
+            homeward = telem.flight_mode in ("return_to_launch", "land") or (
+                info.current_command is not None and info.current_command.command in HOMEWARD)
+            log("info", f"{drone_id}: left {'on its way down or home' if homeward else 'hovering'} at mission end, {where}")
     station.release(drone_id)

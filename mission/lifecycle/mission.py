@@ -91,6 +91,7 @@ class Mission(CommandDelivery):
         # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
         self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
         self._doing: dict[str, tuple[Any, ...]] = {}  # subroutine → what it last reported
+        self._drones_of: dict[str, tuple[str, ...]] = {}  # subroutine → the drones its last verb on drones acted on
         self._heard_at: dict[str, float] = {}  # drone id → when its telemetry last came (mission clock)
         # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
         # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
@@ -120,6 +121,8 @@ class Mission(CommandDelivery):
         if self._doing.get(sub.sid) == doing:
             return
         self._doing[sub.sid] = doing
+        if drones:
+            self._drones_of[sub.sid] = tuple(drones)
         self._activity(sub, event, verb=verb, line=line, drones=drones or [], waiting_on=waiting_on)
 
     def _started_or_ended(self, event: str, sub: Subroutine) -> None:
@@ -246,7 +249,9 @@ class Mission(CommandDelivery):
         elif isinstance(exc, Exception) and in_plugin:
             self.end("plugin_error", f"{prefix}{type(exc).__name__}: {exc} (in {sub.name})")
         elif isinstance(exc, Exception):  # UnitError, NameError, ZeroDivisionError, …
-            self.end("script", f"{prefix}{type(exc).__name__}: {exc}" + ("" if sub.name == "main" else f" (in subroutine {sub.name})"))
+            drones = self._drones_of.get(sub.sid, ())
+            self.end("script", f"{prefix}{type(exc).__name__}: {exc} (in subroutine {sub.name}"
+                               + (f", on {', '.join(drones)})" if drones else ")"))
         else:
             self.end("unexpected", f"{prefix}{type(exc).__name__}: {exc}")
 

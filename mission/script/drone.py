@@ -122,9 +122,14 @@ def reading_value(reading: Any, declared: frozenset[str] = frozenset()) -> Any:
     return reading.value
 
 
+class NoSuchSensor(AttributeError):
+    """A script read a sensor its drone does not carry (`hasattr(d.sensor, "gas")` is False)."""
+
+
 class SensorView:
     """`drone.sensor.temperature`: the latest reading of that type (a number, or for a
-    sensor declared with fields an object of them: `drone.sensor.gas.co_ppm`), or None."""
+    sensor declared with fields an object of them: `drone.sensor.gas.co_ppm`), None
+    before the first; NoSuchSensor when the drone carries no such sensor."""
 
     __slots__ = ("_drone",)
 
@@ -139,6 +144,10 @@ class SensorView:
         for reading in registry.sensor_readings(drone_id):
             if reading.type == kind:
                 return reading_value(reading, frozenset(declared.fields) if declared else frozenset())
+        carried = registry.info(drone_id).sensors
+        if kind not in carried and declared is None:
+            raise NoSuchSensor(f"{drone_id} carries no {kind} sensor (it carries: {', '.join(carried) or 'none'}); "
+                               f"assign(sensor={kind!r}) picks a drone that does")
         return None
 
 

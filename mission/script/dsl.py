@@ -12,6 +12,7 @@ describes instead of accumulating each stop's acceptance-radius error.
 from __future__ import annotations
 
 import asyncio
+import inspect
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -29,6 +30,7 @@ from dronefleet.mission.script.names import VERBS, common_names, near_place
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
 from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal
+from dronefleet.mission.script.units import Angle, Distance, Duration, Speed
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
 
@@ -38,32 +40,37 @@ if TYPE_CHECKING:
 DEFAULT_BUNDLE_TIMEOUT_S = 600.0  # push(timeout=…): how long a bundle may run before the drone gives up
 
 
-def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
-    """The globals one mission script runs with."""
-    m = mission
-    clock = mission.clock
+class Verbs:
+    """The DSL's verbs (SPEC §5) for one mission: each public method is the verb of its
+    name (`names.VERBS`), as scripts call it; their signatures are what `fleet mission
+    check` holds calls to (mission/script/checks.py)."""
 
-    def drone_id(d: Any) -> str:
+    def __init__(self, mission: ScriptMission) -> None:
+        self.m = mission
+        self.base: dict[str, Any] = {}  # what a plugin enabled by this mission sees
+        self.namespace: dict[str, Any] = {}  # the script's globals
+
+    def _drone_id(self, d: Any) -> str:
         if not isinstance(d, Drone):
             raise TypeError(f"expected a drone (from assign), got {d!r}")
         return d._live()
 
-    def send(d: Drone, body: dict[str, Any], wait: bool = True, wait_clear: bool = False) -> Any:
-        target, generation = drone_id(d), d._gen
-        status = call(m, m.execute(target, body, wait=wait, wait_clear=wait_clear))
+    def _send(self, d: Drone, body: dict[str, Any], wait: bool = True, wait_clear: bool = False) -> Any:
+        target, generation = self._drone_id(d), d._gen
+        status = call(self.m, self.m.execute(target, body, wait=wait, wait_clear=wait_clear))
         if wait and d._gen != generation and status.state not in COMPLETED:
             # `replace` swapped the drone while it ran this command (the return home
             # superseded it): the new drone, once in place, does it instead.
-            target = drone_id(d)
-            m.log("info", f"{target} takes over the interrupted {body['cmd']}")
-            status = call(m, m.execute(target, body, wait=True))
+            target = self._drone_id(d)
+            self.m.log("info", f"{target} takes over the interrupted {body['cmd']}")
+            status = call(self.m, self.m.execute(target, body, wait=True))
         if wait:  # the wrapper then shows the effect (telemetry after completion)
-            call(m, m.next_telemetry(d._live()))
+            call(self.m, self.m.next_telemetry(d._live()))
         return status
 
     # ---- assignment ----------------------------------------------------------------
 
-    def request_of(item: Any) -> a.Request:
+    def _request_of(self, item: Any) -> a.Request:
         if isinstance(item, str):
             return a.ById(item)
         if item is any_drone or item is None:
@@ -73,12 +80,12 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         raise TypeError("assign: expected a drone id, any_drone, any_relay, with_sensors(…), near(…), of_kind(…) "
                         f"or with_role(…), got {item!r}")
 
-    def assign(*items: Any, sensor: str | None = None, sensors: list[str] | None = None,
+    def assign(self, *items: Any, sensor: str | None = None, sensors: list[str] | None = None,
                near: Any = None, kind: str | None = None, role: str | None = None) -> Any:
         """Positional items ask for one drone each; the keywords together describe one
         drone more (`assign(sensor="gas", role="survey", near=pos)`: the nearest survey
         drone carrying gas)."""
-        requests = [request_of(i) for i in items]
+        requests = [self._request_of(i) for i in items]
         described: list[a.Part] = []
         if sensor is not None or sensors is not None:
             described.append(a.BySensors(frozenset(([sensor] if sensor else []) + list(sensors or []))))
@@ -94,16 +101,16 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             requests.extend(described)
         if not requests:
             requests = [a.AnyDrone()]
-        drones = [Drone(m, i) for i in call(m, m.assign(requests))]
+        drones = [Drone(self.m, i) for i in call(self.m, self.m.assign(requests))]
         for wrapper in drones:
-            m.add_wrapper(wrapper)
+            self.m.add_wrapper(wrapper)
         return drones[0] if len(drones) == 1 else tuple(drones)
 
-    def revoke(d: Drone) -> None:
-        m.revoke(drone_id(d))
-        m.drop_wrapper(d)
+    def revoke(self, d: Drone) -> None:
+        self.m.revoke(self._drone_id(d))
+        self.m.drop_wrapper(d)
 
-    def replace(d: Drone) -> Drone:
+    def replace(self, d: Drone) -> Drone:
         """Send `d` home and put the closest free drone in its place, same wrapper.
 
         A flying drone is handed over: the new one arms, takes off to the old one's
@@ -112,10 +119,10 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         wrapper waits, and a command the old drone was running when it was sent home
         is done again by the new one — so a survey continues where it was cut.
         """
-        old = drone_id(d)
-        new = m.replacement_for(old)
-        request = m.requests[old]
-        t = m.station.registry.telemetry(old)
+        old = self._drone_id(d)
+        new = self.m.replacement_for(old)
+        request = self.m.requests[old]
+        t = self.m.station.registry.telemetry(old)
         flying = t.armed and t.landed_state != "on_ground"
         stop_at = d._anchored() or d.position
         height = d.rel_alt
@@ -123,24 +130,24 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         d._handover = asyncio.get_running_loop().create_future()
         d._handover_owner = getcurrent()
         try:
-            send(d, {"cmd": "return"}, wait=False)
-            m.revoke(old)
+            self._send(d, {"cmd": "return"}, wait=False)
+            self.m.revoke(old)
             try:
-                call(m, m.take(new, request))
+                call(self.m, self.m.take(new, request))
             except CommandRejected as exc:  # another mission claimed it first (missions in their own processes)
-                raise m.fail("requirements", f"{new} could not replace {old}: {exc.reason}") from None
+                raise self.m.fail("requirements", f"{new} could not replace {old}: {exc.reason}") from None
             d._id = new
             d._anchor = None
             if not flying:
-                m.log("info", f"Replaced {old} with {new}")
+                self.m.log("info", f"Replaced {old} with {new}")
                 return d
-            m.log("info", f"Replaced {old} with {new}: {new} takes over at {stop_at.lat:.6f}, {stop_at.lon:.6f}")
-            arm(d)
-            takeoff(d, max(height, MIN_HANDOVER_HEIGHT_M))
+            self.m.log("info", f"Replaced {old} with {new}: {new} takes over at {stop_at.lat:.6f}, {stop_at.lon:.6f}")
+            self.arm(d)
+            self.takeoff(d, max(height, MIN_HANDOVER_HEIGHT_M))
             body: dict[str, Any] = {"cmd": "goto", "lat": stop_at.lat, "lon": stop_at.lon, "alt": stop_at.alt}
             if stop_at.heading is not None:
                 body["yaw"] = stop_at.heading
-            send(d, body)
+            self._send(d, body)
             d._anchor = stop_at
             return d
         finally:
@@ -150,28 +157,28 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
 
     # ---- commands ------------------------------------------------------------------
 
-    def arm(d: Drone) -> None:
-        send(d, {"cmd": "arm"})
+    def arm(self, d: Drone) -> None:
+        self._send(d, {"cmd": "arm"})
 
-    def disarm(d: Drone) -> None:
-        send(d, {"cmd": "disarm"})
+    def disarm(self, d: Drone) -> None:
+        self._send(d, {"cmd": "disarm"})
 
-    def takeoff(d: Drone, alt: Any = None) -> None:
-        send(d, altitude_body("takeoff", alt))
+    def takeoff(self, d: Drone, alt: Distance = None) -> None:
+        self._send(d, altitude_body("takeoff", alt))
         d._anchor = None
 
-    def land(d: Drone) -> None:
-        send(d, {"cmd": "land"})
+    def land(self, d: Drone) -> None:
+        self._send(d, {"cmd": "land"})
         d._anchor = None
 
-    def home(d: Drone, alt: Any = None) -> None:
-        send(d, altitude_body("return", alt))
+    def home(self, d: Drone, alt: Distance = None) -> None:
+        self._send(d, altitude_body("return", alt))
         d._anchor = None
 
-    def cancel(d: Drone) -> None:
-        send(d, {"cmd": "cancel"})
+    def cancel(self, d: Drone) -> None:
+        self._send(d, {"cmd": "cancel"})
 
-    def turn(d: Drone, by: Any = None, to: Any = None) -> None:
+    def turn(self, d: Drone, by: Angle = None, to: Any = None) -> None:
         if (by is None) == (to is None):
             raise TypeError("turn: give exactly one of by= (degrees) or to= (a direction, angle or position)")
         base = d._plan_base()
@@ -182,12 +189,12 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
         else:
             goal = base.bearing(to)
         delta = angle_diff_deg(goal, base.heading)
-        send(d, {"cmd": "turn", "deg": delta})
+        self._send(d, {"cmd": "turn", "deg": delta})
         d._anchor = Position(base.lat, base.lon, base.alt, goal)
 
-    def move(d: Drone, *, forward: Any = 0, backward: Any = 0, right: Any = 0, left: Any = 0,
-             up: Any = 0, down: Any = 0, to: Any = None, lat: Any = None, lon: Any = None,
-             alt: Any = None, yaw: Any = None, speed: Any = None, wait_clear: bool = False) -> None:
+    def move(self, d: Drone, *, forward: Distance = 0, backward: Distance = 0, right: Distance = 0, left: Distance = 0,
+             up: Distance = 0, down: Distance = 0, to: Any = None, lat: Any = None, lon: Any = None,
+             alt: Any = None, yaw: Angle = None, speed: Speed = None, wait_clear: bool = False) -> None:
         goal = move_goal("move", forward, backward, right, left, up, down, to, lat, lon)
         # Where the drone is now matters only to a relative move or one that keeps its
         # heading; an absolute one with a yaw goes at once (no wait for telemetry).
@@ -210,12 +217,12 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             heading = base.heading
         if speed is not None:
             body["speed"] = units.speed(speed)
-        send(d, body, wait_clear=bool(wait_clear))
+        self._send(d, body, wait_clear=bool(wait_clear))
         d._anchor = Position(goal.lat, goal.lon, goal.alt, heading)
 
     # ---- task bundles (SPEC §6) ------------------------------------------------------
 
-    def push(d: Drone, steps: Any, on_link_loss: str = "continue", timeout: Any = DEFAULT_BUNDLE_TIMEOUT_S,
+    def push(self, d: Drone, steps: Any, on_link_loss: str = "continue", timeout: Duration = DEFAULT_BUNDLE_TIMEOUT_S,
              until: Any = None) -> Any:
         """Hand `d` a list of steps (from `step.…`) to run on its own; block until the
         bundle has ended and return the drone's record of it (`.state` done | ended |
@@ -229,61 +236,71 @@ def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
             body["timeout_s"] = units.duration(timeout, "timeout")
         if until is not None:
             body["until"] = as_guard(until)
-        record = call(m, m.push(drone_id(d), body))
+        record = call(self.m, self.m.push(self._drone_id(d), body))
         d._anchor = None
-        call(m, m.next_telemetry(d._live()))
+        call(self.m, self.m.next_telemetry(d._live()))
         return record
 
     # ---- time and concurrency ------------------------------------------------------
 
-    def sleep(duration: Any) -> None:
-        call(m, clock.sleep(units.duration(duration, "sleep")))
+    def sleep(self, duration: Duration) -> None:
+        call(self.m, self.m.clock.sleep(units.duration(duration, "sleep")))
 
-    def run(fn: Callable[..., Any], *args: Any) -> Subroutine:
+    def run(self, fn: Callable[..., Any], *args: Any) -> Subroutine:
         if not callable(fn):
             raise TypeError(f"run: expected a function, got {fn!r}")
-        assert m.scheduler is not None
-        return m.scheduler.spawn(fn, *args, name=getattr(fn, "__name__", None))
+        assert self.m.scheduler is not None
+        return self.m.scheduler.spawn(fn, *args, name=getattr(fn, "__name__", None))
 
-    def wait(*things: Any) -> None:
+    def wait(self, *things: Any) -> None:
         for thing in things:
             if isinstance(thing, Drone):
-                call(m, m.next_telemetry(drone_id(thing)))
+                call(self.m, self.m.next_telemetry(self._drone_id(thing)))
             elif isinstance(thing, Subroutine):
                 if thing.running:
-                    call(m, asyncio.wait([thing._done]))
+                    call(self.m, asyncio.wait([thing._done]))
             elif isinstance(thing, FieldSensor):
-                call(m, m.next_field_reading(thing.id))
+                call(self.m, self.m.next_field_reading(thing.id))
             elif isinstance(thing, (list, tuple)):
-                wait(*thing)
+                self.wait(*thing)
             else:
                 raise TypeError(f"wait: expected drones, subroutines or field sensors, got {thing!r}")
 
-    def field_sensors(type: str | None = None, near: Any = None, within: Any = None) -> list[FieldSensor]:  # noqa: A002
+    def field_sensors(self, type: str | None = None, near: Any = None, within: Any = None) -> list[FieldSensor]:  # noqa: A002
         """The field sensors heard (not on a drone; SPEC §2), nearest `near` first."""
-        return field_sensors_of(m.station.registry.field_readings(), type, near, within)
+        return field_sensors_of(self.m.station.registry.field_readings(), type, near, within)
 
-    def stop(*subs: Subroutine) -> None:
-        assert m.scheduler is not None
+    def stop(self, *subs: Subroutine) -> None:
+        assert self.m.scheduler is not None
         for sub in subs:
             if not isinstance(sub, Subroutine):
                 raise TypeError(f"stop: expected a subroutine (from run), got {sub!r}")
-            m.scheduler.stop(sub)
+            self.m.scheduler.stop(sub)
 
     # ---- plugins (mission/script/plugins.py) -------------------------------------------
 
-    def enable(plugin_id: str, **inputs: Any) -> None:
+    def enable(self, plugin_id: str, **inputs: Any) -> None:
         """Enable a loaded plugin for this mission with its inputs (typed, defaults apply)."""
-        m.plugins.enable(plugin_id, inputs, base, namespace)
+        self.m.plugins.enable(plugin_id, inputs, self.base, self.namespace)
 
-    def disable(plugin_id: str) -> None:
-        m.plugins.disable(plugin_id, namespace)
+    def disable(self, plugin_id: str) -> None:
+        self.m.plugins.disable(plugin_id, self.namespace)
 
-    defined = locals()
-    verbs: dict[str, Any] = {name: reported(m, name, guarded(defined[name])) for name in VERBS}
-    base = common_names(guards)  # what a plugin enabled by this mission sees
-    base.update(verbs)
-    base.update(channel=Channel(m), mission_id=m.id, step=Steps(), when=When(),
-                relays=Relays(m))
-    namespace = dict(base)  # the script's globals
-    return namespace
+
+def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
+    """The globals one mission script runs with."""
+    verbs = Verbs(mission)
+    base = common_names(guards)
+    base.update({name: reported(mission, name, guarded(getattr(verbs, name))) for name in VERBS})
+    base.update(channel=Channel(mission), mission_id=mission.id, step=Steps(), when=When(), relays=Relays(mission))
+    verbs.base, verbs.namespace = base, dict(base)
+    return verbs.namespace
+
+
+def verb_signatures() -> dict[str, inspect.Signature]:
+    """Each verb's signature as a script calls it (without `self`)."""
+    signatures = {}
+    for name in VERBS:
+        sig = inspect.signature(getattr(Verbs, name))
+        signatures[name] = sig.replace(parameters=list(sig.parameters.values())[1:])
+    return signatures

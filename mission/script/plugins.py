@@ -339,6 +339,10 @@ class PluginLibrary:
     def sources(self) -> list[tuple[str, str]]:
         return [(p.path, p.source) for p in self.plugins.values()]
 
+    def verbs(self) -> frozenset[str]:
+        """Every verb the loaded plugins add to a mission that enables them."""
+        return frozenset(v for p in self.plugins.values() for v in p.verbs)
+
     def get(self, plugin_id: str) -> Plugin | None:
         return self.plugins.get(plugin_id)
 

@@ -242,7 +242,7 @@ class _Rewriter(ast.NodeTransformer):
         return ast.copy_location(ast.Assign(targets=[node.target], value=value), node)
 
 
-def _parse_and_check(source: str, filename: str) -> tuple[ast.Module | None, list[ScriptError]]:
+def parse_and_check(source: str, filename: str) -> tuple[ast.Module | None, list[ScriptError]]:
     """The parsed script (None if it does not parse) and its static problems, first first."""
     try:
         tree = ast.parse(source, filename=filename)
@@ -261,12 +261,12 @@ def _parse_and_check(source: str, filename: str) -> tuple[ast.Module | None, lis
 
 def check_mission(source: str, filename: str = "<mission>") -> list[ScriptError]:
     """Every static problem of a script (`fleet mission check`), first one first."""
-    return _parse_and_check(source, filename)[1]
+    return parse_and_check(source, filename)[1]
 
 
 def compile_mission(source: str, filename: str = "<mission>") -> types.CodeType:
     """Check and rewrite a mission script; raise ScriptError for the first problem."""
-    tree, problems = _parse_and_check(source, filename)
+    tree, problems = parse_and_check(source, filename)
     if problems:
         raise problems[0]
     assert tree is not None

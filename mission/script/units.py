@@ -11,7 +11,7 @@ which accept a bare number or a Quantity of the right dimension.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Annotated, Any, TypeAlias
 
 from dronefleet.schemas.errors import FleetError
 
@@ -19,6 +19,16 @@ from dronefleet.schemas.errors import FleetError
 Dims = tuple[int, int, int]
 _NAMES = {(1, 0, 0): "distance (m)", (0, 1, 0): "duration (s)", (0, 0, 1): "angle (deg)", (1, -1, 0): "speed (m/s)", (0, 0, 0): "number"}
 Number = int | float
+DISTANCE: Dims = (1, 0, 0)
+DURATION: Dims = (0, 1, 0)
+ANGLE: Dims = (0, 0, 1)
+SPEED: Dims = (1, -1, 0)
+# What a verb's parameter takes, in its signature: a bare number (the base unit) or a
+# Quantity of that dimension. `fleet mission check` reads them (mission/script/checks.py).
+Distance: TypeAlias = Annotated[Any, DISTANCE]
+Duration: TypeAlias = Annotated[Any, DURATION]
+Angle: TypeAlias = Annotated[Any, ANGLE]
+Speed: TypeAlias = Annotated[Any, SPEED]
 
 
 class UnitError(FleetError, TypeError):
@@ -28,6 +38,11 @@ class UnitError(FleetError, TypeError):
 def _a(dims: Dims) -> str:
     text = _describe(dims)
     return f"{'an' if text[0] in 'aeiou' else 'a'} {text}"
+
+
+def described(dims: Dims) -> str:
+    """`a distance (m)`, `an angle (deg)`: what a value of these dimensions is."""
+    return _a(dims)
 
 
 def _describe(dims: Dims) -> str:
@@ -157,19 +172,19 @@ def _read(value: Any, dims: Dims, what: str) -> float:
 
 def length(value: Any, what: str = "distance") -> float:
     """Metres."""
-    return _read(value, (1, 0, 0), what)
+    return _read(value, DISTANCE, what)
 
 
 def duration(value: Any, what: str = "duration") -> float:
     """Seconds."""
-    return _read(value, (0, 1, 0), what)
+    return _read(value, DURATION, what)
 
 
 def angle(value: Any, what: str = "angle") -> float:
     """Degrees."""
-    return _read(value, (0, 0, 1), what)
+    return _read(value, ANGLE, what)
 
 
 def speed(value: Any, what: str = "speed") -> float:
     """Metres per second."""
-    return _read(value, (1, -1, 0), what)
+    return _read(value, SPEED, what)

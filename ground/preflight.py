@@ -1,0 +1,90 @@
+"""A mission that would fail, fails on the ground (SPEC §4, issue 59).
+
+Before a submitted mission flies, the ground flies it in fast time against the live
+fleet as it is now — each drone where it stands, its battery, sensors, kind and roles,
+the ground's fence — with the same plugins (ground/planning.py's prediction, in a
+child process), up to `mission.preflight_max_s` simulated seconds. A mission whose
+preflight fails is not flown: the API answers 422 with the line, the simulated time and
+the cause. One still running at the bound passes: a mission that waits on the world (a
+sensor crossing a threshold, a field sensor's alarm) says what it was still waiting
+for. `?preflight=false` (`fleet mission submit --no-preflight`) skips it on purpose,
+logged with who asked.
+
+What a preflight cannot see: the radio (links are not simulated), other missions'
+drones (a drone another mission holds is free in the copy), and wind, GPS or an
+autopilot that refuses what the simulator accepts.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Collection
+
+import msgspec
+
+from dronefleet.ground.plan_routes import Planner, live_world_of, plugins_dir
+from dronefleet.ground.planning import Prediction, predict
+from dronefleet.ground.station import GroundStation
+from dronefleet.schemas.errors import InvalidMessage
+
+_LINE = re.compile(r"\bline (\d+)\b")
+
+
+class Preflight(msgspec.Struct, frozen=True, kw_only=True):
+    """What the preflight predicted, reported with the submission."""
+
+    passed: bool
+    status: str  # the simulated mission's: finished, failed, cancelled
+    cause: str | None
+    message: str
+    line: int | None  # in the script, where it failed
+    t_s: float  # simulated seconds from start to end
+    wall_s: float  # what it took on the ground's machine
+    battery_left: dict[str, float | None]  # per drone the mission used, 0..1
+    flying_s: dict[str, float]
+
+    def failure(self) -> str:
+        """What a refused submission says (the API's 422, the CLI's error)."""
+        where = f" at line {self.line}" if self.line is not None else ""
+        return (f"preflight: the mission {self.status} after {self.t_s:g} s simulated{where}: {self.cause} - {self.message} "
+                "(not flown; fix it, or submit with --no-preflight / ?preflight=false to fly it anyway)")
+
+    def summary(self) -> str:
+        """One line for the mission's log and the CLI."""
+        left = ", ".join(f"{d} {b:.0%}" for d, b in sorted(self.battery_left.items()) if b is not None)
+        verdict = "passed" if self.passed else "FAILED"
+        text = f"Preflight {verdict}: {self.status} {self.cause or ''} after {self.t_s:g} s simulated ({self.wall_s:.1f} s here)"
+        if self.message and self.message != self.cause:
+            text += f" - {self.message}"
+        return text + (f"; battery left: {left}" if left else "")
+
+
+def judge(prediction: Prediction) -> Preflight:
+    """Passed: the mission finished, or was still running at the bound (it waits on the
+    world); anything else failed."""
+    passed = prediction.status == "finished" or prediction.cause == "time_limit"
+    found = _LINE.search(prediction.message or "")
+    return Preflight(
+        passed=passed, status=prediction.status, cause=prediction.cause, message=prediction.message,
+        line=int(found.group(1)) if found and not passed else None, t_s=prediction.duration_s, wall_s=prediction.wall_s,
+        battery_left={d: p.battery_end for d, p in prediction.drones.items()},
+        flying_s={d: p.flying_s for d, p in prediction.drones.items()},
+    )
+
+
+class PreflightUnavailable(Exception):
+    """The preflight could not run (no drone with a position, the simulation overran)."""
+
+
+async def run_preflight(station: GroundStation, planner: Planner, source: str, plugins: Collection[str]) -> Preflight:
+    """Fly `source` in fast time against the live fleet; waits for any other prediction."""
+    try:
+        world = live_world_of(station)
+    except InvalidMessage as exc:
+        raise PreflightUnavailable(exc.reason) from None
+    async with planner.lock:
+        try:
+            prediction = await predict(source, world, station.config.mission.preflight_max_s, plugins_dir(station))
+        except (TimeoutError, InvalidMessage) as exc:
+            raise PreflightUnavailable(str(exc)) from None
+    return judge(prediction)
