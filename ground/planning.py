@@ -124,12 +124,14 @@ def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -
         step = max(1, -(-len(samples) // PATH_POINTS))
         picked = samples[::step] + ([samples[-1]] if samples and (len(samples) - 1) % step else [])
         flying = [s for s in samples if s.get("armed") and s.get("rel_alt", 0) > 0.5]
+        charge = [s["battery"] for s in samples if s.get("battery") is not None]
         period = samples[1]["t_s"] - samples[0]["t_s"] if len(samples) > 1 else 0.0
         drones[drone_id] = PredictedDrone(
             path=[(s["t_s"], s["lat"], s["lon"], s.get("rel_alt", 0.0)) for s in picked],
             battery=[(s["t_s"], s["battery"]) for s in picked if s.get("battery") is not None],
             battery_start=samples[0].get("battery") if samples else None,
-            battery_end=samples[-1].get("battery") if samples else None,
+            # the least it held: a simulated drone that lands and disarms gets a fresh pack
+            battery_end=min(charge, default=None),
             flying_s=round(len(flying) * period, 1),
         )
     return Prediction(status=record["status"], cause=record.get("cause"), message=record.get("message") or "",

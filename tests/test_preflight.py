@@ -1,0 +1,135 @@
+"""A mission that would fail, fails on the ground (issue 59), against real processes:
+`fleet ground` (preflight on, as it is by default) and three `fleet agent --fc sim`.
+
+Before a submission flies, the ground flies it in fast time against the fleet as it is;
+what would fail is refused (422, and `fleet mission submit` exits 1) naming the line,
+the simulated time and the cause, and no drone arms. A valid two-drone mission with a
+channel and the replacement plugin passes, reports its prediction and flies."""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import AsyncIterator, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.harness import GroundFleet, ended, fleet_command
+from tests.helpers import until
+
+pytestmark = pytest.mark.integration
+
+DRONES = ("drone01", "drone02", "drone03")
+DRAIN_PER_S = 0.004  # the ground's flight_drain_per_s here: a pack lasts about 4 minutes in the air
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
+    fcs = {d: f"sim://?lat=40.633400&lon={-8.660810 + 0.00013 * i:.6f}&alt=8.2" for i, d in enumerate(DRONES)}
+    fleet = GroundFleet(tmp_path_factory.mktemp("preflight"), fcs,
+                        {"telemetry_rate_ms": 200}, per_agent={"drone03": {"sensors": [{"type": "camera"}]}},
+                        mission={"preflight": True, "flight_drain_per_s": DRAIN_PER_S, "preflight_max_s": 900})
+    yield fleet
+    fleet.stop()
+
+
+@pytest.fixture
+async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
+    async with fleet.client() as client:
+        yield client
+
+
+async def _never_armed(http: httpx.AsyncClient) -> None:
+    missions = (await http.get("/mission")).json()
+    assert missions == [] or all(m["name"] != "refused" for m in missions), missions
+    for drone in DRONES:
+        telem = (await http.get(f"/drone/{drone}")).json()["telem"]
+        assert telem["armed"] is False, (drone, telem)
+
+
+async def _refused(http: httpx.AsyncClient, source: str) -> dict[str, object]:
+    response = await http.post("/mission", content=source.encode(), params={"name": "refused"}, timeout=240)
+    assert response.status_code == 422, response.text
+    await _never_armed(http)
+    return dict(response.json())
+
+
+@pytest.mark.slow(40)
+async def test_what_only_running_shows_is_refused_before_any_drone_arms(http: httpx.AsyncClient, fleet: GroundFleet,
+                                                                        tmp_path: Path) -> None:
+    await until(lambda: _all_ready(http), 45, "three drones ready")
+    # a unit the text cannot show (a variable): the fast-time run fails at line 5
+    unit = "d = assign()\narm(d)\ntakeoff(d, 5*m)\nhop = 10*s\nmove(d, forward=hop)\nland(d)\n"
+    body = await _refused(http, unit)
+    detail = body["detail"]
+    assert isinstance(detail, dict) and detail["line"] == 5 and detail["cause"] == "script" and detail["t_s"] > 0, body
+    assert "after" in str(body["error"]) and "s simulated at line 5" in str(body["error"]), body
+    assert "UnitError: forward: expected a distance (m), got 10 s" in str(body["error"]), body
+
+    # a sensor no drone carries: named, with the drone and the fix
+    body = await _refused(http, "d = assign()\narm(d)\ntakeoff(d, 5*m)\nif d.sensor.temperature > 30:\n    land(d)\n")
+    assert "line 4" in str(body["error"]) and "carries no temperature sensor" in str(body["error"]), body
+    assert "assign(sensor='temperature')" in str(body["error"]), body
+
+    # a battery that runs out halfway: refused with the time it would have
+    survey = "d = assign()\narm(d)\ntakeoff(d, 10*m)\nfor i in range(16):\n    move(d, forward=100*m)\n    turn(d, by=90*deg)\nland(d)\n"
+    body = await _refused(http, survey)
+    detail = body["detail"]
+    assert isinstance(detail, dict) and (detail["status"], detail["cause"]) == ("cancelled", "return"), body
+    assert 100 < float(detail["t_s"]) < 1 / DRAIN_PER_S, body  # in the air until the pack was nearly empty
+
+    # the CLI says the same and exits 1
+    script = tmp_path / "unit.py"
+    script.write_text(unit)
+    cli = subprocess.run(fleet_command("mission", "submit", "--url", fleet.ground.url, str(script)),
+                         capture_output=True, text=True, timeout=240, stdin=subprocess.DEVNULL)
+    assert cli.returncode == 1, cli
+    assert "422: preflight: the mission failed after" in cli.stderr and "at line 5" in cli.stderr, cli.stderr
+    await _never_armed(http)
+
+    # a typo is the text's: 400 with line and column, before any preflight
+    typo = await http.post("/mission", content=b"d = assign()\ntakeof(d, 5*m)\n")
+    assert typo.status_code == 400 and typo.json()["detail"]["line"] == 2, typo.text
+    assert "did you mean 'takeoff'" in typo.json()["error"]
+
+
+@pytest.mark.slow(40)
+async def test_a_valid_two_drone_mission_with_a_channel_and_replacement_passes_reports_and_flies(
+        http: httpx.AsyncClient) -> None:
+    await until(lambda: _all_ready(http), 45, "three drones ready")
+    source = """enable("replacement")
+a, b = assign("drone01"), assign("drone02")
+
+def first():
+    arm(a)
+    takeoff(a, 5*m)
+    channel.up = True
+    move(a, forward=10*m)
+    land(a)
+
+def second():
+    channel.up
+    arm(b)
+    takeoff(b, 3*m)
+    move(b, right=10*m)
+    land(b)
+
+wait(run(first), run(second))
+"""
+    response = await http.post("/mission", content=source.encode(), params={"name": "valid"}, timeout=240)
+    assert response.status_code == 201, response.text
+    created = response.json()
+    preflight = created["preflight"]
+    assert preflight["passed"] is True and (preflight["status"], preflight["cause"]) == ("finished", "success"), preflight
+    assert set(preflight["battery_left"]) == {"drone01", "drone02"} and preflight["t_s"] > 5, preflight
+    assert all(0 < b < 1 for b in preflight["battery_left"].values()), (preflight["battery_left"], preflight["t_s"])
+    final = await ended(http, created["mission_id"], 120)
+    assert (final["status"], final["cause"]) == ("finished", "success"), final
+    log = [line["message"] for line in (await http.get(f"/mission/{created['mission_id']}")).json()["log"]]
+    assert log[0].startswith("Preflight passed: finished success after"), log
+
+
+async def _all_ready(http: httpx.AsyncClient) -> bool:
+    views = (await http.get("/drone")).json()
+    return {v["info"]["drone_id"] for v in views if v["info"]["state"] == "ready"} >= set(DRONES)
