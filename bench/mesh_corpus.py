@@ -29,6 +29,7 @@ import argparse
 import asyncio
 import functools
 import itertools
+import json
 import math
 import os
 import random
@@ -112,6 +113,9 @@ def scenario(seed: int) -> Scenario:
 class Outcome:
     gaps: dict[str, float]  # healthy drone -> longest gap at the ground (s)
     gap_at: dict[str, float]  # healthy drone -> when that gap began (s into the failures)
+    # healthy drone -> how long the sample that ended its longest gap had been on its way
+    # (about the gap: it was held on the way; near zero: the drone published nothing)
+    gap_transit: dict[str, float]
     token_losses: dict[str, int]
     link_lost: dict[str, int]
     unknown: dict[str, int]
@@ -121,7 +125,7 @@ class Outcome:
 async def run(sc: Scenario, tmp: Path) -> Outcome:
     healthy = [d.id for d in sc.drones if d.role == "healthy"]
     started: list[Any] = []
-    heard: dict[str, list[float]] = {d: [] for d in healthy}
+    heard: dict[str, list[tuple[float, float]]] = {d: [] for d in healthy}  # (arrived, s on its way)
     tokens: dict[str, int] = dict.fromkeys(healthy, 0)
     unknown: dict[str, int] = dict.fromkeys(healthy, 0)
     first: dict[str, float | None] = {}
@@ -154,15 +158,22 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
             await watcher.close()
     finally:
         stop_all(reversed(started))
-    gaps, gap_at = {}, {}
+    gaps, gap_at, gap_transit = {}, {}, {}
     for d in healthy:
-        during = [start, *(t for t in heard[d] if start <= t <= end), end]
-        gaps[d], gap_at[d] = max((b - a, a - start) for a, b in itertools.pairwise(during))
-    return Outcome(gaps, gap_at, tokens, lost, unknown, first)
+        during = [(start, 0.0), *((t, w) for t, w in heard[d] if start <= t <= end), (end, 0.0)]
+        gaps[d], gap_at[d], gap_transit[d] = max((b - a, a - start, w) for (a, _), (b, w) in itertools.pairwise(during))
+    return Outcome(gaps, gap_at, gap_transit, tokens, lost, unknown, first)
 
 
-def _arrived(times: list[float], sample: Sample) -> None:
-    times.append(time.monotonic())
+def _arrived(times: list[tuple[float, float]], sample: Sample) -> None:
+    """When a telemetry sample arrived, and how long after the drone stamped it (one
+    machine, one clock)."""
+    arrived, now = time.monotonic(), time.time()
+    try:
+        stamped = json.loads(sample.payload)["timestamp"] / 1000
+    except (ValueError, KeyError, TypeError):
+        stamped = now
+    times.append((arrived, now - stamped))
 
 
 def _token(tokens: dict[str, int], key: str, alive: bool) -> None:
@@ -297,7 +308,8 @@ async def main() -> int:
         commands_all += len(out.first_command_s)
         commands_ok += len(out.first_command_s) - len(slow)
         worst_gap = max([worst_gap, *out.gaps.values()])
-        gaps = ", ".join(f"{d} {g:.2f} s (at {out.gap_at[d]:.0f} s)" for d, g in out.gaps.items())
+        gaps = ", ".join(f"{d} {g:.2f} s (at {out.gap_at[d]:.0f} s, the next {out.gap_transit[d]:.2f} s on its way)"
+                         for d, g in out.gaps.items())
         print(f"seed {seed}: {sc.describe()}; healthy gaps {gaps}; "
               f"{'ok' if not bad else 'FAILED ' + ', '.join(bad)}; first commands "
               f"{'ok' if not slow else 'SLOW ' + ', '.join(slow)}", flush=True)

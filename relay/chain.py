@@ -53,6 +53,11 @@ MAX_RESENDS = 2  # … this many times; then the trial counts as failed
 SLOT_RESEND_S = 90.0  # … a chain relay, by then
 
 
+def _done(w: Worker) -> bool:
+    """A worker on the ground going nowhere needs no relay."""
+    return w.alt < 1.0 and w.goal is None
+
+
 def flat(hop: float, dz: float) -> float:
     """The horizontal length of a 3-D hop of `hop` metres across `dz` metres of height."""
     return math.sqrt(max(0.0, hop * hop - dz * dz))
@@ -189,7 +194,7 @@ class Chains:
     def allowed(self, worker: str, at: Point, alt: float, goal: Point) -> Point:
         """How far toward `goal` the worker may fly now: the last point of the straight
         way there that a proven node covers (the goal itself when all of it is)."""
-        if not self.reach.known:
+        if not self.reach.known and not self._proven_enough(goal, alt):
             # While the probe measures, each drone waits where it took off (none crosses
             # another's way) — but never beside a drone on the ground: that drone may be
             # the next relay to climb, and no relay launches while a flying drone is that
@@ -217,6 +222,29 @@ class Chains:
         while not self._clear(best) and dist(best, at) > 0.5:  # held short of a parked drone, not over it
             best = toward(best, at, 1.0)
         return best if self._clear(best) else self._clear_ahead(worker, at, goal, inside)
+
+    def _release_probe(self, workers: Sequence[Worker], out: ChainPlan) -> None:
+        """The probe of a hop never bracketed (links that never fail) goes home once every
+        worker is done, as released relays do (it hovered to the time limit)."""
+        probe = self.probe
+        if probe is None or probe.relay is None or not all(_done(w) for w in workers):
+            return
+        self.leaving[probe.relay] = self.leaving.get(probe.relay, 0) + 1
+        if self.leaving[probe.relay] >= RELEASE_AFTER:
+            del self.leaving[probe.relay]
+            out.home.append(probe.relay)
+            self.probe = None
+
+    def _enough_for(self, workers: Sequence[Worker]) -> bool:
+        """Whether the hop proven so far reaches every worker's goal: measuring further
+        proves nothing anyone needs (on links that never fail nothing brackets it)."""
+        return all(w.goal is None or self._proven_enough(w.goal, w.alt) for w in workers)
+
+    def _proven_enough(self, goal: Point, alt: float) -> bool:
+        """Whether the hop proven so far reaches `goal` from the laptop as chains lay it
+        (at MARGIN of it): then the probe stops, and the worker may go though the hop is
+        not bracketed (on a link that never fails it never is: the worker waited for ever)."""
+        return dist(ORIGIN, goal) <= flat(self.reach.lo * MARGIN, alt)
 
     def _clear_ahead(self, worker: str, at: Point, goal: Point, inside: Callable[[Point], bool] = lambda p: True) -> Point:
         """`at` if no drone on the ground stands within PARKED_CLEAR_M of it; else the
@@ -263,11 +291,13 @@ class Chains:
                 self._probe(now, workers, nodes, spare, out)
                 for w in workers:
                     self.covered[w.id] = [(ORIGIN, 0.0)]
+                self._release_probe(workers, out)
                 return out
         if self.probe is not None:  # the hop is known: the probe waits for a spot
             if self.probe.relay is not None:
                 self.idle.append(self.probe.relay)
-            out.notes.append(f"the radio holds hops of {self.reach.lo:.0f} m (fails at {self.reach.hi:.0f} m)")
+            out.notes.append(f"the radio holds hops of {self.reach.lo:.0f} m (fails at {self.reach.hi:.0f} m)"
+                             if self.reach.hi is not None else f"the radio holds hops of {self.reach.lo:.0f} m")
             self.probe = None
         for w in workers:
             self.covered[w.id] = self._nodes(now, self.chains.setdefault(w.id, []), seen, out)
@@ -348,7 +378,7 @@ class Chains:
                out: ChainPlan) -> None:
         """Send the probe to the next trial hop, in the direction where a clean window
         would prove the most (away from the other nodes, which its traffic could take)."""
-        if not any(w.goal is not None and dist(ORIGIN, w.goal) > flat(self.reach.lo, w.alt) for w in workers):
+        if self._enough_for(workers):
             return  # nobody needs to go beyond what is known to hold
         if self.probe is not None and (self.probe.relay is None or self.probe.hop != 0.0):
             return  # asked for, or out on a trial
@@ -524,7 +554,10 @@ class Chains:
         # one going home counts out of reach too (a relay flying home lost its link, and the
         # next one went); one of the plan's counts until it is on its spot (a relay climbing
         # out passed the duty level as another was sent home over it)
-        crossing = any(o.alt > 1.0 if rid not in held else o.fresh and not any(self._on_spot(o, p) for p in held[rid])
+        # (an idle one hovering on the duty level is not crossing it, wherever it waits)
+        crossing = any(o.alt > 1.0 if rid not in held else
+                       o.fresh and (abs(o.alt - self.duty_alt) > 2.0 if rid in self.idle
+                                    else not any(self._on_spot(o, p) for p in held[rid]))
                        for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
         for w in workers:
             chain = self.chains.get(w.id, [])
@@ -544,4 +577,13 @@ class Chains:
                 crossing = True
                 del self.leaving[rid]
                 chain.pop()
+                out.home.append(rid)
+        # An idle relay (the probe, once the hop is known) that no chain took goes home
+        # once every worker is done (it hovered to the time limit).
+        for rid in list(self.idle) if all(_done(w) for w in workers) else []:
+            self.leaving[rid] = self.leaving.get(rid, 0) + 1
+            if self.leaving[rid] >= RELEASE_AFTER and not crossing:
+                crossing = True
+                del self.leaving[rid]
+                self.idle.remove(rid)
                 out.home.append(rid)
