@@ -42,7 +42,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.compose import run_ground
 from dronefleet.ground.config import GroundConfig
 from dronefleet.mission.hosting.simulate import add_field_reading, telemetry_sample
-from dronefleet.mission_cli import outcome
+from dronefleet.mission_cli import PREFLIGHT_WAIT_S, outcome
 from dronefleet.schemas.codec import decode_sensor, decode_telemetry
 from dronefleet.schemas.config import writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
@@ -316,10 +316,15 @@ class Demo:
 
     async def _submit(self, http: httpx.AsyncClient, source: str) -> str:
         name = self.options.mission.name
-        response = await http.post("/mission", content=source.encode(), params={"name": name})
+        self.out(f"{self._stamp()} preflight: the ground flies {name} in fast time against these drones first")
+        response = await http.post("/mission", content=source.encode(), params={"name": name}, timeout=PREFLIGHT_WAIT_S)
         if response.status_code != 201:
             raise FleetError(f"the ground refused {name}: {response.status_code} {response.text}")
-        mission_id = str(response.json()["mission_id"])
+        created = response.json()
+        mission_id = str(created["mission_id"])
+        if created.get("preflight"):
+            p = created["preflight"]
+            self.out(f"{self._stamp()} preflight passed: {p['status']} {p.get('cause') or ''} after {p['t_s']:g} s simulated")
         self.out(f"{self._stamp()} mission {mission_id} submitted: {name}"
                  f" (follow it: fleet mission show {mission_id} --url {self.url})")
         return mission_id
