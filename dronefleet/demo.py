@@ -44,7 +44,7 @@ from dronefleet.ground.config import GroundConfig
 from dronefleet.mission.hosting.simulate import add_field_reading, telemetry_sample
 from dronefleet.mission_cli import PREFLIGHT_WAIT_S, outcome
 from dronefleet.schemas.codec import decode_sensor, decode_telemetry
-from dronefleet.schemas.config import writable_dir
+from dronefleet.schemas.config import MissionSettings, writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry
@@ -60,6 +60,7 @@ SCRIPT = examples.DIR / "fire_tracing.py"
 TELEMETRY_RATE_MS = 200  # the agents' telemetry period, also the recorder's sampling period
 POLL_S = 0.5  # mission record and drone states
 STATUS_EVERY_S = 5.0
+DEMO_PREFLIGHT_S = 600.0  # simulated seconds its submission's preflight may run
 HTTP_READY_S = 30.0
 DRONES_READY_S = 120.0  # three Python agents starting on a busy 2-core machine
 END_AFTER_CANCEL_S = 30.0
@@ -146,7 +147,10 @@ class Demo:
         self.tracks = {spec.id: _Track() for spec in specs}
         self.field_sensors: dict[str, dict[str, Any]] = {}  # result.json's, as heard on the mesh
         with tempfile.TemporaryDirectory(prefix="fleet-demo-") as data_dir:
-            config = GroundConfig(listen=[self.listen], http_port=self.options.http_port, data_dir=data_dir)
+            # The demo's missions last minutes; its world's heat and gas are not in the copy
+            # a preflight flies (the live fleet), so one that searches for them runs to the bound.
+            config = GroundConfig(listen=[self.listen], http_port=self.options.http_port, data_dir=data_dir,
+                                  mission=MissionSettings(preflight_max_s=DEMO_PREFLIGHT_S))
             self._background(run_ground(config, self.out), "the ground")
             body: asyncio.Task[int] | None = None
             try:

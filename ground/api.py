@@ -272,7 +272,7 @@ async def submit_mission(
     report = None
     if preflight and station.config.mission.preflight:
         try:
-            report = await run_preflight(station, planner, source, verbs)
+            report = await run_preflight(station, planner, source)
         except PreflightUnavailable as exc:
             return _error(422, f"preflight could not run: {exc} (submit with --no-preflight / ?preflight=false "  # type: ignore[return-value]
                                "to fly it anyway)")

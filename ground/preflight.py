@@ -18,7 +18,6 @@ autopilot that refuses what the simulator accepts.
 from __future__ import annotations
 
 import re
-from collections.abc import Collection
 
 import msgspec
 
@@ -76,7 +75,7 @@ class PreflightUnavailable(Exception):
     """The preflight could not run (no drone with a position, the simulation overran)."""
 
 
-async def run_preflight(station: GroundStation, planner: Planner, source: str, plugins: Collection[str]) -> Preflight:
+async def run_preflight(station: GroundStation, planner: Planner, source: str) -> Preflight:
     """Fly `source` in fast time against the live fleet; waits for any other prediction."""
     try:
         world = live_world_of(station)
