@@ -60,10 +60,9 @@ lock: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/fleet demo $(ARGS)
 
-# Seven workers on the 2 cores: most tests wait on real time (drones flying), not CPU
+# Six workers on the 2 cores: most tests wait on real time (drones flying), not CPU
 # (eight, measured before processes stopped recompiling their imports, kept both cores
-# at 100 % and real-time tests missed deadlines; six left them a third idle — 383 CPU-s
-# in 281 s — with every worker busy to the end, so a seventh takes its share of the wait).
+# at 100 % and real-time tests missed deadlines; six now leave them 40 % idle on average).
 # `--dist loadgroup` hands out work units: the groups first (the Chromium tests; the radio
 # tests of each of the two radio slots), then single tests longest first (the `slow`
 # marker, tests/conftest.py); a worker gets another unit when it has two tests or fewer
@@ -73,7 +72,7 @@ test: $(STAMP) sysdeps
 	@$(MAKE) --no-print-directory -j2 lint pytest
 
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q -n 7 --dist loadgroup
+	$(BIN)/python -m pytest -q -n 6 --dist loadgroup
 
 # ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)
