@@ -77,7 +77,8 @@ class Dashboard:
 
     async def open(self, url: str) -> None:
         await self.page.goto(url)
-        await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=UI_S * 1000)
+        # the first page of a run loads while every worker starts its processes: 30 s was missed
+        await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=2 * UI_S * 1000)
 
     async def metres_per_pixel(self) -> float:
         """What the scale bar says."""
