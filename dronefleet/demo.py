@@ -42,7 +42,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.compose import run_ground
 from dronefleet.ground.config import GroundConfig
 from dronefleet.mission.hosting.simulate import add_field_reading, telemetry_sample
-from dronefleet.mission_cli import PREFLIGHT_WAIT_S, outcome
+from dronefleet.mission_cli import PREFLIGHT_WAIT_S, outcome, preflight_summary
 from dronefleet.schemas.codec import decode_sensor, decode_telemetry
 from dronefleet.schemas.config import MissionSettings, writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
@@ -327,8 +327,7 @@ class Demo:
         created = response.json()
         mission_id = str(created["mission_id"])
         if created.get("preflight"):
-            p = created["preflight"]
-            self.out(f"{self._stamp()} preflight passed: {p['status']} {p.get('cause') or ''} after {p['t_s']:g} s simulated")
+            self.out(f"{self._stamp()} {preflight_summary(created['preflight'])}")
         self.out(f"{self._stamp()} mission {mission_id} submitted: {name}"
                  f" (follow it: fleet mission show {mission_id} --url {self.url})")
         return mission_id

@@ -102,14 +102,17 @@ def _submit(url: str, source: str, params: dict[str, str]) -> dict[str, Any]:
     created: dict[str, Any] = _request("POST", url, "/mission", content=source.encode(), params=params,
                                        timeout=PREFLIGHT_WAIT_S).json()
     if created.get("preflight"):
-        click.echo(_preflight_line(created["preflight"]), err=True)
+        click.echo(preflight_summary(created["preflight"]), err=True)
     return created
 
 
-def _preflight_line(p: dict[str, Any]) -> str:
-    left = ", ".join(f"{d} {b:.0%}" for d, b in sorted(p["battery_left"].items()) if b is not None)
-    return (f"preflight passed: {p['status']} {p.get('cause') or ''} after {p['t_s']:g} s simulated "
-            f"({p['wall_s']:.1f} s on the ground)" + (f"; battery left: {left}" if left else ""))
+def preflight_summary(reported: dict[str, Any]) -> str:
+    """The ground's one line for a submission's preflight, from the API's JSON."""
+    import msgspec
+
+    from dronefleet.ground.preflight import Preflight
+
+    return msgspec.convert(reported, Preflight).summary()
 
 
 def _sse(lines: Any) -> Any:

@@ -49,10 +49,10 @@ class Preflight(msgspec.Struct, frozen=True, kw_only=True):
                 "(not flown; fix it, or submit with --no-preflight / ?preflight=false to fly it anyway)")
 
     def summary(self) -> str:
-        """One line for the mission's log and the CLI."""
+        """One line for the mission's log, `fleet mission submit` and `fleet demo`."""
         left = ", ".join(f"{d} {b:.0%}" for d, b in sorted(self.battery_left.items()) if b is not None)
         verdict = "passed" if self.passed else "FAILED"
-        text = f"Preflight {verdict}: {self.status} {self.cause or ''} after {self.t_s:g} s simulated ({self.wall_s:.1f} s here)"
+        text = f"Preflight {verdict}: {self.status} {self.cause or ''} after {self.t_s:g} s simulated ({self.wall_s:.1f} s on the ground)"
         if self.message and self.message != self.cause:
             text += f" - {self.message}"
         return text + (f"; battery left: {left}" if left else "")

@@ -229,11 +229,18 @@ class Chains:
         probe = self.probe
         if probe is None or probe.relay is None or not all(_done(w) for w in workers):
             return
-        self.leaving[probe.relay] = self.leaving.get(probe.relay, 0) + 1
-        if self.leaving[probe.relay] >= RELEASE_AFTER:
-            del self.leaving[probe.relay]
+        if self._released(probe.relay):
             out.home.append(probe.relay)
             self.probe = None
+
+    def _released(self, relay: str, may_go: bool = True) -> bool:
+        """One more plan in a row that `relay` is not needed: True (its count done) once
+        that has been RELEASE_AFTER plans and `may_go` (no other relay crossing the levels)."""
+        self.leaving[relay] = self.leaving.get(relay, 0) + 1
+        if self.leaving[relay] >= RELEASE_AFTER and may_go:
+            del self.leaving[relay]
+            return True
+        return False
 
     def _enough_for(self, workers: Sequence[Worker]) -> bool:
         """Whether the hop proven so far reaches every worker's goal: measuring further
@@ -544,7 +551,7 @@ class Chains:
                 return True
         return False
 
-    def _release(self, workers: Iterable[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:
+    def _release(self, workers: Sequence[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:
         """The last relay of a chain its worker no longer needs goes home — when no
         other relay is climbing out or coming home: one crossing the levels at a time (a
         relay flying home on its level passed over one climbing from the ground, 1.4 m
@@ -567,23 +574,19 @@ class Chains:
             places = [w.at] + ([w.goal] if w.goal is not None else [])
             # on the ground going nowhere, it needs none (one landed at a home beyond the
             # laptop's hop kept its relay on duty to the time limit)
-            needed = not (w.alt < 1.0 and w.goal is None) and not all(covers(before, p, w.alt, hop) for p in places)
+            needed = not _done(w) and not all(covers(before, p, w.alt, hop) for p in places)
             rid = chain[-1].relay
             if needed:
                 self.leaving.pop(rid, None)
                 continue
-            self.leaving[rid] = self.leaving.get(rid, 0) + 1
-            if self.leaving[rid] >= RELEASE_AFTER and not crossing:
+            if self._released(rid, not crossing):
                 crossing = True
-                del self.leaving[rid]
                 chain.pop()
                 out.home.append(rid)
         # An idle relay (the probe, once the hop is known) that no chain took goes home
         # once every worker is done (it hovered to the time limit).
         for rid in list(self.idle) if all(_done(w) for w in workers) else []:
-            self.leaving[rid] = self.leaving.get(rid, 0) + 1
-            if self.leaving[rid] >= RELEASE_AFTER and not crossing:
+            if self._released(rid, not crossing):
                 crossing = True
-                del self.leaving[rid]
                 self.idle.remove(rid)
                 out.home.append(rid)

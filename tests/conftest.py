@@ -10,10 +10,11 @@ from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import httpx
 import pytest
 
 from dronefleet.bus.zenoh_bus import ZenohBus
-from tests.harness import AgentProcess, Operator, SimProcess, open_ground_router, stop_all
+from tests.harness import AgentProcess, GroundFleet, Operator, SimProcess, open_ground_router, stop_all
 from tests.helpers import RADIO_SLOTS, free_port
 
 
@@ -164,3 +165,10 @@ def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterato
         yield sim.fc_url()
     finally:
         sim.stop()
+
+
+@pytest.fixture
+async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
+    """A client of the API of the module's `fleet` (a GroundFleet fixture), per test."""
+    async with fleet.client() as client:
+        yield client

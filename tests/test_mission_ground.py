@@ -10,7 +10,7 @@ keeps handling telemetry and the flights finish.
 from __future__ import annotations
 
 import subprocess
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
@@ -49,12 +49,6 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
                         security=security, scheme="tls")
     yield fleet
     fleet.stop()
-
-
-@pytest.fixture
-async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
-    async with fleet.client() as client:
-        yield client
 
 
 @pytest.mark.slow(45)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import os
 import signal
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 
 import httpx
 import pytest
@@ -51,12 +51,6 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
                         mission={"max_memory_mb": MAX_MEMORY_MB, "max_cpu_s": MAX_CPU_S})
     yield fleet
     fleet.stop()
-
-
-@pytest.fixture
-async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
-    async with fleet.client() as client:
-        yield client
 
 
 @pytest.mark.slow(40)

@@ -9,7 +9,7 @@ channel and the replacement plugin passes, reports its prediction and flies."""
 from __future__ import annotations
 
 import subprocess
-from collections.abc import AsyncIterator, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
@@ -32,12 +32,6 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
                         mission={"preflight": True, "flight_drain_per_s": DRAIN_PER_S, "preflight_max_s": 900})
     yield fleet
     fleet.stop()
-
-
-@pytest.fixture
-async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
-    async with fleet.client() as client:
-        yield client
 
 
 async def _never_armed(http: httpx.AsyncClient) -> None:

@@ -157,15 +157,12 @@ class _ScriptReader(ast.NodeVisitor):
             self.visit(default)
         for decorator in node.decorator_list:
             self.visit(decorator)
-        params = {a.arg for a in (*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs)}
-        params |= {a.arg for a in (node.args.vararg, node.args.kwarg) if a is not None}
-        self._scope(node.body, params)
+        self._scope(node.body, _parameters(node.args))
 
     visit_AsyncFunctionDef = visit_FunctionDef
 
     def visit_Lambda(self, node: ast.Lambda) -> None:
-        params = {a.arg for a in (*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs)}
-        self.scopes.append((params, set()))
+        self.scopes.append((_parameters(node.args), set()))
         self.visit(node.body)
         self.scopes.pop()
 
@@ -195,7 +192,7 @@ class _ScriptReader(ast.NodeVisitor):
         try:
             bound = signature.bind(*node.args, **{k.arg: k.value for k in node.keywords if k.arg is not None})
         except TypeError as exc:
-            self._problem(node, f"{verb}(): {exc}{self._keyword_hint(verb, signature, node)}", "call")
+            self._problem(node, f"{verb}(): {exc}{_keyword_hint(signature, node)}", "call")
             return
         for param, value in bound.arguments.items():
             dims = self.dims[verb].get(param)
@@ -208,10 +205,17 @@ class _ScriptReader(ast.NodeVisitor):
             if isinstance(quantity, units.Quantity) and quantity.dims != dims:
                 self._problem(value, f"{verb}: {param} expects {units.described(dims)}, got {quantity!r}", "unit")
 
-    @staticmethod
-    def _keyword_hint(verb: str, signature: inspect.Signature, node: ast.Call) -> str:
-        unknown = [k.arg for k in node.keywords if k.arg is not None and k.arg not in signature.parameters]
-        return _suggest(unknown[0], signature.parameters) if unknown else ""
+
+def _keyword_hint(signature: inspect.Signature, node: ast.Call) -> str:
+    """The nearest parameter to the first keyword a verb does not take."""
+    unknown = [k.arg for k in node.keywords if k.arg is not None and k.arg not in signature.parameters]
+    return _suggest(unknown[0], signature.parameters) if unknown else ""
+
+
+def _parameters(args: ast.arguments) -> set[str]:
+    """Every name a function or lambda binds as a parameter (`*rest` and `**options` too)."""
+    names = {a.arg for a in (*args.posonlyargs, *args.args, *args.kwonlyargs)}
+    return names | {a.arg for a in (args.vararg, args.kwarg) if a is not None}
 
 
 def _own_nodes(body: list[ast.stmt]) -> list[ast.AST]:
