@@ -6,6 +6,8 @@ concepts separate, not at a line count (issue 56). The layers themselves are imp
 from __future__ import annotations
 
 import importlib
+import subprocess
+import sys
 from pathlib import Path
 
 import grimp
@@ -78,3 +80,25 @@ def test_the_cycle_finder_finds_a_circle() -> None:
     graph.add_import(importer="p.b", imported="p.c")
     graph.add_import(importer="p.c", imported="p.a")
     assert _cycles(graph) == [["p.a", "p.b", "p.c"]]
+
+
+def test_lint_fails_a_room_imported_under_its_own_name() -> None:
+    """Inside the checkout `import agent` works (the folder is at the root); installed,
+    it does not. `make lint` (ruff's banned imports, pyproject.toml) refuses it anywhere
+    in the repository, mission scripts included; the package's own name passes."""
+    lines = [f"from {room}.x import y\nimport {room}\n" for room in ROOMS]
+    for where in ("agent/new.py", "tests/test_new.py", "examples/new_mission.py", "mission/bundled/new.py"):
+        for room, source in zip(ROOMS, lines, strict=True):
+            found = _ruff(source, where)
+            assert found.count(f"TID251 `{room}` is banned") == 2, (where, found)
+        assert _ruff(f"from dronefleet.{ROOMS[0]} import runtime\n", where) == ""
+
+
+def _ruff(source: str, filename: str) -> str:
+    done = subprocess.run(
+        [sys.executable, "-m", "ruff", "check", "--select", "TID251", "--output-format", "concise", "--quiet",
+         "--stdin-filename", str(ROOT / filename), "-"],
+        input=source, capture_output=True, text=True, cwd=ROOT, timeout=60,
+    )
+    assert done.returncode in (0, 1), done.stderr
+    return done.stdout
