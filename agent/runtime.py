@@ -10,12 +10,9 @@ probe and the lost-link watch. Shutdown runs in reverse, in `finally`.
 from __future__ import annotations
 
 import asyncio
-import collections
 import json
 import logging
-import math
 import uuid
-from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -30,11 +27,13 @@ from dronefleet.agent.handler import CommandHandler, FlightSettings
 from dronefleet.agent.link import LostLink, LostLinkAction
 from dronefleet.agent.neighbours import Neighbours, new_bridge_zids
 from dronefleet.agent.prober import LinkProber
+from dronefleet.agent.status_resend import StatusResend
 from dronefleet.agent.telemetry import to_telemetry
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.datagram_echo import EchoPort, UdpEcho
 from dronefleet.bus.mesh_policy import unsure
-from dronefleet.bus.port import Bus, Declaration, QueryHandler, Sample, echo
+from dronefleet.bus.port import Bus, Sample, echo
+from dronefleet.bus.redeclarable import Redeclarable
 from dronefleet.schemas.about import About
 from dronefleet.schemas.auth import verifier_of
 from dronefleet.schemas.bundles import BundleReply, BundleStatus, parse_bundle
@@ -48,13 +47,10 @@ from dronefleet.schemas.telemetry import GROUND_PEER, Telemetry
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
-RECENT_STATUSES = 64  # command statuses kept to repeat to a ground that was out of reach
-STEADY_PROBES = 5  # probes answered in a row after a gap before its repeats count as heard
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 # A contact gap this long may have been a link closing and the mesh routing the drone
 # another way: its command and bundle queryables are declared afresh (ADR 0003).
 REDECLARE_AFTER_S = 2.0
-OVERLAP_S = 1.0  # after a fresh declaration: a query reaching both gets one answer, within this
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 GEOFENCE_ID_PREFIX = "geofence-"
 
@@ -66,63 +62,6 @@ def make_flight_controller(url: str, clock: Clock) -> FlightController:
     from dronefleet.agent.fc_mavsdk import MavsdkFlightController
 
     return MavsdkFlightController(url, connect_timeout_s=FC_CONNECT_TIMEOUT_S)
-
-
-class Redeclarable:
-    """A queryable that can be declared afresh without a moment undeclared.
-
-    After the mesh routed a drone another way, the ground's router could hold no route
-    to its `cmd` queryable while its telemetry flowed (twice in 5 real-packet runs of
-    one corpus world, ADR 0003): a declaration is not always carried again over the new
-    way. `refresh` declares the other of two forms that match the same key (`K`, then
-    `K/**`, a new resource to every router, so it travels the mesh anew), then
-    undeclares the old one. While both are declared a query can reach both: for
-    OVERLAP_S after a refresh the same query (selector and payload) gets the first
-    answer again instead of a second run. Only then: a replayed command is otherwise
-    refused as one (SPEC §9), and within that second it is not run twice either.
-    """
-
-    def __init__(self, bus: Bus, key: str, handler: QueryHandler, clock: Clock) -> None:
-        self._bus, self._handler, self._clock = bus, handler, clock
-        self._forms = (key, f"{key}/**")
-        self.refreshes = 0
-        self._refreshed_at = -math.inf
-        self._answers: dict[tuple[str, bytes], tuple[float, asyncio.Future[bytes]]] = {}
-        self._declared: Declaration = bus.serve(key, self._answer)
-
-    @property
-    def form(self) -> str:
-        return self._forms[self.refreshes % 2]
-
-    async def _answer(self, selector: str, payload: bytes) -> bytes:
-        now = self._clock.monotonic()
-        for query in [q for q, (at, _) in self._answers.items() if now - at > OVERLAP_S]:
-            del self._answers[query]
-        if now - self._refreshed_at > OVERLAP_S:
-            return await self._handler(selector, payload)
-        known = self._answers.get((selector, payload))
-        if known is not None:
-            return await asyncio.shield(known[1])
-        answer: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
-        self._answers[(selector, payload)] = (now, answer)
-        try:
-            answer.set_result(await self._handler(selector, payload))
-        except BaseException as exc:
-            answer.set_exception(exc)
-            answer.exception()  # retrieved: a duplicate awaiting it gets it, none is no warning
-            del self._answers[(selector, payload)]  # an error is not remembered: a retry runs again
-            raise
-        return answer.result()
-
-    def refresh(self) -> None:
-        self.refreshes += 1
-        self._refreshed_at = self._clock.monotonic()
-        fresh = self._bus.serve(self.form, self._answer)
-        self._declared.close()
-        self._declared = fresh
-
-    def close(self) -> None:
-        self._declared.close()
 
 
 class Agent:
@@ -151,14 +90,7 @@ class Agent:
         self._seq = 0
         store = BundleStore(Path(config.state_dir) / "bundles.json" if config.state_dir else None)
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
-        self._recent_statuses: collections.deque[CommandStatus] = collections.deque(maxlen=RECENT_STATUSES)
-        # Published before the ground first answered (None after): sent again then.
-        self._before_contact: list[CommandStatus | BundleStatus] | None = []
-        self._last_contact_ms: int | None = None  # when the ground last answered a probe
-        # Statuses from this time on may not have reached the ground (a gap since, and
-        # the contact after it not yet steady): each contact after a gap repeats them.
-        self._unsure_since_ms: int | None = None
-        self._steady_from_ms = 0
+        self.resend = StatusResend(config.probe_period_ms)  # what to send again after a gap
         self._served: list[Redeclarable] = []  # the command and bundle queryables, while running
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
@@ -186,54 +118,30 @@ class Agent:
 
     def _on_ground_contact(self, now: float) -> None:
         now_ms = self.clock.time_ms()
-        period_ms = self.config.probe_period_ms
-        gap_began_ms = self._last_contact_ms
-        self._last_contact_ms = now_ms
         for decision, summary in self.lost_link.contact(now):
             log.warning("%s: ground reachable again, %s", self.drone_id, summary)
             self._system(decision, summary)
-        if self._before_contact is not None:
+        if not self.resend.contacted:
             self._publish_about()  # a ground that started after this agent hears what it is
-            # The first answer since start: what was published before the ground's
-            # subscriptions reached this router (a bundle the restarted agent reports
-            # failed, at once after start) may have gone nowhere. Sent again.
-            unheard, self._before_contact = self._before_contact, None
-            self._send_again(unheard, "statuses published before the ground answered")
-        if gap_began_ms is not None and now_ms - gap_began_ms >= REDECLARE_AFTER_S * 1000 and self._served:
+        gap_ms = self.resend.gap_before(now_ms)
+        # What was published before the ground's subscriptions reached this router, or
+        # while a link that closed carried it, may have gone nowhere (agent/status_resend.py).
+        repeats = self.resend.contact(now_ms)
+        if gap_ms is not None and gap_ms >= REDECLARE_AFTER_S * 1000 and self._served:
             log.info("%s: the ground answers again after %.1f s; declaring its command queryables afresh",
-                     self.drone_id, (now_ms - gap_began_ms) / 1000)
+                     self.drone_id, gap_ms / 1000)
             for served in self._served:
                 served.refresh()
-        if gap_began_ms is not None and now_ms - gap_began_ms > 1.5 * period_ms:
-            # At least one probe went unanswered: the link dropped for a while, maybe for
-            # less than the lost-link timeout, and a reliable publication whose link closed
-            # meanwhile is gone (ADR 0003). Statuses from then on are sent again — and
-            # those sent again before, while the link has not held since: a repeat can
-            # go down with a link that closes again at once.
-            if self._unsure_since_ms is None:  # the first gap since the link last held
-                self._unsure_since_ms = gap_began_ms - period_ms
-            self._steady_from_ms = now_ms
-            self._tell_what_happened_unheard(self._unsure_since_ms)
-        elif self._unsure_since_ms is not None and now_ms - self._steady_from_ms >= STEADY_PROBES * period_ms:
-            self._unsure_since_ms = None  # the link held long enough for the repeats to arrive
+        for repeat in repeats:
+            log.info("%s: repeating %d %s", self.drone_id, len(repeat.statuses), repeat.why)
+            for status in repeat.statuses:
+                self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
 
     def _signed_by_the_ground(self) -> None:
         """A command or bundle that passed the ground's signature is contact (SPEC §8), as an
         answered probe is."""
         if self.verifier is not None:
             self._on_ground_contact(self.clock.monotonic())
-
-    def _tell_what_happened_unheard(self, since_ms: int) -> None:
-        """Command statuses published while the ground may not have heard them, again: a
-        mission waiting for a command's end learns it (the ground ignores repeats)."""
-        missed = [s for s in self._recent_statuses if s.timestamp >= since_ms]
-        self._send_again(missed, "command statuses the ground may have missed")
-
-    def _send_again(self, statuses: Sequence[CommandStatus | BundleStatus], what: str) -> None:
-        if statuses:
-            log.info("%s: repeating %d %s", self.drone_id, len(statuses), what)
-        for status in statuses:
-            self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
 
     async def _lost_link_loop(self) -> None:
         while True:
@@ -295,11 +203,8 @@ class Agent:
 
     def _publish_status(self, status: CommandStatus | SystemStatus | BundleStatus) -> None:
         self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
-        if self._before_contact is not None and isinstance(status, CommandStatus | BundleStatus) \
-                and len(self._before_contact) < RECENT_STATUSES:
-            self._before_contact.append(status)
+        self.resend.published(status)
         if isinstance(status, CommandStatus):
-            self._recent_statuses.append(status)
             self.bundles.on_status(status)
 
     def about(self) -> About:

@@ -14,10 +14,10 @@ from functools import partial
 
 import pytest
 
-from dronefleet.agent.runtime import OVERLAP_S, Redeclarable
 from dronefleet.bus.clock import SystemClock, VirtualClock
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.port import Bus, QueryRefused, QueryTimeout, Unreachable, echo
+from dronefleet.bus.redeclarable import OVERLAP_S, Redeclarable
 from dronefleet.bus.zenoh_bus import ZenohBus
 from tests.helpers import Collector, free_port, until
 
@@ -129,7 +129,7 @@ async def test_query_is_answered_by_the_matching_queryable(mesh: MeshFactory) ->
 
 
 async def test_a_queryable_declared_afresh_answers_every_query_around_it_once(mesh: MeshFactory) -> None:
-    """The agent's command queryable after a contact gap (agent/runtime.Redeclarable):
+    """The agent's command queryable after a contact gap (bus/redeclarable.py):
     queries that reached the old declaration are answered after it is gone, queries
     sent after reach the new one (the other form, `K/**`), and each runs once."""
     server, client = await mesh(), await mesh()

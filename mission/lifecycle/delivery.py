@@ -17,12 +17,12 @@ from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import CommandResult, MissionOver, MissionRecord
+from dronefleet.mission.lifecycle.send_again import TakenBack, cancel_body, deliver, steps_for
 from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
-from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected, InvalidMessage
-from dronefleet.schemas.fence import CONFLICT
+from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.geo import distance_m
-from dronefleet.schemas.status import RETURNING, CommandStatus, ended_by_failsafe
+from dronefleet.schemas.status import CommandStatus, ended_by_failsafe
 
 log = logging.getLogger(__name__)
 
@@ -33,10 +33,6 @@ R = TypeVar("R")
 # Where a held goto may go now: (lat, lon, why no drone is free for the relays it needs
 # or None, what holds it: "at the edge of its relay chain" or "out of drone02's way").
 Leash = tuple[float, float, str | None, str]
-
-
-class _TakenBack(Exception):  # noqa: N818 - a signal, not an error
-    """A drone's failsafe return was stopped to send a command again (`_deliver`)."""
 
 
 BUNDLE_NO_TIMEOUT_S = 3600.0  # a bundle without timeout_s: how long the mission expects it may run alone
@@ -50,10 +46,8 @@ class PendingBundle:
     done: asyncio.Future[BundleRecord]
 
 
-DELIVERY_TRIES = 3  # a command with no answer is sent this many times in all
 OVERDUE_S = 5.0  # a bundle not heard ending this long after its timeout is read from the agent …
 OVERDUE_RETRY_S = 30.0  # … and again this often
-RETRY_WAIT_S = 2.0  # between them: the drone is heard again within this, or counts as unheard
 # Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
 # them (relative ones — move by offsets, turn, offboard — would not mean the same again).
 RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
@@ -111,7 +105,7 @@ class CommandDelivery:
             try:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear,
                                                   take_back=interrupted > 0 or not self._sent_home(drone_id))
-            except _TakenBack:
+            except TakenBack:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
                 break
@@ -204,8 +198,8 @@ class CommandDelivery:
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
                             wait_clear: bool, take_back: bool = False) -> CommandStatus | None:
         self.check_assigned(drone_id)
-        if self._out_of_reach(drone_id):  # the ground would refuse it (unknown)
-            await self._heard_again(drone_id, name)
+        if self.out_of_reach(drone_id):  # the ground would refuse it (unknown)
+            await self.heard_again(drone_id, name)
         command_id = self.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
@@ -224,7 +218,7 @@ class CommandDelivery:
                     status = await self._outcome_or_there(fut, drone_id, command_id, body)
                 else:
                     status = await self._outcome(fut, drone_id)
-        except (asyncio.CancelledError, MissionOver, _TakenBack):
+        except (asyncio.CancelledError, MissionOver, TakenBack):
             raise
         except Exception as exc:  # noqa: BLE001
             log.exception("mission %s: %s %s", self.id, name, drone_id)
@@ -241,78 +235,41 @@ class CommandDelivery:
 
     async def _deliver(self, drone_id: str, name: str, send: Callable[[], Awaitable[R]], wait_clear: bool = False,
                        take_back: bool = False) -> R:
-        """Send a command or bundle (`send`: the ground's reply); with no answer, send it
-        again (same command or bundle id: the agent runs it once) each time the drone is
-        heard, before the mission gives up on it
-        (cmd_exec after DELIVERY_TRIES heard and unanswered). A drone not heard either
-        is out of reach, whatever the ground's liveliness says yet: tried again for
-        mission.link_grace_s, then the mission ends link_lost. With `wait_clear`, a
-        target another drone holds (409 conflict) is tried again each time that drone
-        reports, for up to mission.clear_wait_s. With `take_back` (the mission did not send
-        the drone home itself), a drone its lost-link failsafe is flying home (a goto is
-        refused while it returns) is stopped first, once: it hears the ground again, and
-        the mission still wants it where it was going."""
-        attempt, waited_for, unheard_since = 1, None, None
-        give_up = self.clock.monotonic() + self.config.mission.clear_wait_s
-        while True:
-            try:
-                reply = await send()
-                if waited_for is not None:
-                    self.log("info", f"{drone_id}: {waited_for} cleared the spot, {name} goes")
-                return reply
-            except Unreachable as exc:
-                if self._out_of_reach(drone_id):  # the link dropped as it went: not the drone's fault
-                    await self._heard_again(drone_id, name)
-                    continue
-                if attempt == DELIVERY_TRIES:
-                    raise
-                # A link just back may not carry queries yet: try again once the drone
-                # is heard (or the ground reports it lost), not at once.
-                if await self._heard_within(drone_id, RETRY_WAIT_S):
-                    attempt += 1
-                    unheard_since = None
-                    self.log("warn", f"{drone_id}: no answer to {name}, sending it again ({attempt}/{DELIVERY_TRIES})")
-                    continue
-                now = self.clock.monotonic()
-                unheard_since = now if unheard_since is None else unheard_since
-                if unheard_since == now:
-                    self.log("warn", f"{drone_id}: no answer to {name} and not heard; trying again as it is heard")
-                if now - unheard_since > self.config.mission.link_grace_s:
-                    raise self.setback("link_lost", f"{name} {drone_id}: not heard for "
-                                       f"{self.config.mission.link_grace_s:g} s ({exc})") from None
-            except CommandRejected as exc:
-                if exc.code == STATE_UNKNOWN:  # the ground stopped hearing it before the mission heard so
-                    await self._heard_again(drone_id, name)
-                    continue
-                if take_back and exc.reason == RETURNING:
-                    take_back = False
-                    self.log("warn", f"{drone_id}: its lost-link failsafe is flying it home; stopping that to send "
-                                     f"{name} again, as it hears the ground")
-                    await self.station.command(drone_id, json.dumps(
-                        {"cmd": "cancel", "command_id": self.station.new_command_id()}).encode(), self.id)
-                    raise _TakenBack from None  # sent again under a new id: the agent answers an id it saw as before
-                if not (wait_clear and exc.code == CONFLICT and exc.other) or self.clock.monotonic() > give_up:
-                    raise
-                if waited_for != exc.other:
-                    waited_for = exc.other
-                    self.log("info", f"{drone_id}: {name} waits for {exc.other} to clear the spot ({exc.reason})")
-                await self.next_telemetry(exc.other)
+        """Send a command or bundle (`send`: the ground's reply) until it goes through or
+        a failure ends the mission; each reason to send again is a step of
+        mission/lifecycle/send_again.py. With `wait_clear`, a target another drone holds
+        is waited for; with `take_back` (the mission did not send the drone home itself),
+        a drone its lost-link failsafe is flying home is stopped first, once: it hears the
+        ground again, and the mission still wants it where it was going."""
+        return await deliver(send, steps_for(self, drone_id, name, wait_clear=wait_clear, take_back=take_back))
 
-    def _out_of_reach(self, drone_id: str) -> bool:
+    @property
+    def link_grace_s(self) -> float:
+        return self.config.mission.link_grace_s
+
+    @property
+    def clear_wait_s(self) -> float:
+        return self.config.mission.clear_wait_s
+
+    async def cancel(self, drone_id: str) -> None:
+        """Stop what the drone is doing (its failsafe's return), as this mission."""
+        await self.station.command(drone_id, cancel_body(self.station.new_command_id()), self.id)
+
+    def out_of_reach(self, drone_id: str) -> bool:
         back = self._link_back_at.get(drone_id)
         return back is not None and not back.done()
 
-    async def _heard_again(self, drone_id: str, name: str) -> None:
+    async def heard_again(self, drone_id: str, name: str) -> None:
         """Wait until the drone is back in reach: until the ground reports it back when
         the mission knows it lost it, else until its next telemetry. Never longer than
         mission.link_grace_s: the mission ends then (link_lost) and this is cancelled."""
         self.log("info", f"{drone_id}: {name} waits for the link to come back")
-        if self._out_of_reach(drone_id):
+        if self.out_of_reach(drone_id):
             await asyncio.shield(self._link_back_at[drone_id])
         else:
             await self.next_telemetry(drone_id)
 
-    async def _heard_within(self, drone_id: str, seconds: float) -> bool:
+    async def next_heard_within(self, drone_id: str, seconds: float) -> bool:
         """Whether the drone's next telemetry comes within `seconds`."""
         heard = asyncio.ensure_future(self.next_telemetry(drone_id))
         nap = asyncio.ensure_future(self.clock.sleep(seconds))
