@@ -41,6 +41,7 @@ from dronefleet.bus.clock import VirtualClock
 from dronefleet.bus.datagram_echo import EchoServer
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.mesh_security import mesh_security
+from dronefleet.bus.port import Bus
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.ground.api import create_app
 from dronefleet.ground.config import DEFAULT_CEILING_M, GroundConfig
@@ -191,10 +192,12 @@ class SimField:
         radio: RadioModel | None = None,
         agent_config: AgentConfig | None = None,
         fleet_port: Callable[[GroundStation], FleetPort] | None = None,
+        agent_bus: Callable[[str, Bus], Bus] | None = None,
     ) -> None:
-        """`fleet_port` is a fault-injection point: what the missions reach the ground
-        through, made from the station (by default the station itself); a test wraps
-        it to make one of its calls fail."""
+        """`fleet_port` and `agent_bus` are fault-injection points: what the missions
+        reach the ground through, made from the station (by default the station itself),
+        and each agent's bus, made from its drone's id and session; a test wraps them to
+        make a call fail or a message go missing (bus/faulty.py)."""
         self.world = world
         self.specs = world.spawn(n)
         self.seed = seed
@@ -228,6 +231,7 @@ class SimField:
         self.manager: MissionManager | None = None
         self.plugins = plugins if plugins is not None else PluginLibrary.default(None)
         self._fleet_port = fleet_port
+        self._agent_bus = agent_bus
 
     def _bus(self, node: str = GROUND) -> MemoryBus:
         """A session on `node` of the mesh: the ground, or a drone (its agent and on-board programs)."""
@@ -259,7 +263,10 @@ class SimField:
             if self.air is not None:
                 self.air.tick()  # the new drone's links
             datagrams = AirEcho(self.air, spec.id) if self.air is not None else None
-            agent = Agent(spec.id, self._agent_config(spec), fc, self._bus(spec.id), self.clock, echo=datagrams)
+            bus: Bus = self._bus(spec.id)
+            if self._agent_bus is not None:
+                bus = self._agent_bus(spec.id, bus)
+            agent = Agent(spec.id, self._agent_config(spec), fc, bus, self.clock, echo=datagrams)
             self._agent_runtimes[spec.id] = agent
             self._agents[spec.id] = loop.create_task(agent.run(), name=f"agent {spec.id}")
             self._tasks.append(self._agents[spec.id])

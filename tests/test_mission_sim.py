@@ -20,7 +20,8 @@ from typing import Any, cast
 import msgspec
 import pytest
 
-from dronefleet.bus.port import Unreachable
+from dronefleet.bus.faulty import FaultyBus
+from dronefleet.bus.port import Bus, Unreachable
 from dronefleet.compose import SimField
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.lifecycle.port import FleetPort
@@ -50,9 +51,10 @@ async def fly(
     during: Callable[[SimField, str], Awaitable[None]] | None = None,
     max_s: float = 600,
     fleet_port: Callable[[GroundStation], FleetPort] | None = None,
+    agent_bus: Callable[[str, Bus], Bus] | None = None,
 ) -> tuple[MissionRecord, SimField, list[str]]:
     """Run `script` to its end; the record, the (closed) field and the mission's log."""
-    field = SimField(world or World(), None if world else 2, fleet_port=fleet_port)
+    field = SimField(world or World(), None if world else 2, fleet_port=fleet_port, agent_bus=agent_bus)
     await field.start()
     try:
         if during is None:
@@ -408,26 +410,24 @@ async def test_a_push_whose_answer_is_lost_is_sent_again_and_runs_once() -> None
     assert sum("no answer to push, sending it again (2/3)" in line for line in lines) == 1, lines
 
 
-async def test_a_goto_whose_end_is_lost_ends_once_the_drone_stands_at_its_target(monkeypatch: pytest.MonkeyPatch) -> None:
+async def test_a_goto_whose_end_is_lost_ends_once_the_drone_stands_at_its_target() -> None:
     """A reliable publication goes down with a link that closes under it; a goto's
     `finish` lost with no probe missed (so the agent repeats nothing) hung its verb until
-    the time limit (corpus world 3, relay mode chain). The verb now ends once the drone
+    the time limit (a relay corpus world, mode chain). The verb now ends once the drone
     is heard standing at its target for 10 s, and says so."""
-    from dronefleet.agent.runtime import Agent
-    from dronefleet.schemas.status import CommandStatus
+    buses: list[FaultyBus] = []
 
-    publish = Agent._publish_status
-    dropped: list[CommandStatus] = []
+    def first_goto_finish(key: str, payload: bytes) -> bool:
+        status = json.loads(payload)
+        return key.endswith("/status") and status.get("command") == "goto" and status.get("state") == "finish" \
+            and not any(bus.lost for bus in buses)
 
-    def lossy(self: Agent, status: Any) -> None:
-        if isinstance(status, CommandStatus) and status.command == "goto" and status.state == "finish" and not dropped:
-            dropped.append(status)  # lost on the way: never published, never repeated
-            return
-        publish(self, status)
+    def lossy(drone_id: str, bus: Bus) -> Bus:
+        buses.append(FaultyBus(bus, lose=first_goto_finish))
+        return buses[-1]
 
-    monkeypatch.setattr(Agent, "_publish_status", lossy)
     record, _, log = await fly('d = assign("drone01")\narm(d)\ntakeoff(d)\nmove(d, forward=20*m)\n'
-                               'move(d, forward=10*m)\nland(d)\n', max_s=300)
-    assert dropped, "the scenario never lost a goto's finish"
+                               'move(d, forward=10*m)\nland(d)\n', max_s=300, agent_bus=lossy)
+    assert sum(len(bus.lost) for bus in buses) == 1, "the scenario never lost a goto's finish"
     assert cause(record) == ("finished", "success"), (record, log)
     assert any("the end of its goto was not heard; it stands at its target" in line for line in log), log
