@@ -37,7 +37,7 @@ def describe(thing: Any) -> str:
     from dronefleet.mission.script.field import FieldSensor
 
     if isinstance(thing, Drone):
-        return f"drone {thing._id}"
+        return f"drone {thing.id}"
     if isinstance(thing, Subroutine):
         return f"subroutine {thing.name} ({thing.sid})"
     if isinstance(thing, FieldSensor):
@@ -56,7 +56,7 @@ def reported(mission: Mission, name: str, verb: Callable[..., Any]) -> Callable[
 
     def call(*args: Any, **kwargs: Any) -> Any:
         # the drones it acts on (those `run` hands to a new subroutine are that one's)
-        drones = [] if name == "run" else [a._id for a in (*args, *kwargs.values()) if isinstance(a, Drone)]
+        drones = [] if name == "run" else [a.id for a in (*args, *kwargs.values()) if isinstance(a, Drone)]
         if name == "wait":
             mission.report(current_subroutine(), "waiting", name, line=script_line(mission), drones=drones,
                            waiting_on=describe(args))

@@ -151,40 +151,91 @@ class SensorView:
         return None
 
 
+class Handle:
+    """What the verbs keep of a drone wrapper, out of the script's sight: which drone it
+    is now (a `replace` changes it), where its last verb left it (`anchor`), how many
+    replacements it has seen (`generation`: a verb that spans one redoes its command),
+    and a replacement handing it over (`handover`, set meanwhile)."""
+
+    __slots__ = ("anchor", "drone_id", "generation", "handover", "handover_owner", "mission")
+
+    def __init__(self, mission: Mission, drone_id: str) -> None:
+        self.mission = mission
+        self.drone_id = drone_id
+        self.anchor: Position | None = None
+        self.generation = 0
+        self.handover: asyncio.Future[None] | None = None
+        self.handover_owner: Any = None
+
+    def live(self) -> str:
+        """The drone behind the wrapper now; waits while a replacement is handing over."""
+        handover = self.handover
+        if handover is not None and getcurrent() is not self.handover_owner:
+            call(self.mission, asyncio.shield(handover))
+        try:
+            self.mission.check_assigned(self.drone_id)
+        except MissionOver:
+            raise Stopped() from None
+        return self.drone_id
+
+    def telemetry(self) -> Any:
+        return self.mission.station.registry.telemetry(self.live())
+
+    def position(self) -> Position:
+        t = self.telemetry()
+        if t.position is None:
+            raise ValueError(f"{self.drone_id} reports no position")
+        return Position(t.position.lat, t.position.lon, t.position.alt, t.heading)
+
+    def plan_base(self) -> Position:
+        """Where the next relative move or turn starts.
+
+        While the drone idles where its last verb left it, that verb's target (and
+        heading) — exact, unlike telemetry up to one period old. Otherwise the next
+        fresh telemetry sample, so a heading caught mid-turn is never used.
+        """
+        anchored = self.anchored()
+        if anchored is not None:
+            return anchored
+        call(self.mission, self.mission.next_telemetry(self.live()))
+        return self.position()
+
+    def anchored(self) -> Position | None:
+        """The last verb's target, if the drone idles there."""
+        anchor = self.anchor
+        if anchor is not None and self.mission.station.registry.info(self.live()).current_command is None:
+            here = self.position()
+            if here.distance(anchor) <= ANCHOR_RADIUS_M:
+                alt = anchor.alt if anchor.alt is not None else here.alt
+                return Position(anchor.lat, anchor.lon, alt, anchor.heading)
+        return None
+
+
 class Drone:
     """The drone wrapper (thesis table 5.4). It keeps its identity across `replace`."""
 
-    __slots__ = ("_anchor", "_gen", "_handover", "_handover_owner", "_id", "_m", "sensor")
+    __slots__ = ("_handle", "sensor")
 
     def __init__(self, mission: Mission, drone_id: str) -> None:
-        self._m = mission
-        self._id = drone_id
-        self._anchor: Position | None = None
-        self._gen = 0  # bumped by every replacement: a verb that spans one redoes its command
-        self._handover: asyncio.Future[None] | None = None  # set while `replace` brings the new drone in
-        self._handover_owner: Any = None
+        self._handle = Handle(mission, drone_id)
         self.sensor = SensorView(self)
 
     def _live(self) -> str:
-        """The drone behind the wrapper now; waits while a replacement is handing over."""
-        handover = self._handover
-        if handover is not None and getcurrent() is not self._handover_owner:
-            call(self._m, asyncio.shield(handover))
-        try:
-            self._m.check_assigned(self._id)
-        except MissionOver:
-            raise Stopped() from None
-        return self._id
+        return self._handle.live()
 
     def _telem(self) -> Any:
-        return self._m.station.registry.telemetry(self._live())
+        return self._handle.telemetry()
+
+    @property
+    def _m(self) -> Mission:
+        return self._handle.mission
 
     def __repr__(self) -> str:
-        return f"<drone {self._id}>"
+        return f"<drone {self._handle.drone_id}>"
 
     @property
     def id(self) -> str:
-        return self._id
+        return self._handle.drone_id
 
     @property
     def state(self) -> str:
@@ -209,10 +260,7 @@ class Drone:
 
     @property
     def position(self) -> Position:
-        t = self._telem()
-        if t.position is None:
-            raise ValueError(f"{self._id} reports no position")
-        return Position(t.position.lat, t.position.lon, t.position.alt, t.heading)
+        return self._handle.position()
 
     @property
     def rel_alt(self) -> float:
@@ -286,24 +334,9 @@ class Drone:
         return self._plan_base().down(d)
 
     def _plan_base(self) -> Position:
-        """Where the next relative move or turn starts.
+        return self._handle.plan_base()
 
-        While the drone idles where its last verb left it, that verb's target (and
-        heading) — exact, unlike telemetry up to one period old. Otherwise the next
-        fresh telemetry sample, so a heading caught mid-turn is never used.
-        """
-        anchored = self._anchored()
-        if anchored is not None:
-            return anchored
-        call(self._m, self._m.next_telemetry(self._live()))
-        return self.position
 
-    def _anchored(self) -> Position | None:
-        """The last verb's target, if the drone idles there."""
-        anchor = self._anchor
-        if anchor is not None and self._m.station.registry.info(self._live()).current_command is None:
-            here = self.position
-            if here.distance(anchor) <= ANCHOR_RADIUS_M:
-                alt = anchor.alt if anchor.alt is not None else here.alt
-                return Position(anchor.lat, anchor.lon, alt, anchor.heading)
-        return None
+def handle(d: Drone) -> Handle:
+    """The verbs' side of a drone wrapper."""
+    return d._handle

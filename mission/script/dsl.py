@@ -23,7 +23,7 @@ from dronefleet.mission.lifecycle.runtime import Subroutine
 from dronefleet.mission.script import units
 from dronefleet.mission.script.activity import reported
 from dronefleet.mission.script.channel import Channel
-from dronefleet.mission.script.drone import COMPLETED, MIN_HANDOVER_HEIGHT_M, Drone, any_drone, call, guarded
+from dronefleet.mission.script.drone import COMPLETED, MIN_HANDOVER_HEIGHT_M, Drone, any_drone, call, guarded, handle
 from dronefleet.mission.script.field import FieldSensor, field_sensors_of
 from dronefleet.mission.script.geo import Position
 from dronefleet.mission.script.names import VERBS, common_names, near_place
@@ -53,19 +53,19 @@ class Verbs:
     def _drone_id(self, d: Any) -> str:
         if not isinstance(d, Drone):
             raise TypeError(f"expected a drone (from assign), got {d!r}")
-        return d._live()
+        return handle(d).live()
 
     def _send(self, d: Drone, body: dict[str, Any], wait: bool = True, wait_clear: bool = False) -> Any:
-        target, generation = self._drone_id(d), d._gen
+        target, generation = self._drone_id(d), handle(d).generation
         status = call(self.m, self.m.execute(target, body, wait=wait, wait_clear=wait_clear))
-        if wait and d._gen != generation and status.state not in COMPLETED:
+        if wait and handle(d).generation != generation and status.state not in COMPLETED:
             # `replace` swapped the drone while it ran this command (the return home
             # superseded it): the new drone, once in place, does it instead.
             target = self._drone_id(d)
             self.m.log("info", f"{target} takes over the interrupted {body['cmd']}")
             status = call(self.m, self.m.execute(target, body, wait=True))
         if wait:  # the wrapper then shows the effect (telemetry after completion)
-            call(self.m, self.m.next_telemetry(d._live()))
+            call(self.m, self.m.next_telemetry(handle(d).live()))
         return status
 
     # ---- assignment ----------------------------------------------------------------
@@ -124,11 +124,12 @@ class Verbs:
         request = self.m.requests[old]
         t = self.m.station.registry.telemetry(old)
         flying = t.armed and t.landed_state != "on_ground"
-        stop_at = d._anchored() or d.position
+        h = handle(d)
+        stop_at = h.anchored() or d.position
         height = d.rel_alt
-        d._gen += 1
-        d._handover = asyncio.get_running_loop().create_future()
-        d._handover_owner = getcurrent()
+        h.generation += 1
+        h.handover = asyncio.get_running_loop().create_future()
+        h.handover_owner = getcurrent()
         try:
             self._send(d, {"cmd": "return"}, wait=False)
             self.m.revoke(old)
@@ -136,8 +137,8 @@ class Verbs:
                 call(self.m, self.m.take(new, request))
             except CommandRejected as exc:  # another mission claimed it first (missions in their own processes)
                 raise self.m.fail("requirements", f"{new} could not replace {old}: {exc.reason}") from None
-            d._id = new
-            d._anchor = None
+            h.drone_id = new
+            h.anchor = None
             if not flying:
                 self.m.log("info", f"Replaced {old} with {new}")
                 return d
@@ -148,10 +149,10 @@ class Verbs:
             if stop_at.heading is not None:
                 body["yaw"] = stop_at.heading
             self._send(d, body)
-            d._anchor = stop_at
+            h.anchor = stop_at
             return d
         finally:
-            handover, d._handover, d._handover_owner = d._handover, None, None
+            handover, h.handover, h.handover_owner = h.handover, None, None
             if not handover.done():
                 handover.set_result(None)
 
@@ -165,15 +166,15 @@ class Verbs:
 
     def takeoff(self, d: Drone, alt: Distance = None) -> None:
         self._send(d, altitude_body("takeoff", alt))
-        d._anchor = None
+        handle(d).anchor = None
 
     def land(self, d: Drone) -> None:
         self._send(d, {"cmd": "land"})
-        d._anchor = None
+        handle(d).anchor = None
 
     def home(self, d: Drone, alt: Distance = None) -> None:
         self._send(d, altitude_body("return", alt))
-        d._anchor = None
+        handle(d).anchor = None
 
     def cancel(self, d: Drone) -> None:
         self._send(d, {"cmd": "cancel"})
@@ -181,7 +182,7 @@ class Verbs:
     def turn(self, d: Drone, by: Angle = None, to: Any = None) -> None:
         if (by is None) == (to is None):
             raise TypeError("turn: give exactly one of by= (degrees) or to= (a direction, angle or position)")
-        base = d._plan_base()
+        base = handle(d).plan_base()
         if by is not None:
             goal = normalize_deg(base.heading + units.angle(by, "turn by"))
         elif isinstance(to, (units.Quantity, int, float)) and not isinstance(to, bool):
@@ -190,7 +191,7 @@ class Verbs:
             goal = base.bearing(to)
         delta = angle_diff_deg(goal, base.heading)
         self._send(d, {"cmd": "turn", "deg": delta})
-        d._anchor = Position(base.lat, base.lon, base.alt, goal)
+        handle(d).anchor = Position(base.lat, base.lon, base.alt, goal)
 
     def move(self, d: Drone, *, forward: Distance = 0, backward: Distance = 0, right: Distance = 0, left: Distance = 0,
              up: Distance = 0, down: Distance = 0, to: Any = None, lat: Any = None, lon: Any = None,
@@ -198,7 +199,7 @@ class Verbs:
         goal = move_goal("move", forward, backward, right, left, up, down, to, lat, lon)
         # Where the drone is now matters only to a relative move or one that keeps its
         # heading; an absolute one with a yaw goes at once (no wait for telemetry).
-        base = d._plan_base() if isinstance(goal, tuple) or yaw is None else None
+        base = handle(d).plan_base() if isinstance(goal, tuple) or yaw is None else None
         if isinstance(goal, tuple):
             assert base is not None
             fwd, rgt, vertical = goal
@@ -218,7 +219,7 @@ class Verbs:
         if speed is not None:
             body["speed"] = units.speed(speed)
         self._send(d, body, wait_clear=bool(wait_clear))
-        d._anchor = Position(goal.lat, goal.lon, goal.alt, heading)
+        handle(d).anchor = Position(goal.lat, goal.lon, goal.alt, heading)
 
     # ---- task bundles (SPEC §6) ------------------------------------------------------
 
@@ -237,8 +238,8 @@ class Verbs:
         if until is not None:
             body["until"] = as_guard(until)
         record = call(self.m, self.m.push(self._drone_id(d), body))
-        d._anchor = None
-        call(self.m, self.m.next_telemetry(d._live()))
+        handle(d).anchor = None
+        call(self.m, self.m.next_telemetry(handle(d).live()))
         return record
 
     # ---- time and concurrency ------------------------------------------------------

@@ -38,7 +38,7 @@ import msgspec
 from dronefleet.mission.lifecycle.record import SecurityViolation, script_line
 from dronefleet.mission.lifecycle.runtime import Stopped
 from dronefleet.mission.script import units
-from dronefleet.mission.script.drone import call, guarded
+from dronefleet.mission.script.drone import call, guarded, handle
 from dronefleet.mission.script.names import VERB_NAMES, common_names
 from dronefleet.mission.script.sandbox import Guards, ScriptError, compile_mission
 from dronefleet.schemas.errors import FleetError
@@ -443,7 +443,7 @@ class MissionPlugins:
         def monitor() -> None:
             while True:
                 callback(wrapper)
-                call(m, m.next_telemetry(wrapper._live()))
+                call(m, m.next_telemetry(handle(wrapper).live()))
 
         sub = m.scheduler.spawn(monitor, name=f"plugin {active.plugin.id} on {wrapper.id}", daemon=True,
                                 plugin=active.plugin.id)

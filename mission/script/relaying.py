@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any
 from dronefleet.mission.lifecycle import assignment as a
 from dronefleet.mission.lifecycle.delivery import Leash
 from dronefleet.mission.script import units
+from dronefleet.mission.script.drone import handle
 from dronefleet.mission.script.geo import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
@@ -88,7 +89,7 @@ def flight_altitude(drone: Any) -> float | None:
     goal = _goal(drone)
     if goal is not None and goal.alt is not None and home is not None and home.alt is not None:
         return goal.alt - home.alt
-    t = drone._telem()
+    t = handle(drone).telemetry()
     return t.position.rel_alt if t.position is not None and t.position.rel_alt > AIRBORNE_M else None
 
 
@@ -144,7 +145,7 @@ class Relays:
         params = self.params(**inputs)
         mine = []
         for d in served:
-            t = d._telem()
+            t = handle(d).telemetry()
             goal = _goal(d)
             link = d.link
             mine.append(planner.Drone(
