@@ -28,7 +28,7 @@ from dronefleet.agent.link import LostLink, LostLinkAction
 from dronefleet.agent.neighbours import Neighbours, new_bridge_zids
 from dronefleet.agent.prober import LinkProber
 from dronefleet.agent.status_resend import StatusResend
-from dronefleet.agent.telemetry import to_telemetry
+from dronefleet.agent.telemetry_filter import to_telemetry
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.datagram_echo import EchoPort, UdpEcho
 from dronefleet.bus.mesh_policy import unsure

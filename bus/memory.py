@@ -22,7 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from dronefleet.bus.delivery import Inbox
+from dronefleet.bus.inbox import Inbox
 from dronefleet.bus.keyexpr import intersects, strip_parameters
 from dronefleet.bus.port import (
     LivelinessHandler,

@@ -32,7 +32,7 @@ from typing import Any, Literal
 
 import zenoh
 
-from dronefleet.bus.delivery import Inbox
+from dronefleet.bus.inbox import Inbox
 from dronefleet.bus.port import (
     BusError,
     LivelinessHandler,

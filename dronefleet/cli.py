@@ -239,7 +239,7 @@ def sensor_publish(sensor_id: str, sensor_type: str, at: str, value: float | Non
     JSON line on stdin ({"co_ppm": 12.5}, {"value": 21.5}, "at": [lat, lon, alt] moves it)
     until end of input: a script beside a real sensor pipes into it.
     """
-    from dronefleet.sim.field_sensor import parse_at, parse_fields, run_publish
+    from dronefleet.sim.sensor_publisher import parse_at, parse_fields, run_publish
 
     position = parse_at(at)
     given = parse_fields(fields)

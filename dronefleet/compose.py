@@ -12,7 +12,7 @@
   seconds, and a run is a function of the script, the world and the seed.
 - `dronefleet.demo` wires processes (ground, sims, agents) the same way for `fleet demo`.
 
-Missions see the ground only through `mission.lifecycle.port.FleetPort`; the GroundStation given
+Missions see the ground only through `mission.lifecycle.fleet_port.FleetPort`; the GroundStation given
 to them here is what implements it.
 """
 
@@ -49,7 +49,7 @@ from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
 from dronefleet.mission.hosting.simulate import add_field_reading, sensor_values, telemetry_sample, write_result
-from dronefleet.mission.lifecycle.port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary, plugin_summary
 from dronefleet.schemas.endpoints import split_host_port
@@ -58,9 +58,9 @@ from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.fleet import WatchEvent
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry
-from dronefleet.sim.field_sensor import world_field_sensor
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
 from dronefleet.sim.radio_air import AirEcho, RadioAir
+from dronefleet.sim.sensor_publisher import world_field_sensor
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.vehicle import Vehicle
 from dronefleet.sim.world import DroneSpec, FieldSensorSpec, World

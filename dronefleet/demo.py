@@ -49,8 +49,8 @@ from dronefleet.schemas.errors import ConfigError, FleetError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry
 from dronefleet.sim.agent_command import agent_command, drone_agent_config
-from dronefleet.sim.field_sensor import world_field_sensor
 from dronefleet.sim.projection import LocalFrame
+from dronefleet.sim.sensor_publisher import world_field_sensor
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.world import DroneSpec, World, load_world
 

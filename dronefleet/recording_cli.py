@@ -128,7 +128,7 @@ def plot(path: Path, out_dir: Path | None) -> None:
             raise click.BadParameter(f"{path} is not a simulation's result.json ({exc})", param_hint="PATH") from None
     else:
         from dronefleet.bus.recording import RecordingError, read
-        from dronefleet.ground.recording import result_of_recording
+        from dronefleet.ground.mission_recording import result_of_recording
 
         try:
             result = result_of_recording(read(path))

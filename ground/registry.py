@@ -16,7 +16,7 @@ import msgspec
 
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.describe import Described, Level, bundle_line, describe_start, status_line, system_line
-from dronefleet.ground.field_sensors import FieldSensors
+from dronefleet.ground.field_sensor_registry import FieldSensors
 from dronefleet.schemas.about import About, reading_fault, relay_disagreement
 from dronefleet.schemas.bundles import BundleRecord, BundleStatus
 from dronefleet.schemas.errors import STATE_UNKNOWN

@@ -10,7 +10,7 @@ from litestar.openapi.spec import Example
 from litestar.params import Parameter
 
 from dronefleet.ground.api_error import error_response, error_specs
-from dronefleet.ground.field_sensors import FieldSensorInfo
+from dronefleet.ground.field_sensor_registry import FieldSensorInfo
 from dronefleet.ground.station import GroundStation
 
 

@@ -29,7 +29,7 @@ from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.describe import describe_step
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.feeds import SensorFeeds
-from dronefleet.ground.recording import MissionRecordings
+from dronefleet.ground.mission_recording import MissionRecordings
 from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
 from dronefleet.ground.throttle import WarningThrottle
 from dronefleet.schemas.auth import T, signer_of

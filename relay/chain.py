@@ -95,7 +95,7 @@ class Slot:
     relay: str | None = None  # None: asked for, no drone yet
     asked_at: float = 0.0  # when it was asked for, or sent to this spot
     on_spot_since: float | None = None
-    hop: float = 0.0  # a probe's trial hop (0: measured, the next one not sent yet)
+    hop_m: float = 0.0  # a probe's trial hop (0: measured, the next one not sent yet)
     resends: int = 0  # a probe's trial sent again (its move refused, or it came back unmeasured)
     again: bool = False  # its relay failed: to be asked for again, in place
 
@@ -338,7 +338,7 @@ class Chains:
         laptop; or, failing, that its own hop to the laptop does not hold
         (were that link lossless it would be up and, one hop being fewest, taken)."""
         slot = self.probe
-        if slot is None or slot.relay is None or slot.hop == 0.0 or slot.relay not in seen:
+        if slot is None or slot.relay is None or slot.hop_m == 0.0 or slot.relay not in seen:
             return
         s = seen[slot.relay]
         if self._never_took_off(slot.relay, s, slot.asked_at, now, out):
@@ -379,7 +379,7 @@ class Chains:
             out.notes.append(f"probe {slot.relay}: a hop of {own:.0f} m did not hold "
                              f"({'not heard' if lost else f'loss {s.loss}, rtt {s.rtt_ms} ms'})")
         slot.on_spot_since = None
-        slot.hop, slot.resends = 0.0, 0
+        slot.hop_m, slot.resends = 0.0, 0
 
     def _probe(self, now: float, workers: Sequence[Worker], nodes: Sequence[tuple[Point, float]], spare: int,
                out: ChainPlan) -> None:
@@ -387,7 +387,7 @@ class Chains:
         would prove the most (away from the other nodes, which its traffic could take)."""
         if self._enough_for(workers):
             return  # nobody needs to go beyond what is known to hold
-        if self.probe is not None and (self.probe.relay is None or self.probe.hop != 0.0):
+        if self.probe is not None and (self.probe.relay is None or self.probe.hop_m != 0.0):
             return  # asked for, or out on a trial
         if self.probe is None and spare <= 0:
             for w in workers:
@@ -405,7 +405,7 @@ class Chains:
             out.notes.append(f"probe: trying a hop of {trial:.0f} m")
         else:
             assert self.probe.relay is not None
-            self.probe.spot, self.probe.hop, self.probe.asked_at = spot, trial, now
+            self.probe.spot, self.probe.hop_m, self.probe.asked_at = spot, trial, now
             out.moves.append((self.probe.relay, spot, DWELL_S + 4.0))
             out.notes.append(f"probe {self.probe.relay}: trying a hop of {trial:.0f} m")
 

@@ -50,10 +50,10 @@ class Params:
     min_quality: float = 0.6
     good_m: float = 60.0  # the radio model (the world's `radio:`): no loss up to here
     lost_m: float = 100.0  # … total loss from here
-    base_alt: float = 5.0
-    alt_diff: float = 5.0
-    step: float = 4.0  # a relay's target is not moved by less than this
-    min_separation: float = 5.0  # relays keep this far (horizontally) from each other and the drones they serve
+    base_alt_m: float = 5.0  # the lower of the two duty altitudes (m above the ground station)
+    alt_diff_m: float = 5.0  # the upper one is this much higher
+    step_m: float = 4.0  # a relay's target is not moved by less than this
+    min_separation_m: float = 5.0  # relays keep this far (horizontally) from each other and the drones they serve
     margin: float = 0.85  # hops are planned at this share of the reach, for the motion in between
 
     def __post_init__(self) -> None:
@@ -171,7 +171,7 @@ def separate(point: Point, others: Iterable[Point], gap: float) -> Point:
 
 def settled(relays: Sequence[Relay], p: Params) -> bool:
     """Every serving relay is where it was sent: what the drones measure is this geometry's."""
-    return all(r.target is None or dist(r.at, r.target) <= 2 * p.step for r in relays if r.serving)
+    return all(r.target is None or dist(r.at, r.target) <= 2 * p.step_m for r in relays if r.serving)
 
 
 def adjust_scale(scale: float, drones: Sequence[Drone], p: Params, predicted: Mapping[str, float]) -> float:
@@ -315,7 +315,7 @@ class _Scene:
         return done
 
     def clear(self, point: Point, others: Sequence[Point]) -> Point:
-        return separate(point, [d.at for d in self.drones] + list(others), self.p.min_separation)
+        return separate(point, [d.at for d in self.drones] + list(others), self.p.min_separation_m)
 
     def improve(self, points: list[Point]) -> list[Point]:
         """Local search: move one point at a time by shrinking strides while the worst
@@ -419,9 +419,9 @@ def duty_altitude(index: int, p: Params, flying: Sequence[float] = ()) -> float:
     below every altitude the served drones fly at: a drone flying
     back toward the ground passes right where its relays hover (0.1 m on real packets)."""
     lift = 0.0
-    while lift < MAX_LIFT_M and not all(_alt_clear(p.base_alt + lift + k * p.alt_diff, flying, p) for k in (0, 1)):
+    while lift < MAX_LIFT_M and not all(_alt_clear(p.base_alt_m + lift + k * p.alt_diff_m, flying, p) for k in (0, 1)):
         lift += LIFT_STEP_M
-    return p.base_alt + lift + (p.alt_diff if index % 2 == 0 else 0.0)
+    return p.base_alt_m + lift + (p.alt_diff_m if index % 2 == 0 else 0.0)
 
 
 def _kept_altitude(r: Relay, index: int, p: Params, flying: Sequence[float]) -> float:
@@ -430,7 +430,7 @@ def _kept_altitude(r: Relay, index: int, p: Params, flying: Sequence[float]) -> 
 
 
 def _alt_clear(alt: float, flying: Sequence[float], p: Params) -> bool:
-    return all(abs(alt - f) >= p.min_separation for f in flying)
+    return all(abs(alt - f) >= p.min_separation_m for f in flying)
 
 
 def _flying(drones: Sequence[Drone]) -> list[float]:
@@ -446,7 +446,7 @@ def _assign(result: Plan, serving: Sequence[Relay], returning: Sequence[Relay], 
         alt = _kept_altitude(r, i, p, flying)
         if keep and alt != r.alt:
             result.moves.append(Move(r.id, r.target or r.at, alt))  # it stays, above (or below) the drones
-        elif not keep and (r.target is None or dist(r.target, pt) > p.step or alt != r.alt):
+        elif not keep and (r.target is None or dist(r.target, pt) > p.step_m or alt != r.alt):
             result.moves.append(Move(r.id, pt, alt))
     extra = result.points[len(serving):]
     back = list(returning)

@@ -1,5 +1,5 @@
 """Simulated sensors: the temperature sensor of thesis example 21, and any sensor type
-the world gives `fields` (sim/field_model.py: a gas plume, say), read the same way.
+the world gives `fields` (sim/world_fields.py: a gas plume, say), read the same way.
 
 A heat field is an environment temperature plus heat sources, each a centre, a
 radius and a centre temperature: inside a source the temperature falls linearly from
@@ -27,8 +27,8 @@ from dronefleet.schemas.codec import decode_telemetry, encode
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
-from dronefleet.sim.field_model import sample
 from dronefleet.sim.heat_field import HeatConfig, temperature_at
+from dronefleet.sim.world_fields import sample
 
 if TYPE_CHECKING:
     from dronefleet.sim.world import World
@@ -42,7 +42,7 @@ class TemperatureSensor:
     def __init__(self, bus: Bus, drone_id: str, config: HeatConfig, *, clock: Clock | None = None,
                  keys: Keys | None = None, on_reading: Callable[[SensorReading], None] | None = None,
                  kind: str = "temperature", model: Callable[[float, float], dict[str, float]] | None = None) -> None:
-        """`model`: another type's fields where the drone is (sim/field_model.py), instead of the heat field."""
+        """`model`: another type's fields where the drone is (sim/world_fields.py), instead of the heat field."""
         self.kind = kind
         self.model = model
         self.bus = bus
@@ -97,7 +97,7 @@ def simulated_sensor(bus: Bus, drone_id: str, kind: str, world: World, *, clock:
     any other kind is announced with readings of value None, so missions can assign by it."""
     if kind == "temperature":
         return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys, on_reading=on_reading).run()
-    if kind in world.fields:  # a sensor with fields (sim/field_model.py): each read where the drone is
+    if kind in world.fields:  # a sensor with fields (sim/world_fields.py): each read where the drone is
         return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys, kind=kind, on_reading=on_reading,
                                  model=lambda lat, lon: sample(world.fields[kind], lat, lon)).run()
     return _announce(bus, drone_id, kind, world.sensor_rate_ms, clock or SystemClock(), keys or Keys(), on_reading)
@@ -175,7 +175,7 @@ def world_sensor_program(world: World, *, drone_id: str | None = None, kind: str
     """`fleet sensor simulate`: a drone's sensor `kind` read from the world where the drone's
     telemetry puts it, or the world's field sensor `field_id` where it stands; with a line
     saying what runs. A type the world cannot read is a ConfigError naming what it has."""
-    from dronefleet.sim.field_sensor import world_field_sensor
+    from dronefleet.sim.sensor_publisher import world_field_sensor
 
     readable = sorted({"temperature", *world.fields})
     if field_id is not None:

@@ -13,10 +13,10 @@ from msgspec import Meta
 from dronefleet.schemas.about import FieldSpec, Role, SensorDeclaration
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination
-from dronefleet.sim.field_model import FieldModel, sample
 from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon, temperature_at
 from dronefleet.sim.radio import RadioModel, Spot3
 from dronefleet.sim.vehicle import VehicleParams
+from dronefleet.sim.world_fields import FieldModel, sample
 
 FaultKind = Literal[
     "rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore",
@@ -80,7 +80,7 @@ class World(_Strict, frozen=True):
     count: Annotated[int, Meta(ge=1, le=100)] | None = None
     environment_temp: float = 20.0
     heat_sources: list[HeatSource] = []
-    fields: dict[str, dict[str, FieldModel]] = {}  # sensor type → field name → model (sim/field_model.py)
+    fields: dict[str, dict[str, FieldModel]] = {}  # sensor type → field name → model (sim/world_fields.py)
     field_sensors: list[FieldSensorSpec] = []
     field_sensor_rate_ms: Annotated[int, Meta(ge=100, le=600_000)] = 1000
     sensor_rate_ms: Annotated[int, Meta(ge=10, le=60_000)] = 200  # simulated sensors publish this often

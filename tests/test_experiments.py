@@ -246,7 +246,7 @@ async def test_gas_alarm_sends_the_nearest_gas_survey_drone_and_an_auxiliary_rel
     assert (tmp_path / "sensors.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # and `fleet plot` finds it in the mission's recording as well
     from dronefleet.bus.recording import read
-    from dronefleet.ground.recording import result_of_recording
+    from dronefleet.ground.mission_recording import result_of_recording
 
     replayed = result_of_recording(read(tmp_path / "recording.mcap"))
     assert replayed["field_sensors"]["gas07"]["readings"][0]["value"]["co_ppm"] > 50

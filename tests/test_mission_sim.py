@@ -24,7 +24,7 @@ from dronefleet.bus.faulty import FaultyBus
 from dronefleet.bus.port import Bus, Unreachable
 from dronefleet.compose import SimField
 from dronefleet.ground.station import GroundStation
-from dronefleet.mission.lifecycle.port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import distance_m

@@ -249,7 +249,7 @@ def test_a_worker_on_its_way_down_home_is_let_go_at_the_level_it_flies() -> None
     time limit. Judged at 15 m, the chain covers the way home."""
     from types import SimpleNamespace
 
-    from dronefleet.mission.script.geo import Position
+    from dronefleet.mission.script.position import Position
     from dronefleet.mission.script.relaying import Frame, Relays
 
     field, field_alt = Position(40.6335, -8.6608, 8.0), 8.0

@@ -101,7 +101,7 @@ def test_a_relay_no_longer_needed_goes_home_and_is_called_back_before_a_new_one(
 
 
 def test_relay_points_keep_the_separation_from_the_drones_they_serve() -> None:
-    params = Params(min_separation=20.0)
+    params = Params(min_separation_m=20.0)
     drones = [Drone("d1", at(70, 0)), Drone("d2", at(70, 10))]
     for pt in plan(drones, [], params).points:
         assert all(dist(pt, d.at) >= 20.0 - 1e-6 for d in drones)
@@ -123,7 +123,7 @@ def test_duty_altitudes_alternate(index: int, alt: float) -> None:
 def test_scripts_plan_in_metres_around_the_ground_and_get_positions_back() -> None:
     """mission/relaying.py: positions to the planner's plane and back (sim.projection)."""
     from dronefleet.mission.script import units
-    from dronefleet.mission.script.geo import Position
+    from dronefleet.mission.script.position import Position
     from dronefleet.mission.script.relaying import Frame, Relays
 
     frame = Frame(Position(40.634125, -8.660336))
@@ -131,7 +131,7 @@ def test_scripts_plan_in_metres_around_the_ground_and_get_positions_back() -> No
     assert Position(40.634125, -8.660336).distance(spot) == pytest.approx(math.hypot(129.0, 9.0), rel=1e-3)
     assert frame.local(spot) == pytest.approx((-129.0, 9.0))
     params = Relays().params(min_quality=0.5, step=4 * units.m, base_alt=5 * units.m)
-    assert (params.min_quality, params.step, params.base_alt) == (0.5, 4.0, 5.0)
+    assert (params.min_quality, params.step_m, params.base_alt_m) == (0.5, 4.0, 5.0)
 
 
 @pytest.mark.parametrize(("spot", "alt", "others"), [
@@ -158,12 +158,12 @@ def test_duty_altitudes_rise_clear_of_the_altitude_the_drones_fly_at() -> None:
     (script 5.9's first level) a relay met it 0.1 m away on real packets."""
     result = plan([Drone("d1", at(180, 30), alt=10.0)], [], P)
     alts = [alt for _, alt in result.dispatch]
-    assert len(alts) == 2 and alts[0] - alts[1] == P.alt_diff, alts  # still alternating
-    assert all(abs(alt - 10.0) >= P.min_separation for alt in alts), alts
+    assert len(alts) == 2 and alts[0] - alts[1] == P.alt_diff_m, alts  # still alternating
+    assert all(abs(alt - 10.0) >= P.min_separation_m for alt in alts), alts
     # a relay on duty whose level a drone climbed to is moved up, where it is
     relay = Relay("r1", at(90, 30), target=at(90, 30), alt=10.0)
     moved = plan([Drone("d1", at(150, 30), alt=12.0)], [relay], P).moves
-    assert [m.relay for m in moved] == ["r1"] and abs(moved[0].alt - 12.0) >= P.min_separation, moved
+    assert [m.relay for m in moved] == ["r1"] and abs(moved[0].alt - 12.0) >= P.min_separation_m, moved
     assert duty_altitude(0, P, [30.0]) == 10.0  # drones far above: the thesis's levels
 
 

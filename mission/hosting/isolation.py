@@ -32,8 +32,8 @@ import msgspec
 from dronefleet.bus.clock import Clock
 from dronefleet.mission.hosting import worker
 from dronefleet.mission.lifecycle.delivery import leave
+from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import STOP_GRACE_S
-from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import CAUSES, Activity, MissionLogLine, MissionRecord, mark_ended
 from dronefleet.mission.script.plugins import PluginLibrary
 from dronefleet.schemas.errors import CommandRejected

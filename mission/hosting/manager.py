@@ -23,8 +23,8 @@ import msgspec
 
 from dronefleet.bus.clock import Clock
 from dronefleet.mission.hosting.isolation import IsolatedMission
+from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import Mission
-from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import Activity, CommandResult, MissionLogLine, MissionRecord
 from dronefleet.mission.script.checks import first_problem
 from dronefleet.mission.script.plugins import PluginLibrary

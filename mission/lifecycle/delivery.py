@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal, TypeVar
 
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
-from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
+from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import CommandResult, MissionOver, MissionRecord
 from dronefleet.mission.lifecycle.send_again import TakenBack, cancel_body, deliver, steps_for
 from dronefleet.schemas.bundles import BundleRecord, new_bundle_id

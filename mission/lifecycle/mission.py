@@ -21,7 +21,8 @@ from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle import assignment as a
 from dronefleet.mission.lifecycle.delivery import CommandDelivery, Leash, PendingBundle, SentCommand, leave
-from dronefleet.mission.lifecycle.port import FleetPort, MissionConfig
+from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
+from dronefleet.mission.lifecycle.greenlets import Scheduler, Subroutine, current_subroutine
 from dronefleet.mission.lifecycle.record import (
     Activity,
     CommandResult,
@@ -32,7 +33,6 @@ from dronefleet.mission.lifecycle.record import (
     mark_ended,
     script_frame,
 )
-from dronefleet.mission.lifecycle.runtime import Scheduler, Subroutine, current_subroutine
 from dronefleet.schemas.about import DEFAULT_ROLES, may_relay
 from dronefleet.schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus
 from dronefleet.schemas.errors import CommandRejected

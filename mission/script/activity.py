@@ -9,8 +9,8 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any
 
+from dronefleet.mission.lifecycle.greenlets import Subroutine, current_subroutine
 from dronefleet.mission.lifecycle.mission import Mission
-from dronefleet.mission.lifecycle.runtime import Subroutine, current_subroutine
 
 QUIET = frozenset({"field_sensors"})  # verbs that only read: not worth a lane's update
 
@@ -34,7 +34,7 @@ def script_line(mission: Mission) -> int | None:
 def describe(thing: Any) -> str:
     """What `wait(thing)` waits on, in words."""
     from dronefleet.mission.script.drone import Drone
-    from dronefleet.mission.script.field import FieldSensor
+    from dronefleet.mission.script.field_sensors import FieldSensor
 
     if isinstance(thing, Drone):
         return f"drone {thing.id}"

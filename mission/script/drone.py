@@ -11,10 +11,10 @@ from typing import Any
 
 from greenlet import getcurrent
 
+from dronefleet.mission.lifecycle.greenlets import Stopped, await_
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import MissionOver
-from dronefleet.mission.lifecycle.runtime import Stopped, await_
-from dronefleet.mission.script.geo import Position
+from dronefleet.mission.script.position import Position
 from dronefleet.schemas.about import DEFAULT_ROLES
 from dronefleet.schemas.telemetry import LinkQuality
 

@@ -19,14 +19,14 @@ from typing import TYPE_CHECKING, Any
 from greenlet import getcurrent
 
 from dronefleet.mission.lifecycle import assignment as a
-from dronefleet.mission.lifecycle.runtime import Subroutine
+from dronefleet.mission.lifecycle.greenlets import Subroutine
 from dronefleet.mission.script import units
 from dronefleet.mission.script.activity import reported
 from dronefleet.mission.script.channel import Channel
 from dronefleet.mission.script.drone import COMPLETED, MIN_HANDOVER_HEIGHT_M, Drone, any_drone, call, guarded, handle
-from dronefleet.mission.script.field import FieldSensor, field_sensors_of
-from dronefleet.mission.script.geo import Position
+from dronefleet.mission.script.field_sensors import FieldSensor, field_sensors_of
 from dronefleet.mission.script.names import VERBS, common_names, near_place
+from dronefleet.mission.script.position import Position
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
 from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal

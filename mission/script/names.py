@@ -8,9 +8,10 @@ import math
 from typing import Any
 
 from dronefleet.mission.lifecycle import assignment as a
-from dronefleet.mission.script import geo, units
+from dronefleet.mission.script import position as geo
+from dronefleet.mission.script import units
 from dronefleet.mission.script.drone import any_drone
-from dronefleet.mission.script.geo import as_position
+from dronefleet.mission.script.position import as_position
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
 

@@ -35,8 +35,8 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
+from dronefleet.mission.lifecycle.greenlets import Stopped
 from dronefleet.mission.lifecycle.record import SecurityViolation, script_line
-from dronefleet.mission.lifecycle.runtime import Stopped
 from dronefleet.mission.script import units
 from dronefleet.mission.script.drone import call, guarded, handle
 from dronefleet.mission.script.names import VERB_NAMES, common_names
@@ -44,7 +44,7 @@ from dronefleet.mission.script.sandbox import Guards, ScriptError, compile_missi
 from dronefleet.schemas.errors import FleetError
 
 if TYPE_CHECKING:
-    from dronefleet.mission.lifecycle.runtime import Subroutine
+    from dronefleet.mission.lifecycle.greenlets import Subroutine
     from dronefleet.mission.script.drone import Drone
     from dronefleet.mission.script.script import ScriptMission
 

@@ -19,7 +19,7 @@ from dronefleet.mission.lifecycle import assignment as a
 from dronefleet.mission.lifecycle.delivery import Leash
 from dronefleet.mission.script import units
 from dronefleet.mission.script.drone import handle
-from dronefleet.mission.script.geo import Position, as_position
+from dronefleet.mission.script.position import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
 from dronefleet.relay import planner, ways
@@ -132,8 +132,10 @@ class Relays:
         return round(max([*flying, DEFAULT_RETURN_ALT_M]) + units.length(margin, "margin"), 1)
 
     def params(self, **inputs: Any) -> planner.Params:
-        lengths = {k: units.length(v, k) for k, v in inputs.items() if k in ("base_alt", "alt_diff", "step", "min_separation", "good_m", "lost_m")}
-        return planner.Params(**{**inputs, **lengths})
+        """The planner's parameters from the plugin's inputs (`base_alt=5*m`: metres)."""
+        metres = {"base_alt": "base_alt_m", "alt_diff": "alt_diff_m", "step": "step_m", "min_separation": "min_separation_m",
+                  "good_m": "good_m", "lost_m": "lost_m"}
+        return planner.Params(**{metres.get(k, k): units.length(v, k) if k in metres else v for k, v in inputs.items()})
 
     def plan(self, served: Sequence[Any], on_duty: Mapping[str, Mapping[str, Any]], drones: Mapping[str, Any], ground: Any,
              scale: float = 1.0, spare: int | None = None, steady: int = 0, **inputs: Any) -> RelayPlan:

@@ -9,8 +9,8 @@ from collections.abc import Callable
 from typing import Any
 
 from dronefleet.bus.clock import Clock
+from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import Mission
-from dronefleet.mission.lifecycle.port import FleetPort
 from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
 from dronefleet.mission.script.drone import Drone
 from dronefleet.mission.script.dsl import build_namespace

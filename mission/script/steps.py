@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from dronefleet.mission.script import units
-from dronefleet.mission.script.geo import Position, as_position
+from dronefleet.mission.script.position import Position, as_position
 from dronefleet.schemas.geo import normalize_deg
 
 

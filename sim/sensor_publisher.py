@@ -3,7 +3,7 @@ with their position and declare themselves with a liveliness token `sensor/<id>/
 
 `fleet sensor publish` sends one reading (or one per JSON line on stdin: a script on a
 Raspberry Pi beside a real sensor); world files place simulated field sensors, which
-read the world's fields (sim/field_model.py) where they stand.
+read the world's fields (sim/world_fields.py) where they stand.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from typing import Any
 
 from dronefleet.mission.script import units
 from dronefleet.mission.script.drone import reading_value
-from dronefleet.mission.script.geo import Position, as_position
+from dronefleet.mission.script.position import Position, as_position
 from dronefleet.schemas.telemetry import SensorReading
 
 
