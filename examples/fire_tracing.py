@@ -15,56 +15,10 @@ never pass there again, it stops after turning two full circles. Then it returns
 """
 
 enable("mapping")
+enable("contour")  # fly_out and trace_contour (mission/bundled/contour.py)
 
 TARGET_TEMP = 40
 DETECT_TEMP = 37
-P, I, D = 8, 0.01, 10  # the thesis's empirically chosen gains
-STEP = 4 * m
-ON_CONTOUR = 2  # within this many °C of the target, the drone is on the contour
-LOOP_TURN = 300  # degrees turned on the contour before the loop can close
-MAX_TURN = 720  # degrees turned on the contour: give up closing the loop after two circles
-
-
-def turned_by(old, new):
-    """The signed change of course from `old` to `new`, in (-180, 180] degrees."""
-    return (new - old + 180) % 360 - 180
-
-
-def fly_out(drone):
-    """From inside the contour, straight on until it is cooler than the target."""
-    while drone.sensor.temperature > TARGET_TEMP:
-        move(drone, to=drone.target(STEP, drone.heading), speed=10 * m / s)
-        wait(drone)
-
-
-def trace(drone):
-    error_sum = 0
-    previous = None
-    start = None  # where the drone first reached the contour
-    turned = 0  # degrees turned since then
-    last_course = None
-    while True:
-        wait(drone)  # the reading after this telemetry was taken where the drone is now
-        error = drone.sensor.temperature - TARGET_TEMP
-        change = 0 if previous is None else error - previous
-        correction = P * error + I * error_sum + D * change
-        error_sum += error
-        previous = error
-        course = (drone.heading + correction) % 360
-        if start is None and abs(error) < ON_CONTOUR:
-            start = drone.position
-        elif start is not None:
-            turned += turned_by(last_course, course)
-        last_course = course
-        move(drone, to=drone.target(STEP, course), yaw=course, speed=10 * m / s)
-        if start is None:
-            continue
-        if abs(turned) >= LOOP_TURN and drone.distance(start) < 1.5 * STEP:
-            print("perimeter traced: back where it reached the contour")
-            break
-        if abs(turned) >= MAX_TURN:
-            print("perimeter traced: two full circles without passing the start again")
-            break
 
 
 drone = assign(sensor="temperature")
@@ -75,11 +29,11 @@ while survey.running:
     if drone.sensor.temperature > DETECT_TEMP:
         print(f"{drone.sensor.temperature:.1f} °C: tracing the {TARGET_TEMP} °C perimeter")
         stop(survey)
-        fly_out(drone)
+        fly_out(drone, TARGET_TEMP)
         # It got hotter along the way, so the fire lies ahead of the drone: a quarter
         # turn right puts it on the left, the side the controller keeps it on.
         turn(drone, by=90 * deg)
-        trace(drone)
+        trace_contour(drone, TARGET_TEMP)
         break
     wait(drone)
 home(drone)

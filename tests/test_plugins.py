@@ -75,7 +75,7 @@ BROKEN = {
 def test_a_broken_plugin_is_listed_with_its_error_and_not_loaded(tmp_path: Path, name: str) -> None:
     source, message, line = BROKEN[name]
     lib = library(tmp_path, good=COUNTER, **{name: source})
-    assert sorted(lib.plugins) == ["counter", "mapping", "relay", "replacement"]  # the rest still load
+    assert sorted(lib.plugins) == ["contour", "counter", "mapping", "relay", "replacement"]  # the rest still load
     (failure,) = lib.failures
     assert failure.path.endswith(f"{name}.py")
     assert message in failure.error
@@ -189,7 +189,7 @@ async def test_ground_lists_plugins_and_load_errors(tmp_path: Path) -> None:
             reply = await http.get("/plugin")
         assert reply.status_code == 200
         body = reply.json()
-        assert [p["id"] for p in body["plugins"]] == ["counter", "mapping", "relay", "replacement"]
+        assert [p["id"] for p in body["plugins"]] == ["contour", "counter", "mapping", "relay", "replacement"]
         counter = next(p for p in body["plugins"] if p["id"] == "counter")
         assert counter["inputs"] == [{"name": "label", "type": "str", "required": False, "default": "counter"}]
         (error,) = body["errors"]
