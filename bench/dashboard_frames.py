@@ -9,7 +9,7 @@ drones circling over a field; Debian's chromium opens the dashboard at 1280x800 
 one drone selected. Over the window the page records its requestAnimationFrame
 intervals (the frame time, wall clock), the dashboard's own work per redraw, long
 tasks (> 50 ms) and the telemetry events it took in; Chrome's trace of a second window
-gives the main thread's CPU time per frame. tests/test_dashboard.py's 200-drone test uses
+gives the main thread's CPU time per frame. tests/dashboard/test_dashboard.py's 200-drone test uses
 the same publisher and measurement (from here). Run it on an otherwise idle machine: the wall-clock figure counts every
 wait for a core.
 """

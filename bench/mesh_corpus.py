@@ -53,7 +53,7 @@ from dronefleet.schemas.geo import destination  # noqa: E402
 from dronefleet.sim.radio import RadioModel  # noqa: E402
 from dronefleet.sim.radio_net import has_net_admin  # noqa: E402
 from tests.harness import GroundProcess, stop_all  # noqa: E402
-from tests.test_field_network import GROUND, RadioSim  # noqa: E402
+from tests.radio.emulated import GROUND, RadioSim  # noqa: E402
 
 GAP_S = 1.5
 COMMAND_S = 3.0

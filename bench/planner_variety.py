@@ -82,7 +82,7 @@ def judge(plans: dict[str, list[dict[str, float]]], end: str, predicted: dict[st
 async def run(count: int, seed: int) -> int:
     from playwright.async_api import async_playwright  # noqa: F401  (installed with the test extras)
 
-    from tests.test_dashboard import chromium
+    from tests.dashboard.page import chromium
 
     rng = random.Random(seed)
     tmp = Path(tempfile.mkdtemp(prefix="planner-variety-"))

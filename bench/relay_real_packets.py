@@ -5,7 +5,7 @@ start to its end, and the mission must finish. Needs CAP_NET_ADMIN (root).
 
     .venv/bin/python bench/relay_real_packets.py [--world 206] [--mode chain] [--runs 1]
 
-The suite keeps the short form on real packets (tests/test_field_network.py: the relay
+The suite keeps the short form on real packets (tests/radio/: the relay
 plugin keeps a drone beyond the radio's range heard and commanded); this world flies
 4-5 minutes in real time. Prints each run's outcome and the surveyor's longest gap;
 exits 1 if a run did not finish or left a gap of 3 s or more.
@@ -36,7 +36,7 @@ from dronefleet.sim import corpus  # noqa: E402
 from dronefleet.sim.radio_net import has_net_admin  # noqa: E402
 from tests.harness import GroundProcess, stop_all, submit  # noqa: E402
 from tests.helpers import until  # noqa: E402
-from tests.test_field_network import RadioSim, state_is  # noqa: E402
+from tests.radio.emulated import RadioSim, state_is  # noqa: E402
 
 GAP_S = 3.0
 

@@ -20,7 +20,7 @@ first sent a message: a router forwarding for others is seen by the next router 
 its own name. So a drone whose traffic reaches the ground through a neighbour gets
 through only if that neighbour holds a relay certificate — on the ground's router,
 which checks the relay's link, and on its own router, which takes the ground's
-commands from the relay (measured on the emulated radio, tests/test_field_network.py;
+commands from the relay (measured on the emulated radio, tests/radio/;
 ADR 0010). What that lets a relay do: drop or delay what it forwards, read it, and
 publish as any drone; it cannot command one — commands and bundles are signed end to end
 (schemas/auth.py) and an agent refuses any the ground did not sign. A plain drone can

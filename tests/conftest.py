@@ -3,9 +3,11 @@ and agent subprocesses that are always stopped."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import resource
 import signal
+import time
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -32,7 +34,7 @@ LOADGROUP_BROKEN = pytest.StashKey[str]()
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
     """A grouped test fails, saying why, when its group was not kept together; a radio
-    test fails outside the radio groups (tests/test_field_network.py), one per slot."""
+    test fails outside the radio groups (tests/radio/), one per slot."""
     broken = item.config.stash.get(LOADGROUP_BROKEN, None)
     group = item.get_closest_marker("xdist_group")
     if broken and group:
@@ -172,3 +174,28 @@ async def http(fleet: GroundFleet) -> AsyncIterator[httpx.AsyncClient]:
     """A client of the API of the module's `fleet` (a GroundFleet fixture), per test."""
     async with fleet.client() as client:
         yield client
+
+
+SLOT_WAIT_S = 240  # how long a radio test waits for one of the host's radio slots
+
+
+@pytest.fixture
+def radio_slot() -> Iterator[None]:
+    """One of RADIO_SLOTS host-wide slots (a lock file each), held while the test runs."""
+    deadline = time.monotonic() + SLOT_WAIT_S
+    while True:
+        for i in range(RADIO_SLOTS):
+            fd = os.open(f"/tmp/fleet-test-radio-slot-{i}.lock", os.O_CREAT | os.O_RDWR, 0o600)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                continue
+            try:
+                yield
+            finally:
+                os.close(fd)  # releases the lock
+            return
+        if time.monotonic() > deadline:
+            pytest.fail(f"no radio slot free after {SLOT_WAIT_S} s")
+        time.sleep(0.2)  # polling a lock held by another test's run

@@ -28,7 +28,7 @@ from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundProcess, stop_all
 from tests.helpers import advance_until, until
-from tests.test_field_network import OnBoard, RadioSim, command, state_is
+from tests.radio.emulated import OnBoard, RadioSim, command, state_is
 
 GROUND = (40.633490, -8.660815)
 START_M = 20.0

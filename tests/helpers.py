@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-# Radio tests at once on this host (tests/test_field_network.py's `radio_slot`), each a
+# Radio tests at once on this host (tests/radio/'s `radio_slot`), each a
 # ground, a `fleet sim` and an agent per drone.
 # With four at once beside the rest of `make test` on two cores, every drone of one run
 # lost the ground together for ~10 s, twice, and a command to a drone 55 m out went

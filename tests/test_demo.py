@@ -2,7 +2,7 @@
 subprocess with its ground, three agents and the fire-tracing mission over real Zenoh.
 `run_demo` starts it, `check_demo` judges a run on the default world (the suite flies
 that once, from the installed wheel: tests/test_install.py; the radio's demo is
-tests/test_field_network.py's).
+tests/radio/'s).
 
 The demo runs in its own process group, so whatever happens the test can make sure no
 agent outlives it.

@@ -16,7 +16,6 @@ from hypothesis import strategies as st
 from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.radio_net import has_net_admin
 from tests.flyout import ALT_M, fast_flyout, real_flyout
-from tests.test_field_network import radio_slot  # noqa: F401 (the fixture: one of the host's radio slots)
 
 WARNED_S = 3.0  # quality under 0.5 at least this long before the ground loses the drone
 # Where quality first falls under 0.5, real packets against fast time on the same

@@ -1,7 +1,7 @@
 """Which neighbours a drone links through, and when (agent/neighbours.py), as pure
 decisions. The whole path on real packets (a drone cut off from the ground carried by
 a neighbour, a healthy drone holding no link to a lossy one) is
-tests/test_field_network.py and bench/mesh_stall.py."""
+tests/radio/ and bench/mesh_stall.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The field network's three scenarios in fast time (issue 12, SPEC §8): the radio model
 on the in-process bus, hop by hop over the mesh, on the virtual clock, seeded.
 
-The same scenarios as tests/test_field_network.py on real packets: out of range and
+The same scenarios as tests/radio/ on real packets: out of range and
 back, a relay through a neighbour, an on-board sensor through an outage. Each runs
 twice with one seed and must replay exactly: every message the drones said (recorded
 on board, so also what never reached the ground) and every line of the ground's log.

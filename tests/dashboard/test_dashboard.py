@@ -10,187 +10,39 @@ screenshot in its tmp directory (printed), also when it fails.
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import http.server
-import math
-import os
 import re
-import shutil
-import struct
-import threading
-import zlib
-from collections.abc import AsyncIterator, Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-from playwright.async_api import Browser, Page, Route, ViewportSize, expect
+from playwright.async_api import Browser, expect
 
 from bench.dashboard_frames import (
-    DESKTOP,
     SyntheticFleet,
-    launch_chromium,
     measure_frames,
     wait_for_drones,
 )
 from dronefleet.schemas.geo import destination, distance_m
+from tests.dashboard.page import (
+    EXAMPLES,
+    FENCE,
+    PHONE,
+    PLANS,
+    SCALE_JS,
+    SPAWNS,
+    UI_S,
+    Dashboard,
+    HeldAnswer,
+    served_from_the_package,
+)
+from tests.dashboard.tiles import TileServer, tile_of
 from tests.harness import AgentProcess, GroundFleet, GroundProcess, submit, wait_state
 from tests.helpers import until
 
 # One Chromium at a time (`--dist loadgroup`): with 200 drones a page takes a core, and
 # beside it the real-packet radio tests missed their deadlines.
 pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
-
-PLANS = Path(__file__).parent / "plans"
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-PHONE = ViewportSize(width=390, height=844)
-SCALE_JS = ("(parseFloat(document.querySelector('#scale-label').textContent) * "
-            "(document.querySelector('#scale-label').textContent.endsWith('km') ? 1000 : 1) / "
-            "document.querySelector('#scale-bar').getBoundingClientRect().width)")
-# Deadlines are generous: two cores run five pytest workers, Chromium and the drones.
-UI_S = 30.0
-
-SPAWNS = {"drone01": (40.633490, -8.660815), "drone02": (40.633590, -8.660815), "drone03": (40.633690, -8.660815)}
-FENCE = [[40.634030, -8.661526], [40.634030, -8.660104], [40.632950, -8.660104], [40.632950, -8.661526]]  # 120 m square
-
-
-def chromium() -> str:
-    """Debian's chromium: a missing one fails the run as root (CI: `make sysdeps`
-    installs it), and skips the test elsewhere."""
-    path = shutil.which("chromium") or shutil.which("chromium-browser")
-    if path is None:
-        why = "chromium is not installed (Debian: `make sysdeps` as root, or apt-get install chromium)"
-        if os.geteuid() == 0:
-            pytest.fail(why)
-        pytest.skip(why)
-    return path
-
-
-class Dashboard:
-    """One page of the dashboard, with what the tests read and do on it."""
-
-    def __init__(self, page: Page) -> None:
-        self.page = page
-        self.errors: list[str] = []  # uncaught exceptions in the page
-        page.on("pageerror", lambda exc: self.errors.append(str(exc)))
-
-    async def open(self, url: str) -> None:
-        await self.page.goto(url)
-        # the first page of a run loads while every worker starts its processes: 30 s was missed
-        await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=2 * UI_S * 1000)
-
-    async def metres_per_pixel(self) -> float:
-        """What the scale bar says."""
-        return float(await self.page.evaluate(f"() => {SCALE_JS}"))
-
-    async def stats(self) -> dict[str, Any]:
-        return dict(await self.page.evaluate("() => window.fleetDashboard.stats"))
-
-    async def screen_of(self, drone_id: str) -> tuple[float, float]:
-        xy = await self.page.evaluate("id => window.fleetDashboard.map.screenOf(id)", drone_id)
-        assert xy is not None, f"{drone_id} is not on the map"
-        return xy[0], xy[1]
-
-    async def click_map(self, x: float, y: float) -> None:
-        box = await self.page.locator("#map").bounding_box()
-        assert box is not None
-        assert 0 < x < box["width"] and 0 < y < box["height"], f"({x:.0f}, {y:.0f}) is off the map ({box})"
-        await self.page.locator("#map").click(position={"x": x, "y": y})
-
-    async def click_map_at(self, lat: float, lon: float) -> None:
-        x, y = await self.page.evaluate("([lat, lon]) => window.fleetDashboard.map.toScreen(lat, lon)", [lat, lon])
-        await self.click_map(x, y)
-
-    async def command(self, cmd: str) -> str:
-        """Press a command button; the message the page shows for its answer."""
-        messages = self.page.locator("#cmd-messages li")
-        before = await messages.count()
-        await self.page.locator(f"#commands button[data-cmd={cmd}]").click()
-        if cmd == "goto":
-            return ""
-        return await self.latest_message(before)
-
-    async def latest_message(self, before: int) -> str:
-        messages = self.page.locator("#cmd-messages li")
-        if before < 8:
-            await expect(messages).to_have_count(before + 1, timeout=UI_S * 1000)
-        else:
-            await expect(messages.first).not_to_have_class(re.compile("old"), timeout=UI_S * 1000)
-        return await messages.first.inner_text()
-
-    async def position(self) -> tuple[float, float]:
-        """The selected drone's position as the panel shows it."""
-        lat, lon = (await self.page.locator("#telem-pos").inner_text()).split(", ")
-        return float(lat), float(lon)
-
-
-@pytest.fixture
-async def browser() -> AsyncIterator[Browser]:
-    async with launch_chromium(chromium()) as browser:
-        yield browser
-
-
-@pytest.fixture
-async def dashboard(browser: Browser, tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterator[Dashboard]:
-    context = await browser.new_context(viewport=DESKTOP)
-    try:
-        dash = Dashboard(await context.new_page())
-        yield dash
-    finally:
-        shot = tmp_path / f"{request.node.name}.png"
-        with contextlib.suppress(Exception):  # the screenshot is for the reader; never the failure
-            await dash.page.screenshot(path=str(shot))
-            print(f"screenshot: {shot}")
-        await context.close()
-
-
-def _fleet(tmp: Path, spawns: dict[str, tuple[float, float]], agent_config: dict[str, Any] | None = None,
-           **ground_config: Any) -> Iterator[GroundFleet]:
-    fcs = {d: f"sim://?lat={lat}&lon={lon}&alt=8.2" for d, (lat, lon) in spawns.items()}
-    fleet = GroundFleet(tmp, fcs, agent_config, **ground_config)
-    try:
-        yield fleet
-    finally:
-        fleet.stop()
-
-
-@pytest.fixture
-def fenced_fleet(tmp_path: Path) -> Iterator[GroundFleet]:
-    yield from _fleet(tmp_path, SPAWNS, geofence={"polygon": FENCE}, dashboard={"heat_sources": [
-        {"lat": 40.633849, "lon": -8.660637, "radius": 50, "temp": 60},
-    ]})
-
-
-@pytest.fixture
-def mission_fleet(tmp_path: Path) -> Iterator[GroundFleet]:
-    # Parked 11 m apart: closer, a takeoff under a hovering drone is a conflict (SPEC §11).
-    spawns = {d: (40.633400, -8.660810 + 0.00013 * i) for i, d in enumerate(("drone01", "drone02"))}
-    yield from _fleet(tmp_path, spawns, {"telemetry_rate_ms": 200, "takeoff_altitude": 5.0},
-                      dashboard={"ground_station": {"lat": 40.633300, "lon": -8.660900}})
-
-
-# ---- 1. drones: select, telemetry, commands, refusals, goto by clicking the map ---------
-
-
-async def served_from_the_package(http: httpx.AsyncClient) -> None:
-    """The page and its files come from the ground with their types; nothing else is needed."""
-    page = await http.get("/")
-    assert page.headers["content-type"].startswith("text/html") and '<canvas id="map"' in page.text
-    sources = re.findall(r'(?:src|href)="([^"]+)"', page.text)
-    assert sources and all(s.startswith("/dashboard/") or s.startswith("data:") for s in sources), sources
-    for name, kind in (("main.js", "text/javascript"), ("map.js", "text/javascript"), ("style.css", "text/css")):
-        asset = await http.get(f"/dashboard/{name}")
-        assert asset.status_code == 200 and asset.headers["content-type"].startswith(kind), (name, asset.headers)
-    for module in re.findall(r'from "\./([a-z_]+\.js)"', (await http.get("/dashboard/main.js")).text):
-        assert (await http.get(f"/dashboard/{module}")).status_code == 200, module
-    missing = await http.get("/dashboard/nothing.js")
-    assert missing.status_code == 404 and "nothing.js" in missing.json()["error"]
-    config = (await http.get("/dashboard/config.json")).json()
-    assert config["geofence"]["polygon"] == FENCE and config["tiles"] is None and config["event_telemetry_ms"] == 500
-    assert config["heat_sources"][0]["radius"] == 50 and config["ground_station"] is None
-    assert (await http.get("/", headers={"accept": "application/json"})).json()["openapi"] == "/openapi.json"
-    assert (await http.get("/openapi.json")).json()["info"]["title"] == "Fleet ground station"
 
 
 @pytest.mark.slow(60)
@@ -352,69 +204,6 @@ async def test_missions_show_errors_at_their_line_run_live_to_the_end_and_cancel
 # ---- 3. the ground restarted under the page --------------------------------------------
 
 
-def _png(rgb: tuple[int, int, int], size: int = 256) -> bytes:
-    """A plain square PNG (no imaging library needed)."""
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    rows = b"".join(b"\x00" + bytes(rgb) * size for _ in range(size))
-    header = struct.pack(">IIBBBBB", size, size, 8, 2, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b"")
-
-
-class TileServer:
-    """`dashboard.tiles` on 127.0.0.1: a checkerboard of plain tiles, and which were asked for."""
-
-    def __init__(self) -> None:
-        self.requested: list[tuple[int, int, int]] = []
-        tiles = {0: _png((222, 226, 214)), 1: _png((206, 214, 196))}
-        server = self
-
-        class Handler(http.server.BaseHTTPRequestHandler):
-            def do_GET(self) -> None:  # noqa: N802 - the http.server name
-                found = re.fullmatch(r"/(\d+)/(\d+)/(\d+)\.png", self.path)
-                if not found:
-                    self.send_error(404)
-                    return
-                z, x, y = (int(g) for g in found.groups())
-                server.requested.append((z, x, y))
-                body = tiles[(x + y) % 2]
-                self.send_response(200)
-                self.send_header("Content-Type", "image/png")
-                self.send_header("Content-Length", str(len(body)))
-                self.end_headers()
-                self.wfile.write(body)
-
-            def log_message(self, *args: Any) -> None:
-                pass
-
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.template = f"http://127.0.0.1:{self.httpd.server_address[1]}/{{z}}/{{x}}/{{y}}.png"
-        self.thread = threading.Thread(target=self.httpd.serve_forever, name="tile server", daemon=True)
-        self.thread.start()
-
-    def close(self) -> None:
-        self.httpd.shutdown()
-        self.httpd.server_close()
-        self.thread.join(10)
-
-
-def tile_of(lat: float, lon: float, z: int) -> tuple[int, int, int]:
-    """The web mercator tile holding (lat, lon) at zoom z."""
-    n = 2**z
-    y = (1 - math.asinh(math.tan(math.radians(lat))) / math.pi) / 2
-    return z, int((lon + 180) / 360 * n), int(y * n)
-
-
-@pytest.fixture
-def tile_server() -> Iterator[TileServer]:
-    server = TileServer()
-    try:
-        yield server
-    finally:
-        server.close()
-
-
 @pytest.mark.slow(40)
 async def test_a_restarted_ground_is_announced_and_the_page_recovers_without_reload(
     tmp_path: Path, dashboard: Dashboard, tile_server: TileServer
@@ -476,32 +265,6 @@ async def test_a_restarted_ground_is_announced_and_the_page_recovers_without_rel
         agent.stop()
         ground.stop()
     assert dashboard.errors == []
-
-
-class HeldAnswer:
-    """The first request matching a pattern is answered with what the ground said when
-    it came, but only once `release` is set; later ones go through: an older fetch
-    whose answer arrives last."""
-
-    def __init__(self) -> None:
-        self.fetched, self.release = asyncio.Event(), asyncio.Event()
-        self.requests = 0
-
-    @classmethod
-    async def on(cls, page: Page, pattern: re.Pattern[str]) -> HeldAnswer:
-        held = cls()
-        await page.route(pattern, held._handle)
-        return held
-
-    async def _handle(self, route: Route) -> None:
-        self.requests += 1
-        if self.requests > 1:
-            await route.continue_()
-            return
-        response = await route.fetch()
-        self.fetched.set()
-        await self.release.wait()
-        await route.fulfill(response=response)
 
 
 @pytest.mark.slow(20)

@@ -22,17 +22,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.geo import destination, distance_m
 from tests.harness import ChildProcess, GroundProcess
 from tests.helpers import until
-from tests.test_field_network import (  # noqa: F401
-    GROUND,
-    RADIO_A,
-    RadioSim,
-    command,
-    drone,
-    log_lines,
-    processes,
-    radio_slot,
-    state_is,
-)
+from tests.radio.emulated import GROUND, RADIO_A, RadioSim, command, drone, log_lines, state_is
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 

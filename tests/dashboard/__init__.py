@@ -1,0 +1,1 @@
+"""The web dashboard and planner (SPEC §10) in real Chromium against a real `fleet ground`."""
