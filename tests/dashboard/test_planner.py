@@ -19,7 +19,7 @@ from playwright.async_api import Page, expect
 
 from bench.dashboard_frames import DESKTOP, launch_chromium
 from dronefleet.schemas.geo import destination, distance_m
-from tests.dashboard.page import UI_S, chromium
+from tests.dashboard.page import PLANS, UI_S, chromium
 from tests.harness import GroundFleet, ended
 from tests.helpers import until
 
@@ -295,7 +295,7 @@ async def test_a_plan_exported_from_the_page_loads_back_to_the_same_waypoints(fl
                 (b["lat"], b["lon"], b["alt"], b["speed"], b["hold_s"]), abs=1e-7)
         assert await page.locator("#plan-end").input_value() == "return"
         # QGroundControl's own plan loads too, naming what it leaves out.
-        await page.locator("#plan-file").set_input_files(Path(__file__).resolve().parents[1] / "plans" / "PX4SITL-PX4-MultiRotor.plan")
+        await page.locator("#plan-file").set_input_files(PLANS / "PX4SITL-PX4-MultiRotor.plan")
         await expect(page.locator("#plan-status")).to_contain_text("imported 5 waypoints", timeout=UI_S * 1000)
         await expect(page.locator("#plan-status")).to_contain_text("item 5: MAV_CMD 195 is not carried over")
 

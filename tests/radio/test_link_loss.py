@@ -28,6 +28,7 @@ from tests.radio.emulated import (
     state_is,
 )
 
+REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 
 
@@ -120,7 +121,7 @@ async def test_a_healthy_drone_stays_heard_beside_a_lossy_or_frozen_neighbour(tm
     code never showed on its own)."""
     bench = subprocess.run([sys.executable, "bench/mesh_stall.py", "--runs", "1", "--scenario", "both",
                             "--keep", str(tmp_path)], capture_output=True, text=True, timeout=400,
-                           stdin=subprocess.DEVNULL, cwd=Path(__file__).resolve().parents[2])
+                           stdin=subprocess.DEVNULL, cwd=REPO)
     lines = bench.stdout.splitlines()
     assert bench.returncode == 0, bench.stdout[-3000:] + bench.stderr[-3000:]
     assert [line.split(":")[0] for line in lines[-2:]] == ["lossy", "frozen"], lines

@@ -33,6 +33,7 @@ from tests.radio.emulated import (
     temperature_read,
 )
 
+REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 
 
@@ -147,7 +148,7 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
 
             injected = subprocess.run(["ip", "netns", "exec", sim.netns("droneA"), sys.executable, "-c", INJECT,
                                        str(pki), "droneA", "droneB"], capture_output=True, text=True, timeout=60,
-                                      cwd=Path(__file__).resolve().parents[2])
+                                      cwd=REPO)
             assert injected.returncode == 0, injected.stderr[-3000:]
             reply = json.loads(injected.stdout.splitlines()[-1])
             assert not reply["accepted"] and reply["reason"] == "unauthenticated: not signed by the ground", reply
