@@ -26,7 +26,7 @@ from bench.verdict import ScenarioFailed  # noqa: E402
 from dronefleet.agent.fc_mavsdk import MavsdkFlightController  # noqa: E402
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle  # noqa: E402
 from dronefleet.sim.vehicle import Vehicle  # noqa: E402
-from tests.helpers import free_udp_base  # noqa: E402
+from tests.ports import free_udp_base
 
 
 async def agent_usage(seconds: float) -> None:

@@ -17,7 +17,7 @@ from bench.verdict import ScenarioFailed
 from dronefleet.bus.port import Sample
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.keys import Keys
-from tests.helpers import free_port
+from tests.ports import free_port
 
 WARM_UP_S = 3.0  # imports, connecting, first heartbeats: not steady state
 TELEMETRY_HZ = 10.0  # --telemetry-rate-ms 100

@@ -31,7 +31,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.bundles import parse_bundle  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
 from tests.harness import AgentProcess, GroundProcess  # noqa: E402
-from tests.helpers import until  # noqa: E402
+from tests.waiting import until
 
 
 def validation_ms(steps: int = 1000, rounds: int = 20) -> float:

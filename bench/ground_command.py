@@ -28,7 +28,7 @@ from dronefleet.agent.remote import send_command  # noqa: E402
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
 from tests.harness import AgentProcess, GroundProcess  # noqa: E402
-from tests.helpers import until  # noqa: E402
+from tests.waiting import until
 
 
 async def timed(n: int, call: Callable[[], Awaitable[None]]) -> list[float]:

@@ -38,7 +38,7 @@ from dronefleet.ground.station import GroundStation  # noqa: E402
 from dronefleet.schemas.codec import encode  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
 from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry  # noqa: E402
-from tests.helpers import free_port  # noqa: E402
+from tests.ports import free_port
 
 PERIOD_S = 0.1
 WARM_UP_S = 3.0

@@ -30,7 +30,7 @@ import httpx  # noqa: E402
 from bench.procstat import children, cpu_seconds, rss_mib  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
 from tests.harness import GroundFleet, ended, record, submit  # noqa: E402
-from tests.helpers import until  # noqa: E402
+from tests.waiting import until
 
 
 def finished(final: dict[str, Any], what: str) -> dict[str, Any]:

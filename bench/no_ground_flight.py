@@ -29,7 +29,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.geo import destination  # noqa: E402
 from dronefleet.schemas.status import CommandStatus, SystemStatus  # noqa: E402
 from tests.harness import AgentProcess, Operator, SimProcess, at, stop_all  # noqa: E402
-from tests.helpers import free_port  # noqa: E402
+from tests.ports import free_port
 
 
 async def cycle(op: Operator, n: int) -> None:

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.verdict import ScenarioFailed  # noqa: E402
 from tests.harness import GroundFleet  # noqa: E402
-from tests.helpers import until  # noqa: E402
+from tests.waiting import until
 
 EXAMPLES = sorted(p for p in (Path(__file__).resolve().parents[1] / "examples").glob("*.py") if p.name != "__init__.py")
 FLOWN_S = 10.0  # a mission refused at its start has no length to compare with

@@ -35,8 +35,8 @@ from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.sim import corpus  # noqa: E402
 from dronefleet.sim.radio_net import has_net_admin  # noqa: E402
 from tests.harness import GroundProcess, stop_all, submit  # noqa: E402
-from tests.helpers import until  # noqa: E402
 from tests.radio.emulated import RadioSim, state_is  # noqa: E402
+from tests.waiting import until
 
 GAP_S = 3.0
 

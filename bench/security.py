@@ -34,7 +34,8 @@ from dronefleet.schemas.codec import encode  # noqa: E402
 from dronefleet.schemas.commands import Goto, decode_command  # noqa: E402
 from dronefleet.schemas.config import Security  # noqa: E402
 from tests.harness import GroundFleet, make_pki  # noqa: E402
-from tests.helpers import free_port, until  # noqa: E402
+from tests.ports import free_port
+from tests.waiting import until
 
 
 def quantiles(samples: list[float]) -> tuple[float, float]:

@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.procstat import Usage, Window  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
-from tests.helpers import free_port  # noqa: E402
+from tests.ports import free_port
 
 WARM_UP_S = 3.0
 

@@ -27,8 +27,8 @@ from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundProcess, stop_all
-from tests.helpers import advance_until, until
 from tests.radio.emulated import OnBoard, RadioSim, command, state_is
+from tests.waiting import advance_until, until
 
 GROUND = (40.633490, -8.660815)
 START_M = 20.0

@@ -23,9 +23,22 @@ from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import Position, Telemetry
-from tests.helpers import Collector, free_port, free_udp_base, signal_and_wait, until
+from tests.ports import free_port, free_udp_base
+from tests.waiting import Collector, until
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def signal_and_wait(proc: subprocess.Popen[Any], sig: int, timeout_s: float, name: str = "process") -> int:
+    """Send `sig` and wait for the exit; past `timeout_s` kill it (a test never leaves
+    one behind) and fail."""
+    proc.send_signal(sig)
+    try:
+        return proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        raise AssertionError(f"{name} did not stop within {timeout_s:g} s on {signal.Signals(sig).name}") from None
 
 
 def fleet_command(*args: str) -> list[str]:

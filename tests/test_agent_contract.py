@@ -16,7 +16,7 @@ import pytest
 
 from dronefleet.schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m
 from tests.harness import AgentProcess, Operator, at
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 

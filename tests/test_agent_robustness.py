@@ -16,7 +16,7 @@ from dronefleet.schemas.bundles import BundleReply
 from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.keys import Keys
 from tests.harness import AgentProcess, Operator, fleet_command, open_ground_router
-from tests.helpers import free_port
+from tests.ports import free_port
 
 pytestmark = pytest.mark.integration
 OUTAGE_S = 1.0

@@ -22,7 +22,7 @@ from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.heat_field import HeatSource
 from dronefleet.sim.radio import RadioModel, Spot3
 from dronefleet.sim.world import DroneSpec, Spot, World
-from tests.helpers import advance_until
+from tests.waiting import advance_until
 
 BASE = (40.633490, -8.660815)
 

@@ -16,7 +16,7 @@ import pytest
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.bundles import BundleStatus
 from tests.harness import AgentProcess, GroundFleet, Operator
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 

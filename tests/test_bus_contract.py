@@ -19,7 +19,8 @@ from dronefleet.bus.memory import MemoryBus, MemoryNetwork
 from dronefleet.bus.port import Bus, QueryRefused, QueryTimeout, Unreachable, echo
 from dronefleet.bus.redeclarable import OVERLAP_S, Redeclarable
 from dronefleet.bus.zenoh_bus import ZenohBus
-from tests.helpers import Collector, free_port, until
+from tests.ports import free_port
+from tests.waiting import Collector, until
 
 MeshFactory = Callable[[], Awaitable[Bus]]
 

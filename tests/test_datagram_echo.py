@@ -7,7 +7,7 @@ import asyncio
 import socket
 
 from dronefleet.bus.datagram_echo import MAGIC, EchoServer, UdpEcho, echo_targets
-from tests.helpers import free_udp_base
+from tests.ports import free_udp_base
 
 
 def test_the_echo_answers_at_the_port_of_each_tcp_or_tls_endpoint() -> None:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import free_port
+from tests.ports import free_port
 
 pytestmark = pytest.mark.integration
 

@@ -20,8 +20,9 @@ from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.codec import encode
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import SensorReading
-from tests.harness import GroundFleet, fleet_command, wait_state
-from tests.helpers import Collector, free_udp_base, signal_and_wait, until
+from tests.harness import GroundFleet, fleet_command, signal_and_wait, wait_state
+from tests.ports import free_udp_base
+from tests.waiting import Collector, until
 
 pytestmark = pytest.mark.integration
 

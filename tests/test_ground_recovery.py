@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 from tests.harness import AgentProcess, GroundProcess, drone_state, fleet_command, wait_state
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 

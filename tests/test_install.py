@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import free_port
+from tests.ports import free_port
 from tests.test_demo import check_demo, run_demo
 
 pytestmark = pytest.mark.integration

@@ -17,7 +17,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.codec import decode_about, encode
 from dronefleet.schemas.telemetry import Position, SensorReading
 from tests.harness import GroundFleet, ended, fleet_command, make_pki, submit
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 AT = (40.6334, -8.6608)

@@ -25,7 +25,7 @@ from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import GROUND_PEER, LinkQuality
 from tests.harness import AgentProcess, Operator, open_ground_router
-from tests.helpers import free_port
+from tests.ports import free_port
 
 pytestmark = pytest.mark.integration
 LOST_LINK = {"timeout_s": 1, "action": "hold", "return_after_s": 3}

@@ -24,7 +24,8 @@ from dronefleet.sim.faults import send_fault
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.vehicle import Vehicle
 from tests.harness import AgentProcess, Operator, SimProcess, at, fleet_command
-from tests.helpers import Collector, free_udp_base
+from tests.ports import free_udp_base
+from tests.waiting import Collector
 
 pytestmark = pytest.mark.integration
 

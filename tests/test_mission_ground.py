@@ -27,7 +27,7 @@ from tests.harness import (
     submit,
     telemetry_seq,
 )
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 

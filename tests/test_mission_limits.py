@@ -21,7 +21,7 @@ import pytest
 
 from bench.procstat import children, rss_mib
 from tests.harness import GroundFleet, ended, record, seq_above, submit, telemetry_seq
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 

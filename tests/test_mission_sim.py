@@ -30,7 +30,7 @@ from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import distance_m
 from dronefleet.sim.projection import LocalFrame
 from dronefleet.sim.world import Fault, World
-from tests.helpers import advance_until
+from tests.waiting import advance_until
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLES = ROOT / "examples"

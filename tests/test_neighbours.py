@@ -32,7 +32,7 @@ from dronefleet.bus.mesh_policy import (
     rate,
 )
 from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config
-from tests.helpers import free_port
+from tests.ports import free_port
 
 RADIO = ipaddress.IPv4Network("10.231.0.0/24")
 

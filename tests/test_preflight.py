@@ -16,7 +16,7 @@ import httpx
 import pytest
 
 from tests.harness import GroundFleet, ended, fleet_command
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 

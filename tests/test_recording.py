@@ -28,7 +28,7 @@ from dronefleet.schemas.codec import encode
 from dronefleet.schemas.telemetry import Position, Telemetry
 from dronefleet.sim.world import load_world
 from tests.harness import ChildProcess, GroundFleet, GroundProcess, fleet_command
-from tests.helpers import until
+from tests.waiting import until
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 

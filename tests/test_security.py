@@ -27,7 +27,7 @@ from dronefleet.schemas.commands import CommandReply, Goto, decode_command
 from dronefleet.schemas.config import Security
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundFleet, make_pki
-from tests.helpers import advance_until, until
+from tests.waiting import advance_until, until
 
 EXAMPLES = Path(__file__).parent.parent / "examples"
 NOW = 1_700_000_000_000
@@ -275,7 +275,7 @@ async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path,
     from dronefleet.bus.port import BusError
     from dronefleet.bus.zenoh_bus import ZenohBus
     from dronefleet.cli import secured_client
-    from tests.helpers import free_port
+    from tests.ports import free_port
 
     rogue = make_pki(tmp_path / "rogue", {"drone01": "drone"})
     endpoint = [f"tls/127.0.0.2:{free_port()}"]

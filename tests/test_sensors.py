@@ -27,7 +27,8 @@ from dronefleet.schemas.telemetry import SensorReading
 from dronefleet.sim.heat_field import HeatSource, temperature_at
 from dronefleet.sim.world import DroneSpec, World
 from tests.harness import ChildProcess, GroundProcess, Operator, fleet_command, stop_all
-from tests.helpers import Collector, free_udp_base, until
+from tests.ports import free_udp_base
+from tests.waiting import Collector, until
 
 pytestmark = pytest.mark.integration
 

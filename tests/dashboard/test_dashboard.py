@@ -38,7 +38,7 @@ from tests.dashboard.page import (
 )
 from tests.dashboard.tiles import TileServer, tile_of
 from tests.harness import AgentProcess, GroundFleet, GroundProcess, submit, wait_state
-from tests.helpers import until
+from tests.waiting import until
 
 # One Chromium at a time (`--dist loadgroup`): with 200 drones a page takes a core, and
 # beside it the real-packet radio tests missed their deadlines.

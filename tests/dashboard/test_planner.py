@@ -21,7 +21,7 @@ from bench.dashboard_frames import DESKTOP, launch_chromium
 from dronefleet.schemas.geo import destination, distance_m
 from tests.dashboard.page import PLANS, UI_S, chromium
 from tests.harness import GroundFleet, ended
-from tests.helpers import until
+from tests.waiting import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
 HOME = (40.633400, -8.660810)

@@ -21,7 +21,8 @@ from dronefleet.schemas.geo import destination
 from dronefleet.sim.fleet_sim import CHILDREN_STOP_S
 from dronefleet.sim.radio_net import list_netns
 from tests.harness import ChildProcess, GroundProcess, fleet_command
-from tests.helpers import free_udp_base, until
+from tests.ports import free_udp_base
+from tests.waiting import until
 
 GROUND = (40.633490, -8.660815)
 FIELD_ALT = 8.2

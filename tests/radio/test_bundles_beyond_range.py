@@ -10,8 +10,8 @@ import pytest
 
 from dronefleet.schemas.geo import distance_m
 from tests.harness import ChildProcess, GroundProcess, ended, submit
-from tests.helpers import until
 from tests.radio.emulated import RADIO_A, RadioSim, drone, index_of, log_lines, north, state_is
+from tests.waiting import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 

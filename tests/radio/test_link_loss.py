@@ -12,7 +12,6 @@ import pytest
 
 from dronefleet.schemas.geo import distance_m
 from tests.harness import ChildProcess, GroundProcess
-from tests.helpers import until
 from tests.radio.emulated import (
     GROUND,
     RADIO_B,
@@ -27,6 +26,7 @@ from tests.radio.emulated import (
     reading_of,
     state_is,
 )
+from tests.waiting import until
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.radio]

@@ -21,8 +21,8 @@ import pytest
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.geo import destination, distance_m
 from tests.harness import ChildProcess, GroundProcess
-from tests.helpers import until
 from tests.radio.emulated import GROUND, RADIO_A, RadioSim, command, drone, log_lines, state_is
+from tests.waiting import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 

@@ -15,8 +15,8 @@ import pytest
 import yaml
 
 from dronefleet.sim.radio_net import host_lock, leftovers, list_netns
-from tests.harness import fleet_command
-from tests.helpers import free_port, free_udp_base, signal_and_wait
+from tests.harness import fleet_command, signal_and_wait
+from tests.ports import free_port, free_udp_base
 from tests.radio.emulated import RADIO_A, RADIO_B, SIM_STOP_S, fleet_resources, wait_sync
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]

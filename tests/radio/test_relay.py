@@ -18,7 +18,6 @@ from dronefleet import relay_experiments as rx
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.geo import destination, distance_m
 from tests.harness import ChildProcess, GroundProcess, ended, submit
-from tests.helpers import until
 from tests.radio.emulated import (
     GROUND,
     RADIO_A,
@@ -32,6 +31,7 @@ from tests.radio.emulated import (
     state_is,
     temperature_read,
 )
+from tests.waiting import until
 
 REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
