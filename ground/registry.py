@@ -23,6 +23,7 @@ from dronefleet.schemas.errors import STATE_UNKNOWN
 from dronefleet.schemas.fleet import (
     CRITICAL_BATTERY,
     FC_DISCONNECTED,
+    HEALTH_FAILING,
     HEALTH_PREFIX,
     LINK_DEGRADED,
     LINK_LOST,
@@ -88,6 +89,7 @@ class _Drone:
     status_heard: dict[tuple[object, ...], None] = field(default_factory=dict)  # (command id, state) or a bundle event, oldest first
     info: DroneInfo | None = None
     dropping: dict[str, tuple[int, int]] = field(default_factory=dict)  # sensor type → (logged at ms, dropped since)
+    health_failing_since_ms: int | None = None  # the first sample of the current run of failing health checks
 
 
 def describe_about(about: About) -> str:
@@ -153,6 +155,10 @@ class Registry:
             return Refusal(status=409, reason="drone state is unknown: no recent telemetry", code=STATE_UNKNOWN)
         if info.state == "error":
             return Refusal(status=409, reason=f"drone is in error: {'; '.join(info.errors)}")
+        failing = d.telem.health_failures
+        if failing and cmd in ("arm", "takeoff") and d.telem.landed_state == "on_ground":
+            # Not yet an error (a flag may flicker in flight), but no autopilot arms with it.
+            return Refusal(status=409, reason=f"{HEALTH_FAILING}: {', '.join(failing)}")
         if info.state == "manual":
             return Refusal(status=409, reason="drone is under manual control")
         if d.mission is not None and d.mission != mission_id:
@@ -194,6 +200,10 @@ class Registry:
                 # was sent out of radio range and never heard here.
                 out.append(self._line(now_ms, "info", d, f"Finish {d.current.description.lower()} (landed)"))
                 d.current = None
+        if not telem.health_failures:
+            d.health_failing_since_ms = None
+        elif d.health_failing_since_ms is None:
+            d.health_failing_since_ms = now_ms
         info = self._derive(d)
         for message in info.errors:
             if message not in before_errors:
@@ -444,7 +454,11 @@ class Registry:
             elif t.battery.remaining_percent <= self.config.battery.low:
                 warns.append(LOW_BATTERY)
         if t.health_failures:
-            errors.append(f"{HEALTH_PREFIX}: {', '.join(t.health_failures)}")
+            since = d.health_failing_since_ms if d.health_failing_since_ms is not None else d.last_telem_ms
+            if d.last_telem_ms - since >= self.config.health_error_after_s * 1000:
+                errors.append(f"{HEALTH_PREFIX}: {', '.join(t.health_failures)}")
+            else:
+                warns.append(f"{HEALTH_FAILING}: {', '.join(t.health_failures)}")
         if d.fc_disconnected:
             warns.append(FC_DISCONNECTED)
         if d.link is not None and not d.unknown and d.link.quality < self.config.link_degraded_below:

@@ -21,6 +21,7 @@ CRITICAL_BATTERY = "Critical battery level"
 LOW_BATTERY = "Low battery level"
 FC_DISCONNECTED = "Flight controller disconnected"
 HEALTH_PREFIX = "Failed health check"
+HEALTH_FAILING = "Health check failing"  # the warning before health_error_after_s
 LINK_DEGRADED = "Link degraded"
 LINK_LOST = "Link lost"
 LINK_RESTORED = "Link restored"

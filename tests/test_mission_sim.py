@@ -177,6 +177,24 @@ async def test_drone_events_end_the_mission(fault: Fault, expected: tuple[str, s
     assert cause(record) == expected, record.message
 
 
+async def test_a_health_flag_that_drops_for_a_moment_in_flight_is_a_warning_not_the_end() -> None:
+    """Issue 58: global_position failing for 1.5 s in flight (a real PX4 did so once,
+    flying normally) warns on the drone and the mission goes on; failing for good, it
+    fails the mission drone_error (test_drone_events_end_the_mission)."""
+    world = world_with([Fault(at_s=15, fault="health_failure", value="global_position"),
+                        Fault(at_s=16.5, fault="health_ok")])
+    field = SimField(world)
+    await field.start()
+    try:
+        record = await field.run_mission(FLY + "move(d, forward=60*m)\nland(d)\n", max_s=600)
+        assert cause(record) == ("finished", "success"), record.message
+        said = [f"{row.level} {row.message}" for _, row in field.station.events.query(["drone01"])]
+        assert "warn Health check failing: global_position" in said, said
+        assert not any("Failed health check" in line for line in said), said
+    finally:
+        await field.close()
+
+
 async def test_critical_battery_fails_and_sends_the_drone_home() -> None:
     """The autopilot's critical-battery return ends the mission as the drone's own
     decision, and the drone lands at home (this world is seeded: one outcome)."""

@@ -6,6 +6,8 @@ from typing import Any
 
 import msgspec
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.registry import InfoChanged, LogLine, Registry
@@ -44,17 +46,42 @@ def test_first_telemetry_registers_the_drone_ready(reg: Registry) -> None:
     assert reg.on_telemetry(telem(), 1100) == []  # nothing changed, nothing said
 
 
-def test_health_failure_is_an_error_and_refuses_commands_but_return(reg: Registry) -> None:
+def test_a_failing_health_check_warns_refuses_arming_and_is_an_error_past_its_time(reg: Registry) -> None:
+    """Issue 58: a flag that drops for a moment is a warning; the drone is in error (and
+    its mission fails) only once it has stayed down health_error_after_s (5 s)."""
     events = reg.on_telemetry(telem(health_failures=["accelerometer"]), 0)
     assert lines(events) == [
-        "INFO Registered", "ERROR Failed health check: accelerometer", "INFO Established connection with ground station",
+        "INFO Registered", "WARN Health check failing: accelerometer", "INFO Established connection with ground station",
     ]
-    assert reg.info("drone01").state == "error"
-    refusal = reg.check_command("drone01", "arm")
+    assert reg.info("drone01").state == "ready"
+    refusal = reg.check_command("drone01", "arm")  # no autopilot arms with it
     assert refusal is not None and refusal.status == 409 and "accelerometer" in refusal.reason
     assert reg.check_command("drone01", "return") is None
-    assert lines(reg.on_telemetry(telem(), 100)) == ["INFO Errors cleared"]
+    assert lines(reg.on_telemetry(telem(health_failures=["accelerometer"]), 4900)) == []
+    assert lines(reg.on_telemetry(telem(health_failures=["accelerometer"]), 5000)) == ["ERROR Failed health check: accelerometer"]
+    assert reg.info("drone01").state == "error"
+    refusal = reg.check_command("drone01", "goto")
+    assert refusal is not None and "drone is in error: Failed health check: accelerometer" in refusal.reason
+    assert reg.check_command("drone01", "return") is None
+    assert lines(reg.on_telemetry(telem(), 5100)) == ["INFO Errors cleared"]
     assert reg.check_command("drone01", "arm") is None
+
+
+@given(st.lists(st.tuples(st.integers(1, 3000), st.booleans()), min_size=1, max_size=40))
+def test_a_drone_is_in_error_exactly_when_its_health_has_failed_for_the_time_allowed(
+        samples: list[tuple[int, bool]]) -> None:
+    """Over random runs of samples (ms since the last, failing or not): error iff the
+    current run of failing samples began health_error_after_s or more ago."""
+    registry = Registry(GroundConfig())
+    allowed_ms = GroundConfig().health_error_after_s * 1000
+    now, since = 0, None
+    for later, failing in samples:
+        now += later
+        registry.on_telemetry(telem(health_failures=["global_position"] if failing else [], armed=True,
+                                    landed_state="in_air"), now)
+        since = (now if since is None else since) if failing else None
+        expected = "error" if since is not None and now - since >= allowed_ms else "hold"
+        assert registry.info("drone01").state == expected, (now, since)
 
 
 @pytest.mark.parametrize(
