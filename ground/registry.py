@@ -155,10 +155,7 @@ class Registry:
             return Refusal(status=409, reason="drone state is unknown: no recent telemetry", code=STATE_UNKNOWN)
         if info.state == "error":
             return Refusal(status=409, reason=f"drone is in error: {'; '.join(info.errors)}")
-        failing = d.telem.health_failures
-        if failing and cmd in ("arm", "takeoff") and d.telem.landed_state == "on_ground":
-            # Not yet an error (a flag may flicker in flight), but no autopilot arms with it.
-            return Refusal(status=409, reason=f"{HEALTH_FAILING}: {', '.join(failing)}")
+
         if info.state == "manual":
             return Refusal(status=409, reason="drone is under manual control")
         if d.mission is not None and d.mission != mission_id:
@@ -454,8 +451,12 @@ class Registry:
             elif t.battery.remaining_percent <= self.config.battery.low:
                 warns.append(LOW_BATTERY)
         if t.health_failures:
+            # On the ground a failing check is an error at once (no autopilot arms with
+            # it; nothing is lost by waiting). In flight a flag that drops for a moment
+            # is a warning; one that stays down health_error_after_s is an error.
             since = d.health_failing_since_ms if d.health_failing_since_ms is not None else d.last_telem_ms
-            if d.last_telem_ms - since >= self.config.health_error_after_s * 1000:
+            grounded = not t.armed and t.landed_state == "on_ground"
+            if grounded or d.last_telem_ms - since >= self.config.health_error_after_s * 1000:
                 errors.append(f"{HEALTH_PREFIX}: {', '.join(t.health_failures)}")
             else:
                 warns.append(f"{HEALTH_FAILING}: {', '.join(t.health_failures)}")
