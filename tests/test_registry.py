@@ -62,7 +62,7 @@ def test_health_failure_on_the_ground_is_an_error_and_refuses_commands_but_retur
 def test_in_flight_a_failing_health_check_warns_and_is_an_error_past_its_time(reg: Registry) -> None:
     """Issue 58: a flag that drops for a moment in flight is a warning; the drone is in
     error (and its mission fails) once it has stayed down health_error_after_s (5 s)."""
-    flying = {"armed": True, "landed_state": "in_air"}
+    flying: dict[str, Any] = {"armed": True, "landed_state": "in_air"}
     reg.on_telemetry(telem(**flying), 0)
     assert lines(reg.on_telemetry(telem(health_failures=["global_position"], **flying), 1000)) == [
         "WARN Health check failing: global_position"]
