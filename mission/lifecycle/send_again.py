@@ -72,10 +72,17 @@ class Step(Protocol):
         ...
 
 
-class LinkDropped:
+class _Step:
+    """What every step knows: the sender, the drone and the command's name."""
+
     def __init__(self, sender: Sender, drone_id: str, name: str) -> None:
         self.sender, self.drone_id, self.name = sender, drone_id, name
 
+    def delivered(self) -> None:
+        pass
+
+
+class LinkDropped(_Step):
     async def after(self, failure: Exception) -> bool:
         dropped = (isinstance(failure, Unreachable) and self.sender.out_of_reach(self.drone_id)) or \
                   (isinstance(failure, CommandRejected) and failure.code == STATE_UNKNOWN)
@@ -83,13 +90,10 @@ class LinkDropped:
             await self.sender.heard_again(self.drone_id, self.name)
         return dropped
 
-    def delivered(self) -> None:
-        pass
 
-
-class Unanswered:
+class Unanswered(_Step):
     def __init__(self, sender: Sender, drone_id: str, name: str) -> None:
-        self.sender, self.drone_id, self.name = sender, drone_id, name
+        super().__init__(sender, drone_id, name)
         self.attempt = 1
         self.unheard_since: float | None = None
 
@@ -114,14 +118,8 @@ class Unanswered:
             raise s.setback("link_lost", f"{self.name} {self.drone_id}: not heard for {s.link_grace_s:g} s ({failure})")
         return True
 
-    def delivered(self) -> None:
-        pass
 
-
-class TakeBack:
-    def __init__(self, sender: Sender, drone_id: str, name: str) -> None:
-        self.sender, self.drone_id, self.name = sender, drone_id, name
-
+class TakeBack(_Step):
     async def after(self, failure: Exception) -> bool:
         if not (isinstance(failure, CommandRejected) and failure.reason == RETURNING):
             return False
@@ -130,13 +128,10 @@ class TakeBack:
         await self.sender.cancel(self.drone_id)
         raise TakenBack
 
-    def delivered(self) -> None:
-        pass
 
-
-class WaitClear:
+class WaitClear(_Step):
     def __init__(self, sender: Sender, drone_id: str, name: str) -> None:
-        self.sender, self.drone_id, self.name = sender, drone_id, name
+        super().__init__(sender, drone_id, name)
         self.give_up = sender.clock.monotonic() + sender.clear_wait_s
         self.waited_for: str | None = None
 
