@@ -451,12 +451,13 @@ class Registry:
             elif t.battery.remaining_percent <= self.config.battery.low:
                 warns.append(LOW_BATTERY)
         if t.health_failures:
-            # On the ground a failing check is an error at once (no autopilot arms with
-            # it; nothing is lost by waiting). In flight a flag that drops for a moment
-            # is a warning; one that stays down health_error_after_s is an error.
+            # Not flying (on the ground, or its landed state not yet known after a start),
+            # a failing check is an error at once: no autopilot arms with it, nothing is
+            # lost by waiting. In flight a flag that drops for a moment is a warning; one
+            # that stays down health_error_after_s is an error.
             since = d.health_failing_since_ms if d.health_failing_since_ms is not None else d.last_telem_ms
-            grounded = not t.armed and t.landed_state == "on_ground"
-            if grounded or d.last_telem_ms - since >= self.config.health_error_after_s * 1000:
+            flying = t.armed and t.landed_state in ("in_air", "taking_off", "landing")
+            if not flying or d.last_telem_ms - since >= self.config.health_error_after_s * 1000:
                 errors.append(f"{HEALTH_PREFIX}: {', '.join(t.health_failures)}")
             else:
                 warns.append(f"{HEALTH_FAILING}: {', '.join(t.health_failures)}")

@@ -57,6 +57,10 @@ def test_health_failure_on_the_ground_is_an_error_and_refuses_commands_but_retur
     assert reg.check_command("drone01", "return") is None
     assert lines(reg.on_telemetry(telem(), 100)) == ["INFO Errors cleared"]
     assert reg.check_command("drone01", "arm") is None
+    # Just started, its landed state not yet known: not flying, so an error at once too
+    # (a drone shown ready for that moment was assigned, then refused to arm).
+    reg.on_telemetry(telem("drone02", landed_state="unknown", health_failures=["gyrometer"]), 0)
+    assert reg.info("drone02").state == "error"
 
 
 def test_in_flight_a_failing_health_check_warns_and_is_an_error_past_its_time(reg: Registry) -> None:
