@@ -109,10 +109,11 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     event_telemetry_ms: Annotated[int, Meta(ge=0, le=60_000)] = 500  # /events: one telemetry per drone per period
     command_timeout_ms: Annotated[int, Meta(ge=100, le=60_000)] = 3000  # waiting for an agent's reply
     link_degraded_below: Fraction = 0.5  # measured link quality under this warns "link degraded"
-    # A health check the autopilot reports failing is a warning this long, an error (the
-    # drone in error, its mission failed drone_error) only after: a flag that drops for a
-    # moment on a real autopilot is not a failure; what the autopilot does about it
-    # (a failsafe, a refused command) ends a mission at once all the same.
+    # In flight, a health check the autopilot reports failing is a warning this long, an
+    # error (the drone in error, its mission failed drone_error) only after: a flag that
+    # drops for a moment on a real autopilot is not a failure; what the autopilot does
+    # about it (a failsafe, a refused command) ends a mission at once all the same. Not
+    # flying, a failing check is an error at once.
     health_error_after_s: Annotated[float, Meta(ge=0, le=3600)] = 5.0
     # SPEC §11: refused at the ground (409 geofence). With no max_alt_m, DEFAULT_CEILING_M:
     # most airspace rules stop at 120 m above ground; a site that may go higher says so.

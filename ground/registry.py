@@ -155,7 +155,6 @@ class Registry:
             return Refusal(status=409, reason="drone state is unknown: no recent telemetry", code=STATE_UNKNOWN)
         if info.state == "error":
             return Refusal(status=409, reason=f"drone is in error: {'; '.join(info.errors)}")
-
         if info.state == "manual":
             return Refusal(status=409, reason="drone is under manual control")
         if d.mission is not None and d.mission != mission_id:
