@@ -225,8 +225,11 @@ async def test_unknown_drone_404_agent_refusal_409_and_manual_mode_409_but_retur
 
 
 async def test_cli_lists_shows_commands_and_reads_logs(fleet: Fleet, http: httpx.AsyncClient) -> None:
-    for drone_id in DRONES:  # the list below names all three: each must have registered
-        await wait_state(http, drone_id, "ready", 60)  # at the suite's start, under its load: 30 s was missed
+    # The list below names all three: each must have registered (an earlier test on this
+    # worker's fleet may leave drone01 hovering: waiting for it to be `ready` never ended
+    # when the two ran in that order); drone02, which this test arms, must be ready.
+    await all_known(http)
+    await wait_state(http, "drone02", "ready", 60)
     url = ["--url", fleet.ground.url]
 
     def fleet_cli(*args: str) -> subprocess.CompletedProcess[str]:
