@@ -123,16 +123,15 @@ class Agent:
             self._system(decision, summary)
         if not self.resend.contacted:
             self._publish_about()  # a ground that started after this agent hears what it is
-        gap_ms = self.resend.gap_before(now_ms)
         # What was published before the ground's subscriptions reached this router, or
         # while a link that closed carried it, may have gone nowhere (agent/status_resend.py).
-        repeats = self.resend.contact(now_ms)
-        if gap_ms is not None and gap_ms >= REDECLARE_AFTER_S * 1000 and self._served:
+        contact = self.resend.contact(now_ms)
+        if contact.gap_ms is not None and contact.gap_ms >= REDECLARE_AFTER_S * 1000 and self._served:
             log.info("%s: the ground answers again after %.1f s; declaring its command queryables afresh",
-                     self.drone_id, gap_ms / 1000)
+                     self.drone_id, contact.gap_ms / 1000)
             for served in self._served:
                 served.refresh()
-        for repeat in repeats:
+        for repeat in contact.repeats:
             log.info("%s: repeating %d %s", self.drone_id, len(repeat.statuses), repeat.why)
             for status in repeat.statuses:
                 self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)

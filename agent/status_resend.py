@@ -35,6 +35,12 @@ class Repeat:
     why: str
 
 
+@dataclass(frozen=True)
+class Contact:
+    gap_ms: int | None  # how long the ground had been silent before this answer; None at the first
+    repeats: list[Repeat]  # what to send again, and why
+
+
 @dataclass
 class StatusResend:
     probe_period_ms: int
@@ -60,8 +66,8 @@ class StatusResend:
         if isinstance(status, CommandStatus):
             self._recent.append(status)
 
-    def contact(self, now_ms: int) -> list[Repeat]:
-        """The ground answered at `now_ms`: what to send again, and why."""
+    def contact(self, now_ms: int) -> Contact:
+        """The ground answered at `now_ms`: the silence it ended, what to send again and why."""
         repeats = []
         gap_began_ms, self._last_contact_ms = self._last_contact_ms, now_ms
         if self._before_contact is not None:
@@ -77,8 +83,4 @@ class StatusResend:
                                   "command statuses the ground may have missed"))
         elif self._unsure_since_ms is not None and now_ms - self._steady_from_ms >= self.steady_probes * period_ms:
             self._unsure_since_ms = None  # the link held long enough for the repeats to arrive
-        return [r for r in repeats if r.statuses]
-
-    def gap_before(self, now_ms: int) -> float | None:
-        """How long (ms) the ground had been silent before an answer at `now_ms`; None at the first."""
-        return None if self._last_contact_ms is None else now_ms - self._last_contact_ms
+        return Contact(None if gap_began_ms is None else now_ms - gap_began_ms, [r for r in repeats if r.statuses])

@@ -45,7 +45,7 @@ def play(run: list[tuple[int, str]]) -> list[Contact]:
     for n, (later, what) in enumerate(run):
         now += later
         if what == "contact":
-            repeated = [s for r in policy.contact(now) for s in r.statuses]
+            repeated = [s for r in policy.contact(now).repeats for s in r.statuses]
             contacts.append((now, last, list(published), repeated))
             last = now
             continue
@@ -95,11 +95,11 @@ def test_repeats_go_on_until_the_link_has_held_for_steady_probes() -> None:
     policy.contact(0)
     early = command(1, 500)
     policy.published(early)
-    assert [r.statuses for r in policy.contact(5000)] == [[early]]  # the gap 0 → 5 s
+    assert [r.statuses for r in policy.contact(5000).repeats] == [[early]]  # the gap 0 → 5 s
     policy.contact(6000)
-    assert [r.statuses for r in policy.contact(9000)] == [[early]]  # a second gap before the link held
+    assert [r.statuses for r in policy.contact(9000).repeats] == [[early]]  # a second gap before the link held
     for at in range(10_000, 16_000, 1000):
         policy.contact(at)
     late = command(2, 16_500)
     policy.published(late)
-    assert [r.statuses for r in policy.contact(20_000)] == [[late]]  # held 5 periods: the first is heard
+    assert [r.statuses for r in policy.contact(20_000).repeats] == [[late]]  # held 5 periods: the first is heard

@@ -17,7 +17,7 @@ from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import CommandResult, MissionOver, MissionRecord
-from dronefleet.mission.lifecycle.send_again import TakenBack, cancel_body, deliver, steps_for
+from dronefleet.mission.lifecycle.send_again import TakenBack, deliver, steps_for
 from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
@@ -253,7 +253,8 @@ class CommandDelivery:
 
     async def cancel(self, drone_id: str) -> None:
         """Stop what the drone is doing (its failsafe's return), as this mission."""
-        await self.station.command(drone_id, cancel_body(self.station.new_command_id()), self.id)
+        body = {"cmd": "cancel", "command_id": self.station.new_command_id()}
+        await self.station.command(drone_id, json.dumps(body).encode(), self.id)
 
     def out_of_reach(self, drone_id: str) -> bool:
         back = self._link_back_at.get(drone_id)

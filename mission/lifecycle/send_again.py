@@ -20,7 +20,6 @@ raised as it came. Every step keeps its own state for one delivery:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Awaitable, Callable, Sequence
 from typing import Literal, Protocol, TypeVar
 
@@ -179,6 +178,3 @@ def steps_for(sender: Sender, drone_id: str, name: str, *, wait_clear: bool = Fa
         steps.append(WaitClear(sender, drone_id, name))
     return steps
 
-
-def cancel_body(command_id: str) -> bytes:
-    return json.dumps({"cmd": "cancel", "command_id": command_id}).encode()

@@ -24,6 +24,7 @@ from tests.harness import ChildProcess, GroundProcess, fleet_command
 from tests.ports import free_udp_base
 from tests.waiting import until
 
+REPO = Path(__file__).resolve().parents[2]  # the checkout: where benches and scripts run from
 GROUND = (40.633490, -8.660815)
 FIELD_ALT = 8.2
 SIM_STOP_S = CHILDREN_STOP_S + 10  # `fleet sim --radio` gives its agents CHILDREN_STOP_S, then takes the radio down

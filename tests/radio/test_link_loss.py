@@ -15,6 +15,7 @@ from tests.harness import ChildProcess, GroundProcess
 from tests.radio.emulated import (
     GROUND,
     RADIO_B,
+    REPO,
     OnBoard,
     RadioSim,
     command,
@@ -28,7 +29,6 @@ from tests.radio.emulated import (
 )
 from tests.waiting import until
 
-REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 
 

@@ -21,6 +21,7 @@ from tests.harness import ChildProcess, GroundProcess, ended, submit
 from tests.radio.emulated import (
     GROUND,
     RADIO_A,
+    REPO,
     RadioSim,
     command,
     drone,
@@ -33,7 +34,6 @@ from tests.radio.emulated import (
 )
 from tests.waiting import until
 
-REPO = Path(__file__).resolve().parents[2]
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
 
 
