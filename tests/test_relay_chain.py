@@ -12,6 +12,7 @@ from dronefleet.relay.chain import (
     LAUNCH_TIMEOUT_S,
     MARGIN,
     PROBE,
+    PROVEN_LOSS,
     ChainPlan,
     Chains,
     Seen,
@@ -106,6 +107,27 @@ def test_a_probe_measures_the_hop_then_chains_are_laid_on_it_and_the_worker_is_l
     assert math.hypot(dist(edge, first), 15.0 - DUTY) <= hop + 0.5 and dist(edge, w.goal) > 50  # type: ignore[arg-type]
     c.plan(280.0, [w], {"r1": seen(first), "r2": seen(second)}, spare=2)
     assert c.allowed("d1", w.at, w.alt, at(150)) == at(150)  # covered all the way: no leash
+
+
+@pytest.mark.parametrize(("losses", "held"), [
+    ((0.0, 0.06, 0.02, 0.04, 0.0, 0.02, 0.04, 0.02, 0.0, 0.06), True),  # reports over PROVEN_LOSS, 2.6 % on average: it holds
+    ((0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), True),
+    ((0.08, 0.04, 0.1, 0.06, 0.08, 0.04, 0.1, 0.06, 0.08, 0.04), False),  # 7 % on average: bounds it
+])
+def test_a_probe_proves_its_hop_on_the_loss_it_measured_over_its_dwell(losses: tuple[float, ...], held: bool) -> None:
+    """The loss reports made on the spot decide, on average: one train's few lost
+    datagrams at the edge of good range do not fail a hop, a steady loss does."""
+    c = Chains(DUTY, first_trial=60.0)
+    w = Worker("d1", at(10), 15.0, at(200))
+    c.plan(0.0, [w], {}, spare=3)
+    c.joined(PROBE, "r1")
+    assert c.probe is not None
+    spot = c.probe.spot
+    c.plan(5.0, [w], {"r1": seen(spot, loss=0.3)}, spare=3)  # arrived: what it measured on its way does not count
+    for k, loss in enumerate(losses, 1):
+        c.plan(5.0 + k * DWELL_S / len(losses) + 0.1, [w], {"r1": seen(spot, loss=loss)}, spare=3)
+    assert (sum(losses) / len(losses) <= PROVEN_LOSS) is held
+    assert (c.reach.lo == pytest.approx(60.0)) is held and (c.reach.hi == pytest.approx(60.0)) is not held
 
 
 def test_no_free_drone_for_the_chain_is_named_with_the_relays_missing() -> None:

@@ -1,16 +1,17 @@
 """Keep every drone of the mission connected through relay drones (SPEC §8, issue 15).
 
-Measured mode (the default): after each telemetry update the planner of `relay/`
-(through `relays.plan`) looks at the mission's drones — where they are, where their
-command takes them, and the link quality each measures to the ground — and the
-relays on duty. It asks for new relays (free drones of the fleet, taking off to
-alternating altitudes, thesis script 5.9), moves relays whose spot moved more than
-`step`, calls back a relay on its way home before dispatching a new one, and sends
-home relays no longer needed (released once landed). One relay may serve several
-drones; chains form where one hop is not enough.
+Chain mode (the default, `relay/chain.py`, ADR 0006): a probe relay measures how long
+a hop holds, then every worker gets a chain of relays from the laptop toward where its
+goto goes, one every proven hop, and flies only as far as relays on their spots cover
+(the leash); relays go home from the far end when no longer needed, and a worker that
+needs more relays than the fleet has ends the mission `requirements` naming them.
 
-    enable("relay", min_quality=0.6, base_alt=5*m, alt_diff=5*m, step=4*m)
-    enable("relay", mode="distance", target_dist=50*m)   # the thesis's one chain per drone
+Measured mode (the first design) places relays by the radio model corrected by the
+link quality the drones measure; distance mode is the thesis's one chain per drone.
+
+    enable("relay")                                       # mode="chain"
+    enable("relay", mode="measured", min_quality=0.6, base_alt=5*m, alt_diff=5*m, step=4*m)
+    enable("relay", mode="distance", target_dist=50*m)    # the thesis's baseline
 
 `ground=[lat, lon]` is the ground station (default: the first served drone's home);
 `good_m`/`lost_m` the radio model the plan starts from (the world's `radio:`).
