@@ -1,5 +1,5 @@
-"""The MAVSDK flight-controller adapter: PX4 (or any MAVLink autopilot) through
-mavsdk 4.x, the native binding (libmavsdk in-process, no mavsdk_server).
+"""The MAVSDK flight-controller adapter: PX4 and ArduCopter through mavsdk 4.x, the
+native binding (libmavsdk in-process, no mavsdk_server).
 
 Telemetry streams (`subscribe_*`) feed a cache that `state()` reads; commands go
 through the Action and Offboard plugins and come back as FcRejected with MAVSDK's
@@ -8,6 +8,21 @@ result on refusal. Facts this relies on (shared/notes/mavsdk-facts.md): wait for
 takeoff/RTL altitudes are parameter writes; `set_current_speed` replaces the
 removed `set_maximum_speed`; serial URLs need a baud rate; `udp://host:port` means
 outbound; heartbeat-driven fields lag a command by up to a second.
+
+The heartbeat says which autopilot it is; where ArduCopter differs
+(shared/notes/ardupilot-facts.md) the adapter follows `AUTOPILOTS[make]`, one small
+table, with the same calls otherwise:
+- ArduPilot streams no position, battery, GPS or home until asked: the rates are asked for;
+- takeoff, goto and offboard fly in GUIDED, which MAVSDK reports as `offboard`: the
+  state says `takeoff` while a takeoff climbs, `offboard` only while our setpoints fly
+  it, `hold` otherwise (a PX4 drone says the same at those moments);
+- a pilot's mode (STABILIZE, ALT_HOLD, …) on a disarmed drone is the autopilot's idle,
+  reported `ready`, not a pilot taking over (armed, it is one);
+- arming from RTL, LAND or BRAKE fails (MAVSDK's arm switches them to BRAKE, which is
+  not armable): the adapter switches to GUIDED first;
+- the return altitude is the integer parameter RTL_ALT in centimetres;
+- a goto's yaw is ignored (ArduCopter 4.5): the heading follows as CONDITION_YAW;
+- an uploaded fence acts only with FENCE_ENABLE = 1: the upload sets it.
 """
 
 from __future__ import annotations
@@ -16,6 +31,7 @@ import asyncio
 import logging
 import math
 from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit
 
@@ -28,6 +44,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_BAUD = 57600
 CONNECTED_POLL_S = 0.25
+MODE_SEEN_S = 3.0  # a mode change shows in the heartbeat within a second: wait this long at most
 _HEALTH = {
     "is_gyrometer_calibration_ok": "gyrometer",
     "is_accelerometer_calibration_ok": "accelerometer",
@@ -35,6 +52,34 @@ _HEALTH = {
     "is_local_position_ok": "local_position",
     "is_global_position_ok": "global_position",
     "is_home_position_ok": "home_position",
+}
+
+
+@dataclass(frozen=True)
+class Autopilot:
+    """What the adapter does differently for one make of autopilot."""
+
+    name: str
+    rates_hz: dict[str, float] = field(default_factory=dict)  # telemetry.set_rate_<name>(hz) at the start
+    guided: bool = False  # takeoff, goto and offboard share one mode (GUIDED), reported `offboard` by MAVSDK
+    idle_modes: frozenset[str] = frozenset()  # modes a disarmed drone idles in (not a pilot's)
+    arm_from_mode: int | None = None  # custom mode to switch to before arming, unless in it already
+    return_alt_param: tuple[str, float] | None = None  # integer parameter and its unit in metres (None: MAVSDK's)
+    yaw_command: bool = False  # a goto's yaw is ignored: the heading is sent as CONDITION_YAW after it
+    fence_enable_param: str | None = None  # an uploaded fence acts only once this integer parameter is 1
+
+
+GUIDED_MODE = 4  # ArduCopter's GUIDED custom mode
+AUTOPILOTS = {
+    "px4": Autopilot("px4"),
+    "ardupilot": Autopilot(
+        "ardupilot",
+        rates_hz={"position": 10.0, "position_velocity_ned": 10.0, "velocity_ned": 10.0, "attitude_euler": 10.0,
+                  "gps_info": 2.0, "battery": 1.0, "home": 1.0, "landed_state": 2.0, "health": 1.0},
+        guided=True, idle_modes=frozenset({"stabilized", "altctl", "posctl", "acro", "manual"}),
+        arm_from_mode=GUIDED_MODE, return_alt_param=("RTL_ALT", 0.01), yaw_command=True,
+        fence_enable_param="FENCE_ENABLE",
+    ),
 }
 
 
@@ -93,7 +138,13 @@ class MavsdkFlightController:
         self._tasks: list[asyncio.Task[None]] = []
         self._cache: dict[str, Any] = {"connected": False}
         self._geofence: Any = None  # made on first use: plugins are only constructed when used
+        self._direct: Any = None  # MavlinkDirect, likewise
+        self._param: Any = None  # Param, likewise
         self._snapshot: FcState | None = None
+        self._mode_seen = asyncio.Event()  # a flight mode arrived
+        self.autopilot = AUTOPILOTS["px4"]
+        self._offboard = False  # our offboard stream flies it (GUIDED autopilots: not told by the mode)
+        self._takeoff_to: float | None = None  # a takeoff's altitude above home while it climbs
 
     async def start(self) -> None:
         from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
@@ -122,6 +173,10 @@ class MavsdkFlightController:
             await self.close()
             raise FcUnavailable(f"autopilot on {self.mavsdk_url} never reported a heartbeat")
         self._cache["connected"] = True
+        from mavsdk.autopilot import Autopilot as Make
+
+        self.autopilot = AUTOPILOTS["ardupilot" if await system.autopilot_type() == Make.ARDUPILOT else "px4"]
+        log.info("flight controller %s: %s", self.url, self.autopilot.name)
         self.telemetry = TelemetryAsync(system)
         self.action = ActionAsync(system)
         self.offboard = OffboardAsync(system)
@@ -138,6 +193,11 @@ class MavsdkFlightController:
         self._watch("health", t.subscribe_health)
         self._watch("local", t.subscribe_position_velocity_ned)
         self._tasks.append(asyncio.get_running_loop().create_task(self._poll_connection(), name="mavsdk connection"))
+        for name, hz in self.autopilot.rates_hz.items():
+            try:
+                await getattr(t, f"set_rate_{name}")(hz)
+            except Exception as exc:  # noqa: BLE001 - the stream may come anyway; say so and go on
+                log.warning("flight controller: telemetry rate %s %g Hz not set: %s", name, hz, exc)
         try:  # `subscribe_home` yields only on new messages: seed it from the cache
             self._cache["home"] = await t.home()
         except Exception:
@@ -148,6 +208,8 @@ class MavsdkFlightController:
             async for value in subscribe():
                 self._cache[name] = value
                 self._snapshot = None
+                if name == "flight_mode":
+                    self._mode_seen.set()
 
         self._tasks.append(asyncio.get_running_loop().create_task(pump(), name=f"mavsdk {name}"))
 
@@ -175,10 +237,11 @@ class MavsdkFlightController:
         position = None
         if pos is not None and not math.isnan(pos.latitude_deg):
             position = Position(lat=pos.latitude_deg, lon=pos.longitude_deg, alt=pos.absolute_altitude_m, rel_alt=pos.relative_altitude_m)
+        armed = bool(c.get("armed", False))
         return FcState(
             connected=c["connected"],
-            armed=bool(c.get("armed", False)),
-            flight_mode=c["flight_mode"].name.lower() if "flight_mode" in c else "unknown",
+            armed=armed,
+            flight_mode=self._mode(c["flight_mode"].name.lower() if "flight_mode" in c else "unknown", armed, position),
             landed_state=c["landed_state"].name.lower() if "landed_state" in c else "unknown",
             position=position,
             home=home_s,
@@ -198,6 +261,23 @@ class MavsdkFlightController:
             ),
         )
 
+    def _mode(self, reported: str, armed: bool, position: Position | None) -> str:
+        """Fleet's name for what the autopilot is doing (see the module's docstring)."""
+        ap = self.autopilot
+        if reported != "offboard":
+            self._offboard = False  # out of GUIDED (a failsafe, a pilot): our setpoints no longer fly it
+        if not armed:
+            self._takeoff_to = None
+            return "ready" if reported in ap.idle_modes else reported
+        if not ap.guided or reported != "offboard":
+            return reported
+        if self._offboard:
+            return "offboard"
+        if self._takeoff_to is not None and position is not None and position.rel_alt < self._takeoff_to * 0.95:
+            return "takeoff"
+        self._takeoff_to = None
+        return "hold"
+
     # ----- commands -------------------------------------------------------------------
 
     async def _call(self, what: str, coro: Any) -> None:
@@ -209,7 +289,50 @@ class MavsdkFlightController:
             raise FcRejected(f"{what}: {(name or str(exc)).lower().replace('_', ' ')}") from None
 
     async def arm(self) -> None:
+        mode = self.autopilot.arm_from_mode
+        if mode is not None and self._reported_mode() != "OFFBOARD":
+            await self._set_mode(mode)  # MAVSDK's arm would switch RTL or LAND to BRAKE, which cannot arm
+            # armed in the idle mode reads as a pilot's: arm once the mode the autopilot reports is ours
+            try:
+                async with asyncio.timeout(MODE_SEEN_S):
+                    while True:
+                        self._mode_seen.clear()
+                        if self._reported_mode() == "OFFBOARD":
+                            break
+                        await self._mode_seen.wait()
+            except TimeoutError:
+                log.warning("flight controller: GUIDED not reported %g s after it was accepted; arming", MODE_SEEN_S)
         await self._call("arm", self.action.arm())
+
+    def _reported_mode(self) -> str | None:
+        mode = self._cache.get("flight_mode")
+        return None if mode is None else str(mode.name)
+
+    async def _set_mode(self, custom_mode: int) -> None:
+        """DO_SET_MODE with an autopilot's own mode number (MAVSDK's modes are PX4's names)."""
+        armed = 128 if self._cache.get("armed") else 0  # MAV_MODE_FLAG_SAFETY_ARMED
+        await self._command_long(f"mode {custom_mode}", 176, 1 | armed, custom_mode)  # MAV_CMD_DO_SET_MODE
+
+    async def _command_long(self, what: str, command: int, *params: float) -> None:
+        """A COMMAND_LONG MAVSDK has no call for, answered by the autopilot's COMMAND_ACK."""
+        import json
+
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        if self._direct is None:
+            self._direct = MavlinkDirectAsync(self._system)
+        sysid = await self._system.get_system_id()
+        values = [*params, *[0.0] * (7 - len(params))]
+        fields = {"target_system": sysid, "target_component": 1, "command": command, "confirmation": 0,
+                  **{f"param{i}": float(v) for i, v in enumerate(values, 1)}}
+        try:
+            ack = await self._direct.send_command(MavlinkMessage("COMMAND_LONG", 0, 0, sysid, 1, json.dumps(fields)))
+        except Exception as exc:
+            raise FcRejected(f"{what}: {exc}") from None
+        result = json.loads(ack.fields_json or "{}").get("result")
+        if result != 0:  # MAV_RESULT_ACCEPTED
+            raise FcRejected(f"{what}: refused (MAV_RESULT {result})")
 
     async def disarm(self) -> None:
         await self._call("disarm", self.action.disarm())
@@ -217,6 +340,7 @@ class MavsdkFlightController:
     async def takeoff(self, alt_m: float) -> None:
         await self._call("takeoff altitude", self.action.set_takeoff_altitude(alt_m))
         await self._call("takeoff", self.action.takeoff())
+        self._takeoff_to, self._snapshot = alt_m, None
 
     async def land(self) -> None:
         await self._call("land", self.action.land())
@@ -224,20 +348,32 @@ class MavsdkFlightController:
     async def goto(self, lat: float, lon: float, alt_amsl: float, yaw_deg: float | None, speed_mps: float | None) -> None:
         yaw = float("nan") if yaw_deg is None else yaw_deg
         await self._call("goto", self.action.goto_location(lat, lon, alt_amsl, yaw))
+        self._takeoff_to = self._snapshot = None
+        if yaw_deg is not None and self.autopilot.yaw_command:
+            await self._command_long("yaw", 115, yaw_deg, 0.0, 0.0, 0.0)  # MAV_CMD_CONDITION_YAW, absolute
         if speed_mps is not None:
             await self._call("speed", self.action.set_current_speed(speed_mps))
 
     async def return_to_launch(self, alt_m: float) -> None:
-        await self._call("return altitude", self.action.set_return_to_launch_altitude(alt_m))
+        param = self.autopilot.return_alt_param
+        if param is None:
+            await self._call("return altitude", self.action.set_return_to_launch_altitude(alt_m))
+        else:
+            name, unit_m = param
+            await self._call("return altitude", self._params().set_param_int(name, round(alt_m / unit_m)))
         await self._call("return", self.action.return_to_launch())
+        self._takeoff_to = self._snapshot = None
 
     async def hold(self) -> None:
         await self._call("hold", self.action.hold())
+        self._takeoff_to = self._snapshot = None
 
     async def start_offboard(self) -> None:
         await self._call("start offboard", self.offboard.start())
+        self._offboard, self._takeoff_to, self._snapshot = True, None, None
 
     async def stop_offboard(self) -> None:
+        self._offboard, self._snapshot = False, None
         await self._call("stop offboard", self.offboard.stop())
 
     async def set_setpoint(self, kind: str, values: dict[str, float | None]) -> None:
@@ -271,6 +407,15 @@ class MavsdkFlightController:
         points = [Point(latitude_deg=lat, longitude_deg=lon) for lat, lon in polygon]
         data = GeofenceData(polygons=[Polygon(points=points, fence_type=FenceType.INCLUSION)], circles=[])
         await self._call("fence", self._geofence.upload_geofence(data))
+        if self.autopilot.fence_enable_param is not None:
+            await self._call("fence enable", self._params().set_param_int(self.autopilot.fence_enable_param, 1 if polygon else 0))
+
+    def _params(self) -> Any:
+        from mavsdk.asyncio.plugins.param import ParamAsync
+
+        if self._param is None:
+            self._param = ParamAsync(self._system)
+        return self._param
 
     async def close(self) -> None:
         for task in self._tasks:
@@ -278,7 +423,7 @@ class MavsdkFlightController:
         if self._tasks:
             await asyncio.wait(self._tasks)
         self._tasks.clear()
-        self._geofence = None
+        self._geofence = self._direct = self._param = None
         if self._sdk is not None:
             self._sdk.destroy()
             self._sdk = None

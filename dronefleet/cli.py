@@ -120,9 +120,10 @@ def sub(keyexpr: str, connect: tuple[str, ...], count: int | None, pki_dir: Path
 @click.option("--output", "outputs", multiple=True, type=HOST_PORT, help="Extra MAVLink output HOST:PORT for every vehicle (e.g. a GCS on 14550).")
 @click.option("--radio", is_flag=True, help="Emulated radio: each drone in its own network namespace, loss following the distances (needs root).")
 @click.option("--ground-port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="With --radio: the port of `fleet ground` the agents connect to at the laptop's radio address.")
+@click.option("--autopilot", "autopilots", help="px4 or ardupilot for every vehicle, or one per vehicle in order (px4,ardupilot,…); default: each drone's `autopilot` in the world file, else px4.")
 def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int,
-        outputs: tuple[tuple[str, int], ...], radio: bool, ground_port: int) -> None:
-    """Run PX4-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
+        outputs: tuple[tuple[str, int], ...], radio: bool, ground_port: int, autopilots: str | None) -> None:
+    """Run PX4-like or ArduCopter-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
     from dronefleet.sim.fleet_sim import run_sim
     from dronefleet.sim.world import load_world
 
@@ -131,7 +132,7 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
         run_async(run_sim(
             loaded, count, base_port=base_port, agents=agents, connect=list(connect),
             agent_config=agent_config, extra_outputs=list(outputs), radio=radio, ground_port=ground_port,
-            out=lambda line: click.echo(line),
+            out=lambda line: click.echo(line), autopilots=[a.strip() for a in autopilots.split(",")] if autopilots else None,
         ))
     except OSError as exc:
         fail(f"cannot bind the simulator's ports: {exc}")

@@ -1,4 +1,5 @@
-"""`fleet sim`: N PX4-like MAVLink vehicles on UDP 14540+i, optionally with agents.
+"""`fleet sim`: N PX4-like (or ArduCopter-like) MAVLink vehicles on UDP 14540+i,
+optionally with agents.
 
 Like PX4 SITL, vehicle i sends to 127.0.0.1:(base+i) and answers whoever talks to
 it. A one-line status is printed per vehicle whenever its mode, arming, landed
@@ -30,7 +31,7 @@ from dronefleet.schemas.config import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim.agent_command import agent_command, drone_agent_config, sensor_command, world_file
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
-from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
+from dronefleet.sim.mavlink_endpoint import AUTOPILOTS, MavlinkVehicle
 from dronefleet.sim.radio import Spot3, spot_of
 from dronefleet.sim.radio_field import RadioField
 from dronefleet.sim.radio_net import die_with_parent, socket_in_netns
@@ -68,10 +69,23 @@ def agent_security(agent_config: Path | None) -> Security:
         raise ConfigError(f"{agent_config}: security: {str(exc).replace('$.', '')}") from None
 
 
+def autopilot_of(specs: list[DroneSpec], given: list[str] | None) -> dict[str, str]:
+    """Each drone's autopilot: `given` (`--autopilot`: one for all, or one per drone in
+    order), else the world file's `autopilot` of the drone, else px4."""
+    if given and len(given) not in (1, len(specs)):
+        raise ConfigError(f"--autopilot names {len(given)} autopilots for {len(specs)} drones: "
+                          "give one for all, or one per drone")
+    for make in given or []:
+        if make not in AUTOPILOTS:
+            raise ConfigError(f"--autopilot {make!r}: expected one of {', '.join(AUTOPILOTS)}")
+    return {s.id: (given[0] if len(given) == 1 else given[i]) if given else (s.autopilot or "px4")
+            for i, s in enumerate(specs)}
+
+
 def status_line(v: SimVehicle) -> str:
     veh = v.endpoint.vehicle
     return (
-        f"{v.spec.id:<10} sysid {v.endpoint.sysid:<3} udp {v.port:<6} {veh.mode:<16} {veh.landed_state:<10} "
+        f"{v.spec.id:<10} sysid {v.endpoint.sysid:<3} udp {v.port:<6} {v.endpoint.mode_name:<16} {veh.landed_state:<10} "
         f"{'armed' if veh.armed else 'disarmed':<8} alt {veh.rel_alt:6.1f} m  battery {veh.battery:4.0%}"
         + ("" if veh.connected else "  LINK PULLED")
     )
@@ -90,11 +104,13 @@ async def run_sim(
     ground_port: int = 7447,
     out: Callable[[str], None] = print,
     log_dir: Path | None = None,
+    autopilots: list[str] | None = None,
 ) -> None:
     """Run the world's vehicles (and with `agents`, an agent per vehicle, and with
     `radio`, each in its own namespace on the emulated radio) until cancelled. The
     children's output goes to `log_dir/<name>.log` if given, else to ours."""
     specs = world.spawn(n)
+    makes = autopilot_of(specs, autopilots)
     vehicles: dict[str, SimVehicle] = {}
     tasks: list[asyncio.Task[None]] = []
     children: list[subprocess.Popen[bytes]] = []
@@ -120,7 +136,8 @@ async def run_sim(
                 if sv_id in vehicles:
                     out(status_line(vehicles[sv_id]))
 
-            endpoint = MavlinkVehicle(vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])], on_change=on_change)
+            endpoint = MavlinkVehicle(vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])], on_change=on_change,
+                                      autopilot=makes[spec.id])
             local = PX4_SITL_LOCAL + (0 if field else i) if base_port == PX4_SITL_BASE else 0
             sock = socket_in_netns(field.net.netns(spec.id)) if field else None
             await endpoint.start(("127.0.0.1", local), sock)

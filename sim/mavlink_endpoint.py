@@ -1,4 +1,5 @@
-"""A PX4-like MAVLink vehicle: the sim/ vehicle model behind a UDP MAVLink link.
+"""A PX4-like (or ArduCopter-like) MAVLink vehicle: the sim/ vehicle model behind a UDP
+MAVLink link.
 
 Built with pymavlink (no hand-rolled encoding). Towards MAVSDK 4.x it behaves like
 PX4 v1.16 SITL (shared/notes/px4-facts.md, mavsdk-facts.md): it sends to
@@ -7,7 +8,9 @@ implements is listed in sim/MAVLINK.md. Every COMMAND_LONG/COMMAND_INT is
 acknowledged (UNSUPPORTED for what it does not implement), REQUEST_MESSAGE is
 answered with the message or UNSUPPORTED, parameter writes are echoed; plans
 (mission, geofence, rally points) go through PX4's mission protocol (MissionManager),
-and an accepted inclusion polygon becomes `vehicle.fence`.
+and an accepted inclusion polygon becomes `vehicle.fence`. With `autopilot="ardupilot"`
+it is an ArduCopter 4.5 instead where ArduCopter differs (sim/ardupilot.py: its modes,
+streams, refusals and timings).
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mav
 
 from dronefleet.schemas.telemetry import MANUAL_MODES
-from dronefleet.sim.mission_protocol import MissionProtocol
+from dronefleet.sim import ardupilot
+from dronefleet.sim.mission_protocol import MissionItem, MissionProtocol
 from dronefleet.sim.px4_params import default_params, param_name
 from dronefleet.sim.vehicle import Vehicle
 
@@ -47,6 +51,7 @@ ACCEPTED, TEMP_REJECTED, DENIED, UNSUPPORTED, FAILED = (
     mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_TEMPORARILY_REJECTED, mav.MAV_RESULT_DENIED,
     mav.MAV_RESULT_UNSUPPORTED, mav.MAV_RESULT_FAILED,
 )
+AUTOPILOTS = ("px4", "ardupilot")
 FLIGHT_SW_VERSION = (1 << 24) | (16 << 16) | (0 << 8) | 255  # 1.16.0 official
 
 
@@ -80,13 +85,19 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         *,
         step_s: float = 0.02,
         on_change: Callable[[MavlinkVehicle], None] | None = None,
+        autopilot: str = "px4",
     ) -> None:
+        if autopilot not in AUTOPILOTS:
+            raise ValueError(f"unknown autopilot {autopilot!r} (known: {', '.join(AUTOPILOTS)})")
         self.vehicle = vehicle
         self.sysid = sysid
         self.outputs = list(outputs)
         self.peers: set[tuple[str, int]] = set()
-        self.params = default_params(vehicle)
-        self.periods = dict(DEFAULT_STREAMS)
+        self.copter = ardupilot.ArduCopter(vehicle) if autopilot == "ardupilot" else None
+        if self.copter is not None:
+            vehicle.params = ardupilot.tuned(vehicle.params)
+        self.params = default_params(vehicle) if self.copter is None else ardupilot.default_params(vehicle)
+        self.periods = dict(DEFAULT_STREAMS if self.copter is None else ardupilot.STREAMS)
         self.stats = EndpointStats()
         self._mav = mav.MAVLink(None, srcSystem=sysid, srcComponent=mav.MAV_COMP_ID_AUTOPILOT1)
         self._mav.robust_parsing = True
@@ -97,7 +108,9 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         self._home_sent = False
         self._on_change = on_change
         self._last_summary: tuple[object, ...] = ()
-        self.missions = MissionProtocol(sysid, self._mav, on_fence=self._set_fence)
+        self._fence: list[tuple[float, float]] = []  # the uploaded inclusion polygon ([] none)
+        self.missions = MissionProtocol(sysid, self._mav, on_fence=self._set_fence,
+                                        home=None if self.copter is None else self._home_item)
 
     # ----- lifecycle -----------------------------------------------------------------
 
@@ -117,6 +130,14 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
     def close(self) -> None:
         if self._transport is not None:
             self._transport.close()
+
+    @property
+    def mode_name(self) -> str:
+        """The mode as its autopilot names it (PX4's as the vehicle model keeps them)."""
+        if self.copter is None:
+            return self.vehicle.mode
+        mode = self.copter.custom_mode()
+        return f"{ardupilot.MODE_NAMES.get(mode, str(mode))} (ardupilot)"
 
     @property
     def local_port(self) -> int:
@@ -147,7 +168,7 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
 
     def _report_change(self) -> None:
         v = self.vehicle
-        summary = (v.mode, v.armed, v.landed_state, v.connected)
+        summary = (self.mode_name, v.armed, v.landed_state, v.connected)
         if summary != self._last_summary:
             self._last_summary = summary
             if self._on_change is not None:
@@ -184,7 +205,9 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
                 log.exception("sysid %d: handling %s failed", self.sysid, name)
 
     def _set_fence(self, polygon: list[tuple[float, float]]) -> None:
-        self.vehicle.fence = polygon
+        self._fence = polygon
+        if self.copter is None or self.params["FENCE_ENABLE"].value:  # ArduCopter: held once enabled
+            self.vehicle.fence = polygon
 
     # ----- incoming messages ---------------------------------------------------------
 
@@ -207,6 +230,14 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
 
     def _command(self, command: int, p: list[float], frame: int | None) -> int:
         v = self.vehicle
+        if self.copter is not None:
+            rtl_alt_m = self.params["RTL_ALT"].value / 100
+            answer = self.copter.command(command, p, frame, self._reposition, rtl_alt_m)
+            if answer is not None:
+                result, text = answer
+                if text is not None:
+                    self._send(self._mav.statustext_encode(mav.MAV_SEVERITY_CRITICAL, text[:50].encode()))
+                return result
         if command == mav.MAV_CMD_COMPONENT_ARM_DISARM:
             return self._result(v.arm() if p[0] >= 0.5 else v.disarm())
         if command == mav.MAV_CMD_NAV_TAKEOFF:
@@ -238,8 +269,9 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
             msg_id, interval_us = int(p[0]), p[1]
             if self._build(msg_id) is None:
                 return UNSUPPORTED
+            defaults = DEFAULT_STREAMS if self.copter is None else ardupilot.STREAMS
             self.periods[msg_id] = (
-                DEFAULT_STREAMS.get(msg_id, 0.0) if interval_us == 0 else -1.0 if interval_us < 0 else interval_us / 1e6
+                defaults.get(msg_id, 0.0) if interval_us == 0 else -1.0 if interval_us < 0 else interval_us / 1e6
             )
             return ACCEPTED
         return UNSUPPORTED
@@ -312,8 +344,10 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         if param is None:
             return  # unknown params are ignored, as on PX4 (the client times out)
         value = msg.param_value
-        if param.kind == mav.MAV_PARAM_TYPE_INT32:  # PX4 bytewise encoding
+        if param.kind == mav.MAV_PARAM_TYPE_INT32 and self.copter is None:  # PX4 bytewise encoding
             value = float(struct.unpack("<i", struct.pack("<f", value))[0])
+        elif param.kind != mav.MAV_PARAM_TYPE_REAL32:  # ArduPilot: the value cast to a float
+            value = float(round(value))
         param.value = value
         self._apply_param(name, value)
         self._send_param(name)
@@ -326,6 +360,10 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
             p.takeoff_alt_m = value
         elif name == "RTL_RETURN_ALT":
             p.rtl_min_alt_m = value
+        elif name == "WPNAV_SPEED":
+            self.vehicle.cruise_speed = value / 100
+        elif name == "FENCE_ENABLE":
+            self.vehicle.fence = self._fence if value else []
 
     def _on_param_request_read(self, msg: mav.MAVLink_param_request_read_message) -> None:
         names = list(self.params)
@@ -342,7 +380,7 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
     def _send_param(self, name: str) -> None:
         param = self.params[name]
         value = param.value
-        if param.kind == mav.MAV_PARAM_TYPE_INT32:
+        if param.kind == mav.MAV_PARAM_TYPE_INT32 and self.copter is None:
             value = struct.unpack("<f", struct.pack("<i", int(value)))[0]
         names = list(self.params)
         self._send(self._mav.param_value_encode(name.encode(), value, param.kind, len(names), names.index(name)))
@@ -371,12 +409,21 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
 
     def heartbeat(self) -> mav.MAVLink_message:
         v = self.vehicle
-        main, sub = PX4_MODES.get(v.mode, (4, 3))
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mav.MAV_MODE_FLAG_SAFETY_ARMED if v.armed else 0)
         status = mav.MAV_STATE_ACTIVE if v.armed else mav.MAV_STATE_STANDBY
+        if self.copter is not None:
+            return self._mav.heartbeat_encode(
+                mav.MAV_TYPE_QUADROTOR, ardupilot.ArduCopter.autopilot, base, self.copter.custom_mode(), status)
+        main, sub = PX4_MODES.get(v.mode, (4, 3))
         return self._mav.heartbeat_encode(
             mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4, base, (main << 16) | (sub << 24), status
         )
+
+    def _home_item(self) -> MissionItem:
+        """ArduPilot's mission item 0: home."""
+        home = self.vehicle.home
+        return MissionItem(mav.MAV_CMD_NAV_WAYPOINT, mav.MAV_FRAME_GLOBAL, (0.0, 0.0, 0.0, 0.0), home.lat, home.lon,
+                           home.alt, 1)
 
     def global_position_int(self) -> mav.MAVLink_message:
         v = self.vehicle
@@ -449,7 +496,7 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
             | mav.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT
         )
         return self._mav.autopilot_version_encode(
-            caps, FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1000 + self.sysid,
+            caps, FLIGHT_SW_VERSION if self.copter is None else ardupilot.FLIGHT_SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1000 + self.sysid,
         )
 
 

@@ -126,8 +126,10 @@ class MissionProtocol:
     MAV_MISSION_UNSUPPORTED, as MAVSDK does."""
 
     def __init__(self, sysid: int, encoder: mav.MAVLink,
-                 on_fence: Callable[[list[tuple[float, float]]], None] = lambda polygon: None) -> None:
+                 on_fence: Callable[[list[tuple[float, float]]], None] = lambda polygon: None,
+                 home: Callable[[], MissionItem] | None = None) -> None:
         self.sysid = sysid
+        self._home = home  # ArduPilot: a mission's item 0 is home, whatever was uploaded there
         self._mav = encoder  # builds messages (a MAVLink_message); sending is the caller's
         self._on_fence = on_fence
         self._now = 0.0
@@ -223,6 +225,8 @@ class MissionProtocol:
     def _store(self, mission_type: int, items: list[MissionItem], current: int = 0) -> None:
         if mission_type not in self.plans:
             return
+        if mission_type == MISSION and items and self._home is not None:
+            items = [self._home(), *items[1:]]
         self.plans[mission_type] = items
         if mission_type == MISSION:
             self.current_seq = current

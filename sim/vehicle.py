@@ -192,6 +192,13 @@ class Vehicle:
         self._target_yaw = None if yaw_deg is None or math.isnan(yaw_deg) else normalize_deg(yaw_deg)
         return None
 
+    def face(self, yaw_deg: float) -> str | None:
+        """Turn to `yaw_deg` where it stands or flies to (ArduPilot's CONDITION_YAW)."""
+        if not self.armed or not self.in_air:
+            return "yaw denied: on ground"
+        self._target_yaw = normalize_deg(yaw_deg)
+        return None
+
     def hold(self) -> str | None:
         if self.mode in MANUAL_MODES:
             return "hold denied: manual control"

@@ -41,6 +41,9 @@ class Fault(_Strict, frozen=True):
     value: float | str | None = None
 
 
+Autopilot = Literal["px4", "ardupilot"]
+
+
 class DroneSpec(_Strict, frozen=True):
     id: str
     lat: Lat | None = None
@@ -51,6 +54,7 @@ class DroneSpec(_Strict, frozen=True):
     kind: str | None = None  # its agent's `kind` and `roles` (default: the agent's defaults)
     roles: list[Role] | None = None
     battery: Annotated[float, Meta(ge=0, le=1)] | None = None  # charge at the start (default: full)
+    autopilot: Autopilot | None = None  # its simulated flight controller's make (default: px4, or `fleet sim --autopilot`)
 
     @property
     def sensor_types(self) -> list[str]:

@@ -166,14 +166,15 @@ def operator(client: ZenohBus) -> Callable[[str], Operator]:
     return lambda drone_id: Operator(client, drone_id)
 
 
-@pytest.fixture(params=["sim", "mavsdk"])
+@pytest.fixture(params=["sim", "mavsdk", "mavsdk-ardupilot"])
 def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
     """The `--fc` URL of each adapter under test: the built-in simulated vehicle, and
-    real libmavsdk talking UDP to `fleet sim` (a PX4-like MAVLink vehicle)."""
+    real libmavsdk talking UDP to `fleet sim` as a PX4-like and as an ArduCopter-like
+    MAVLink vehicle (`--autopilot ardupilot`)."""
     if request.param == "sim":
         yield "sim"
         return
-    sim = SimProcess(tmp_path)
+    sim = SimProcess(tmp_path, extra_args=["--autopilot", "ardupilot"] if request.param.endswith("ardupilot") else [])
     try:
         yield sim.fc_url()
     finally:

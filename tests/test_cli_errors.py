@@ -44,6 +44,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "world_lat.yml").write_text("drones: [{id: d1, lat: 95}]\n")
     (d / "world_fault.yml").write_text("drones: [{id: d1, faults: [{at_s: 5, fault: meteor}]}]\n")
     (d / "world_empty.yml").write_text("drones: []\n")
+    (d / "world_autopilot.yml").write_text("drones: [{id: d1, autopilot: inav}]\n")
     return d
 
 
@@ -95,6 +96,10 @@ CASES = [
     ("ground: address not here", ["ground", "--listen", "tcp/192.0.2.1:7447", "--http-port", "0"], {1}, "192.0.2.1"),
     ("sim: bad world", ["sim", "{d}/bad_world.yml"], {2}, "bogus"),
     ("sim: bad --output", ["sim", "--output", "nohostport"], {2}, "--output"),
+    ("sim: unknown autopilot", ["sim", "-n", "1", "--autopilot", "betaflight", "--base-port", "24540"], {2}, "betaflight"),
+    ("sim: autopilots not one per drone", ["sim", "-n", "3", "--autopilot", "px4,ardupilot", "--base-port", "24540"], {2},
+     "2 autopilots for 3 drones"),
+    ("sim: unknown autopilot in the world", ["sim", "{d}/world_autopilot.yml"], {2}, "drones[0].autopilot"),
     ("sensor: missing config", ["sensor", "temperature", "--drone", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
     ("sensor simulate: no such field sensor", ["sensor", "simulate", "--world", "{d}/gas_world.yml", "--field", "gas99"], {2},
      "no such field sensor (it has: gas07)"),

@@ -24,8 +24,8 @@ from dronefleet.sim.faults import send_fault
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.vehicle import Vehicle
 from tests.harness import AgentProcess, Operator, SimProcess, at, fleet_command
+from tests.mavlink_gcs import Gcs
 from tests.ports import free_udp_base
-from tests.waiting import Collector
 
 pytestmark = pytest.mark.integration
 
@@ -285,30 +285,6 @@ async def test_the_builtin_sim_controller_holds_the_fence_like_the_mavlink_one()
 def e7_of_float32(deg: float) -> int:
     """A coordinate sent in a float MISSION_ITEM, as it comes back in a MISSION_ITEM_INT."""
     return round(struct.unpack("<f", struct.pack("<f", deg))[0] * 1e7)
-
-
-class Gcs(asyncio.DatagramProtocol):
-    """A bare MAVLink 2 ground station (255/190) on a loopback socket."""
-
-    def __init__(self) -> None:
-        self.mav = mav2.MAVLink(None, srcSystem=255, srcComponent=mav2.MAV_COMP_ID_MISSIONPLANNER)
-        self.mav.robust_parsing = True
-        self.got = Collector()
-        self.transport: asyncio.DatagramTransport | None = None
-
-    def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        for msg in self.mav.parse_buffer(data) or []:
-            self.got(msg)
-
-    async def ask(self, msg: mav2.MAVLink_message, reply: str) -> mav2.MAVLink_message:
-        """Send `msg` to the vehicle and wait for its next `reply`."""
-        assert self.transport is not None
-        start = len(self.got.items)
-        self.transport.sendto(msg.pack(self.mav))
-        return await self.got.wait_for(lambda m: m.get_type() == reply, 5, reply, start=start)
 
 
 async def test_a_ground_station_uploads_and_downloads_a_mission_and_rally_points(px4: MavlinkVehicle) -> None:
