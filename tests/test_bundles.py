@@ -464,7 +464,7 @@ print(f"moved {start.distance(d.position):.0f} m")
 
 
 async def test_a_goto_sent_while_the_failsafe_flies_the_drone_home_takes_it_back() -> None:
-    """The failsafe's return began while the mission sent nothing (corpus world 133: a
+    """The failsafe's return began while the mission sent nothing (a
     worker held at its chain's edge): the next goto, refused "returning", stops that
     return once the drone hears the ground and goes (the mission never sent it home)."""
     def once_it_hovers(sim: SimField) -> None:
@@ -573,7 +573,7 @@ def lossy_up_high(sim: SimField) -> None:
 
 
 async def test_a_bundle_whose_end_was_lost_returns_once_past_its_timeout() -> None:
-    """Corpus world 53: a relay's homeward bundle ended while its statuses were lost,
+    """A relay's homeward bundle ended while its statuses were lost,
     and nothing else was sent to it: its routine waited to the time limit. Past its
     timeout the mission reads the bundle's record from the agent."""
     script = ('d = assign("drone01")\narm(d)\nr = push(d, [step.takeoff(15*m), step.wait(100*s)], timeout=20*s)\n'
@@ -586,7 +586,7 @@ async def test_a_bundle_whose_end_was_lost_returns_once_past_its_timeout() -> No
 
 
 async def test_a_bundle_ended_by_the_next_one_returns_though_its_end_was_lost() -> None:
-    """Corpus world 185: a relay's duty bundle was superseded by the next one while its
+    """A relay's duty bundle was superseded by the next one while its
     statuses were lost, and its push waited until the time limit. A bundle (or command)
     the drone accepts ends the one it ran; the mission reads that one's record again.
     Here drone01's statuses are lost while it is above 12 m: the first bundle's end."""

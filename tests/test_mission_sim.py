@@ -407,7 +407,7 @@ async def test_an_unanswered_command_is_sent_again_once_the_drone_is_heard_not_a
 
 
 async def test_a_push_whose_answer_is_lost_is_sent_again_and_runs_once() -> None:
-    """Corpus world 81: a relay's homeward bundle got no answer over a lossy hop; sent
+    """A relay's homeward bundle got no answer over a lossy hop; sent
     once only, the plugin's routine unwound and the relay hovered on its spot. The
     push is now sent again as a command is; the agent, which had taken it, answers as
     before and does not run it twice."""

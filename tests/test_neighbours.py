@@ -73,7 +73,7 @@ def test_an_open_fair_bridge_stays_only_while_no_good_neighbour_is_heard() -> No
 
 
 def test_an_open_clean_bridge_outlasts_two_unlucky_rounds() -> None:
-    """Corpus world 31: the first relay's only way to the ground (1 % loss) missed two
+    """The first relay's only way to the ground (1 % loss) missed two
     scouts of five and was closed for the next relay out: the chain unheard 6 s."""
     unlucky = [True] * 7 + [False, True, False]
     assert rate(unlucky) == 0.6
@@ -97,7 +97,7 @@ def test_an_open_fair_bridge_outlasts_unlucky_rounds_when_no_good_one_is_heard()
 
 
 def test_bridges_that_do_not_bring_the_ground_back_give_way_to_other_good_ones() -> None:
-    """Corpus world 21: a relay held the worker and the relay beyond (equally good,
+    """A relay held the worker and the relay beyond (equally good,
     chosen by name), not the one toward the laptop: its chain was unheard 30 s."""
     opened = {"beyond": 10.0, "worker": 10.0}
     assert futile(opened, ground_heard_at=9.0, now=10.0 + SWAP_AFTER_S - 0.5) == set()  # not long enough

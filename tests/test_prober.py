@@ -13,7 +13,7 @@ from dronefleet.schemas.telemetry import GROUND_PEER
 
 
 async def test_a_ground_probe_out_longer_than_a_clean_round_trip_is_overdue_before_its_outcome() -> None:
-    """Fast-time corpus world 42: a worker's link counted clean while its loss climbed
+    """A worker's link counted clean while its loss climbed
     to 80 %, its probes neither answered nor timed out yet. A probe out longer than a
     clean round trip takes counts at once (the drone bridges: ADR 0003)."""
     clock, keys = VirtualClock(), Keys()

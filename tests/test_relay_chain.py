@@ -165,7 +165,7 @@ def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() 
 
 
 def test_one_relay_crosses_the_levels_at_a_time() -> None:
-    """Corpus world 99: a relay flying home on its transit level passed 1.4 m over one
+    """A relay flying home on its transit level passed 1.4 m over one
     climbing from the ground. A relay no longer needed waits on its spot while another
     comes home (heard or not: world 107's lost its link on the way), then goes."""
     c = Chains(DUTY)
@@ -182,7 +182,7 @@ def test_one_relay_crosses_the_levels_at_a_time() -> None:
 
 
 def test_a_worker_landed_beyond_the_laptops_hop_keeps_no_relay() -> None:
-    """Corpus world 161: a worker landed at its home 35 m from the laptop, beyond the
+    """A worker landed at its home 35 m from the laptop, beyond the
     hop (30 m), and its relay stayed on duty until the time limit."""
     c = Chains(DUTY)
     c.reach = Reach(lo=31.0, hi=32.0)
@@ -220,7 +220,7 @@ def test_a_held_drone_is_not_held_over_a_drone_that_may_take_off() -> None:
 
 
 def test_no_relay_takes_off_while_a_served_drone_flies_over_the_drones_on_the_ground() -> None:
-    """Corpus world 81: a worker passing over the spares' row held 3.1 m from a relay
+    """A worker passing over the spares' row held 3.1 m from a relay
     climbing through its level. The relay is sent once the worker is 6 m clear."""
     spares = [(at(20, 90), 0.0), (at(27, 90), 0.0)]
     for across, sent in ((3.0, False), (5.5, False), (6.5, True)):
@@ -232,7 +232,7 @@ def test_no_relay_takes_off_while_a_served_drone_flies_over_the_drones_on_the_gr
 
 
 def test_no_relay_takes_off_where_a_served_drone_is_let_go_over_the_drones_on_the_ground() -> None:
-    """Corpus world 192: a relay was sent from a spot 12 m from a worker that was let
+    """A relay was sent from a spot 12 m from a worker that was let
     go on at the same moment; it stopped 4.9 m from the relay climbing through its level.
     The launch waits while a worker's way to where it may go passes over a spare."""
     spare = [(at(20, 90), 0.0)]
@@ -245,7 +245,7 @@ def test_no_relay_takes_off_where_a_served_drone_is_let_go_over_the_drones_on_th
 
 
 def test_no_relay_takes_off_on_the_way_home_of_a_served_drone_returning() -> None:
-    """Corpus world 81: a worker's lost-link failsafe flew it home (its goto still the
+    """A worker's lost-link failsafe flew it home (its goto still the
     script's, far out) and a relay took off on its way, 4.2 m from it. A returning
     drone's way is home: the launch waits while that passes over a spare."""
     spare = [((20.0, 14.0), 0.0)]
@@ -265,7 +265,7 @@ def test_the_probe_waits_too_while_a_worker_is_over_a_spare() -> None:
 
 
 def test_a_worker_on_its_way_down_home_is_let_go_at_the_level_it_flies() -> None:
-    """Corpus world 53: a worker's goto home (at field level) is flown at the worker's
+    """A worker's goto home (at field level) is flown at the worker's
     level until its last leg, but the leash judged the way at the goal's: 21 m below the
     relays, nothing of it was covered and the worker was held where it was until the
     time limit. Judged at 15 m, the chain covers the way home."""

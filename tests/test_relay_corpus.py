@@ -106,8 +106,8 @@ def test_chain_mode_measures_the_radio_and_keeps_the_worker_heard(seed: int) -> 
 
 @pytest.mark.slow(10)
 def test_chain_mode_proves_its_own_hop_past_a_ring_of_spares() -> None:
-    """Corpus world 63 (radio 56/107 m, three workers, seven spares in a ring around the
-    laptop): the probe's answers came over its own link, so a clean window proves its own
+    """On a radio of 56/107 m with three workers and seven spares in a ring around the
+    laptop, the probe's answers came over its own link, so a clean window proves its own
     hop, not the bottleneck through the spare below it (it learnt 40 m so); a relay sent
     home and at once again, armed still after landing, was disarmed before its takeoff
     step, and the plugin sends another instead of waiting for it to the time limit;
@@ -171,7 +171,7 @@ def test_chain_mode_where_the_spares_do_not_suffice_holds_then_names_the_relays_
 
 
 def test_a_goto_held_short_of_a_lower_goal_keeps_its_level_until_the_last_leg(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Corpus world 53: a worker's goto home (at field level) was held 65 m short; the leg
+    """A worker's goto home (at field level) was held 65 m short; the leg
     to the edge went down to the ground, where the drone could go no further, and the
     mission ran to its time limit. Here every goto of world 6's worker toward field level
     is held 30 m short for a while: the leg keeps the worker's level, the last leg lands it

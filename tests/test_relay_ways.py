@@ -57,7 +57,7 @@ def test_relays_hovering_above_the_workers_level_are_not_in_the_way() -> None:
 
 
 def test_a_worker_does_not_fly_over_a_relay_climbing_through_its_level() -> None:
-    """Corpus world 119: a relay taking off beside a worker's way was 3 m up when the
+    """A relay taking off beside a worker's way was 3 m up when the
     worker passed over it, and 3.1 m from it when it climbed through 15 m."""
     ways = Ways()
     end, other = ways.clear("drone01", (0, 0, 15), (0, 40, 15), {"drone05": (2, 20, 3)}, {"drone01"}, now=0.0)
@@ -90,7 +90,7 @@ def test_two_workers_each_waiting_on_the_others_way_do_not_wait_for_ever() -> No
 
 
 def test_two_workers_kept_waiting_as_long_do_not_set_out_across_each_other() -> None:
-    """Corpus world 92: two workers waiting on each other for 20 s went in the same
+    """Two workers waiting on each other for 20 s went in the same
     second, each keeping clear of where the other was, and crossed 2.6 m apart. The one
     that sets out first declares its way; the other keeps CLEAR_M from it."""
     ways = Ways()
@@ -127,7 +127,7 @@ def test_workers_that_took_off_side_by_side_may_part_but_not_close_in() -> None:
 
 
 def test_two_workers_each_in_the_others_way_the_later_steps_aside() -> None:
-    """Corpus world 48: two workers that took off 5.5 m apart, each wanting to fly
+    """Two workers that took off 5.5 m apart, each wanting to fly
     through where the other waits, waited for ever."""
     ways = Ways()
     workers = {"drone01", "drone02"}

@@ -16,6 +16,8 @@ const DRAG_PX = 4;
 const TILE_CACHE = 400;
 const TRACK_PX = 2; // a track keeps a point per this many pixels of movement on screen
 const TILE_MAX_Z = 19; // what tile servers usually have; closer than that, the z19 tiles are scaled up
+const FIT_MAX_Z = 18; // the first view (and every fit) is no closer: tile servers holding only 15-18 still draw it
+const ANCESTORS = 5; // a missing tile is drawn from its parent, or that one's, … this many levels up
 const MIN_FIT_M = 80;
 
 export class MapView {
@@ -89,6 +91,7 @@ export class MapView {
     [x0, x1] = grow(x0, x1);
     [y0, y1] = grow(y0, y1);
     v.fit([x0, y0, x1, y1]);
+    if (v.mode === "mercator") v.zoom = Math.min(v.zoom, FIT_MAX_Z);
     return true;
   }
 
@@ -112,8 +115,8 @@ export class MapView {
       this._setDrawn(0);
       return;
     }
+    this._drawGrid(); // under the tiles too: where none is drawn, the map is never blank
     if (v.mode === "mercator") this._drawTiles();
-    else this._drawGrid();
     this._drawScale();
     this._drawFence();
     this._drawHeat();
@@ -135,7 +138,9 @@ export class MapView {
 
   _drawGrid() {
     const { ctx, view: v } = this;
-    const step = niceMetres(v.metresPerPixel() * 90);
+    // plane units per metre: 1 on the local grid; on mercator the scale at the centre
+    const perMetre = v.mode === "mercator" ? 1 / (v.metresPerPixel() * v.scale) : 1;
+    const step = niceMetres(v.metresPerPixel() * 90) * perMetre;
     const [x0, y0] = v.screenToPlane(0, 0);
     const [x1, y1] = v.screenToPlane(v.width, v.height);
     ctx.lineWidth = 1;
@@ -162,14 +167,34 @@ export class MapView {
     const [x0, y0] = v.screenToPlane(0, 0);
     const [x1, y1] = v.screenToPlane(v.width, v.height);
     const size = v.scale / n;
+    let drawn = 0;
     for (let ty = Math.max(0, Math.floor(y0 * n)); ty <= Math.min(n - 1, Math.floor(y1 * n)); ty++) {
       for (let tx = Math.floor(x0 * n); tx <= Math.floor(x1 * n); tx++) {
-        const img = this._tile(z, ((tx % n) + n) % n, ty);
-        if (!img) continue;
         const [sx, sy] = v.planeToScreen(tx / n, ty / n);
-        ctx.drawImage(img, Math.floor(sx), Math.floor(sy), Math.ceil(size) + 1, Math.ceil(size) + 1);
+        const found = this._tileOrAncestor(z, ((tx % n) + n) % n, ty);
+        if (!found) continue;
+        const { img, up, dx, dy } = found;
+        const part = img.naturalWidth / 2 ** up; // the part of an ancestor that covers this tile
+        ctx.drawImage(img, dx * part, dy * part, part, part, Math.floor(sx), Math.floor(sy), Math.ceil(size) + 1, Math.ceil(size) + 1);
+        drawn++;
       }
     }
+    this.canvas.dataset.tiles = String(drawn);
+  }
+
+  /** The tile at z/x/y once loaded; while it loads or where the server has none, the
+   *  nearest loaded ancestor (`up` levels up, this tile at `dx`, `dy` inside it). A
+   *  missing tile asks for its parent, so a server that stops at a lower zoom still
+   *  draws, scaled up. */
+  _tileOrAncestor(z, x, y) {
+    let ask = true; // a level is asked for only once every level below it failed
+    for (let up = 0; up <= Math.min(ANCESTORS, z); up++) {
+      const [pz, px, py] = [z - up, x >> up, y >> up];
+      const entry = ask ? this._tile(pz, px, py) : this.tiles.get(`${pz}/${px}/${py}`);
+      if (entry?.ready) return { img: entry.img, up, dx: x - (px << up), dy: y - (py << up) };
+      ask = ask && entry !== undefined && entry.failed;
+    }
+    return null;
   }
 
   _tile(z, x, y) {
@@ -177,14 +202,14 @@ export class MapView {
     let entry = this.tiles.get(key);
     if (!entry) {
       const img = new Image();
-      entry = { img, ready: false };
+      entry = { img, ready: false, failed: false };
       img.onload = () => { entry.ready = true; this.hooks.redraw(); };
-      img.onerror = () => { entry.failed = true; };
+      img.onerror = () => { entry.failed = true; this.hooks.redraw(); };
       img.src = this.config.tiles.replace("{z}", z).replace("{x}", x).replace("{y}", y);
       this.tiles.set(key, entry);
       if (this.tiles.size > TILE_CACHE) this.tiles.delete(this.tiles.keys().next().value);
     }
-    return entry.ready ? entry.img : null;
+    return entry;
   }
 
   _drawScale() {

@@ -201,6 +201,41 @@ async def test_missions_show_errors_at_their_line_run_live_to_the_end_and_cancel
     assert dashboard.errors == []
 
 
+@pytest.mark.slow(15)
+async def test_a_tile_server_holding_only_zooms_15_to_18_draws_the_first_view_and_closer(
+    tmp_path: Path, dashboard: Dashboard,
+) -> None:
+    """A field tile server with zooms 15-18 only: the first view opens no closer than 18
+    and draws its tiles; zoomed in past 18, where the server answers 404, the z18 tiles
+    are drawn scaled up; the metres grid is under them, so the map is never blank."""
+    tiles = TileServer(zooms=range(15, 19))
+    ground = GroundProcess(tmp_path, dashboard={"tiles": tiles.template})
+    agent = AgentProcess("drone01", ground.endpoint, tmp_path)
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            await wait_state(http, "drone01", "ready", 30)
+        page = dashboard.page
+        await dashboard.open(ground.url)
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "1", timeout=UI_S * 1000)
+        await page.wait_for_function("() => Number(document.querySelector('#map').dataset.tiles) > 0", timeout=UI_S * 1000)
+        assert await page.evaluate("() => window.fleetDashboard.view.zoom") <= 18
+        assert max(z for z, _, _ in tiles.requested) <= 18, tiles.requested
+        for _ in range(3):
+            await page.locator("#zoom-in").click()
+        assert await page.evaluate("() => window.fleetDashboard.view.zoom") > 19
+        await page.wait_for_function("() => [...window.fleetDashboard.map.tiles.values()].some(t => t.failed)",
+                                     timeout=UI_S * 1000)  # z19 asked for, and refused
+        await page.wait_for_function("() => Number(document.querySelector('#map').dataset.tiles) > 0", timeout=UI_S * 1000)
+        here = await page.evaluate("() => window.fleetDashboard.fleet.drones.get('drone01').telem.position")
+        assert tile_of(here["lat"], here["lon"], 19) in tiles.requested and tile_of(here["lat"], here["lon"], 18) in tiles.requested
+    finally:
+        agent.stop()
+        ground.stop()
+        tiles.close()
+    assert dashboard.errors == []
+
+
 # ---- 3. the ground restarted under the page --------------------------------------------
 
 

@@ -25,7 +25,9 @@ def png(rgb: tuple[int, int, int], size: int = 256) -> bytes:
 class TileServer:
     """`dashboard.tiles` on 127.0.0.1: a checkerboard of plain tiles, and which were asked for."""
 
-    def __init__(self) -> None:
+    def __init__(self, zooms: range = range(0, 20)) -> None:
+        """Tiles at `zooms` only (public servers stop at 19; a field server may hold 15-18):
+        elsewhere 404."""
         self.requested: list[tuple[int, int, int]] = []
         tiles = {0: png((222, 226, 214)), 1: png((206, 214, 196))}
         server = self
@@ -38,6 +40,9 @@ class TileServer:
                     return
                 z, x, y = (int(g) for g in found.groups())
                 server.requested.append((z, x, y))
+                if z not in zooms:
+                    self.send_error(404)
+                    return
                 body = tiles[(x + y) % 2]
                 self.send_response(200)
                 self.send_header("Content-Type", "image/png")
