@@ -40,6 +40,7 @@ from dronefleet.schemas.bundles import BundleReply, BundleStatus, parse_bundle
 from dronefleet.schemas.codec import decode_sensor, encode
 from dronefleet.schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from dronefleet.schemas.errors import InvalidMessage
+from dronefleet.schemas.grounds import ActiveGround
 from dronefleet.schemas.keys import Keys, check_id
 from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import GROUND_PEER, Telemetry
@@ -92,6 +93,7 @@ class Agent:
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
         self.resend = StatusResend(config.probe_period_ms)  # what to send again after a gap
         self._served: list[Redeclarable] = []  # the command and bundle queryables, while running
+        self.ground_epoch = 0  # SPEC §14: the highest ground epoch heard; older commands and bundles are refused
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -233,6 +235,29 @@ class Agent:
         """Why a request naming another drone is refused (no name: it is for us)."""
         return f"drone_id: this is {self.drone_id}, not {drone_id}" if drone_id and drone_id != self.drone_id else None
 
+    def _stale(self, epoch: int, what: str, message_id: str) -> str | None:
+        """SPEC §14 fencing: a command or bundle from a ground older than the newest heard
+        is refused `stale_ground`; a newer one raises what is heard. 0: no ground epoch
+        (a direct client on the mesh), never fenced."""
+        if epoch == 0:
+            return None
+        if epoch < self.ground_epoch:
+            log.warning("%s: refused %s %s from a ground of epoch %d: epoch %d is active (stale_ground)",
+                        self.drone_id, what, message_id or "?", epoch, self.ground_epoch)
+            return "stale_ground"
+        self.ground_epoch = epoch
+        return None
+
+    def _on_active_ground(self, sample: Sample) -> None:
+        """A ground says it is active: its epoch is the newest heard if it is higher."""
+        try:
+            said = msgspec.json.decode(sample.payload, type=ActiveGround)
+        except msgspec.MsgspecError:
+            return
+        if said.epoch > self.ground_epoch:
+            log.info("%s: ground %s is active (epoch %d)", self.drone_id, said.ground_id, said.epoch)
+            self.ground_epoch = said.epoch
+
     def _unauthenticated(self, message: Any, message_id: str) -> str | None:
         """SPEC §9: with the ground's key configured, why a command or bundle is refused."""
         if self.verifier is None:
@@ -256,7 +281,8 @@ class Agent:
         except InvalidMessage as exc:
             log.warning("%s: refused a bundle: %s", self.drone_id, exc)
             return encode(BundleReply(bundle_id=_peek(payload, "bundle_id"), accepted=False, reason=str(exc)))
-        wrong = self._not_mine(bundle.wire.drone_id) or self._unauthenticated(bundle.wire, bundle.bundle_id)
+        wrong = (self._not_mine(bundle.wire.drone_id) or self._unauthenticated(bundle.wire, bundle.bundle_id)
+                 or self._stale(bundle.wire.ground_epoch, "bundle", bundle.bundle_id))
         if wrong is not None:
             return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong))
         self._signed_by_the_ground()
@@ -268,7 +294,8 @@ class Agent:
         except InvalidMessage as exc:
             log.warning("%s: refused a malformed command: %s", self.drone_id, exc)
             return encode(CommandReply(command_id=_peek(payload, "command_id"), accepted=False, reason=str(exc)))
-        wrong = self._not_mine(cmd.drone_id) or self._unauthenticated(cmd, cmd.command_id)
+        wrong = (self._not_mine(cmd.drone_id) or self._unauthenticated(cmd, cmd.command_id)
+                 or self._stale(cmd.ground_epoch, cmd.name, cmd.command_id))
         if wrong is not None:
             return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong))
         self._signed_by_the_ground()
@@ -308,6 +335,7 @@ class Agent:
         self._served = [Redeclarable(self.bus, self.keys.cmd(self.drone_id), self._on_command, self.clock),
                         Redeclarable(self.bus, self.keys.bundle(self.drone_id), self._on_bundle, self.clock)]
         sensors = self.bus.subscribe(self.keys.sensor(self.drone_id), self._on_sensor, latest_only=True)
+        grounds = self.bus.subscribe(self.keys.ground("*", "active"), self._on_active_ground)
         ping = self.bus.serve(self.keys.ping(self.drone_id), echo)
         about = self.bus.serve(self.keys.about(self.drone_id), self._on_about)
         token = self.bus.announce(self.keys.alive(self.drone_id))
@@ -331,6 +359,7 @@ class Agent:
             token.close()
             about.close()
             ping.close()
+            grounds.close()
             sensors.close()
             for served in self._served:
                 served.close()

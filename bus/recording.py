@@ -33,6 +33,7 @@ from dronefleet.schemas.about import About
 from dronefleet.schemas.bundles import BundleStatus, TaskBundle
 from dronefleet.schemas.commands import Command
 from dronefleet.schemas.errors import FleetError
+from dronefleet.schemas.grounds import RESERVED, ActiveGround
 from dronefleet.schemas.status import CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
@@ -56,17 +57,20 @@ MESH_KINDS: dict[str, Any] = {
     "TaskBundle": TaskBundle,
     "Liveliness": Liveliness,
     "About": About,
+    "ActiveGround": ActiveGround,
 }
 _BY_LAST_CHUNK = {"telem": "Telemetry", "status": "Status", "link": "LinkQuality", "cmd": "Command",
                   "bundle": "TaskBundle", "alive": "Liveliness", "about": "About"}
 # Sent as queries (commands, bundles) or the ground's own: kept in a recording, never replayed.
-NOT_REPLAYED = frozenset({"Command", "TaskBundle"})
+# A ground's epoch (SPEC §14) is kept too: replayed into a live mesh, it would fence its grounds.
+NOT_REPLAYED = frozenset({"Command", "TaskBundle", "ActiveGround"})
 
 
 def kind_of(key: str) -> str | None:
     """The message kind of a key, whatever namespace it is under: `…/drone/<id>/telem`
     → Telemetry, `…/drone/<id>/sensor/<type>` and `…/sensor/<id>/<type>` →
-    SensorReading, `…/drone/<id>/about` → About, `…/ground/alive` and `…/sensor/<id>/alive` → Liveliness; None for keys outside the contract."""
+    SensorReading, `…/drone/<id>/about` → About, `…/ground/alive`, `…/ground/<ground_id>` and `…/sensor/<id>/alive` → Liveliness,
+    `…/ground/<ground_id>/active` → ActiveGround; None for keys outside the contract."""
     parts = key.split("/")
     if len(parts) >= 3 and parts[-3] == "drone" and parts[-1] in _BY_LAST_CHUNK:
         return _BY_LAST_CHUNK[parts[-1]]
@@ -75,6 +79,10 @@ def kind_of(key: str) -> str | None:
     if len(parts) >= 3 and parts[-3] == "sensor":  # a field sensor: its readings and its token
         return "Liveliness" if parts[-1] == "alive" else "SensorReading"
     if parts[-2:] == ["ground", "alive"]:
+        return "Liveliness"
+    if len(parts) >= 3 and parts[-3] == "ground" and parts[-1] == "active":  # SPEC §14: the active ground's epoch
+        return "ActiveGround"
+    if len(parts) >= 2 and parts[-2] == "ground" and parts[-1] not in RESERVED:  # a ground's own token
         return "Liveliness"
     return None
 
@@ -321,7 +329,7 @@ class Replay:
     def replayed(message: Message) -> bool:
         if message.kind is None or message.kind in NOT_REPLAYED or message.kind not in MESH_KINDS:
             return False
-        return not (message.kind == "Liveliness" and message.topic.endswith("ground/alive"))
+        return not (message.kind == "Liveliness" and message.topic.split("/")[-2] == "ground")  # grounds' tokens
 
     async def run(self, progress: Callable[[int, int], None] | None = None) -> None:
         messages = [m for m in self.contents.messages if self.replayed(m)]

@@ -83,16 +83,21 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
 @click.option("--http-port", type=click.IntRange(0, 65535), help="HTTP API port; default 8001.")
 @click.option("--data-dir", help="Where the event log and mission records live; default ~/.local/share/fleet.")
 @click.option("--pki-dir", type=click.Path(file_okay=False, exists=True), help=PKI_DIR_HELP)
+@click.option("--id", "ground_id", help="This ground's id among several on one mesh (config ground_id; default the host name).")
+@click.option("--priority", type=click.IntRange(-1000, 1000), help="Rank among the grounds: the highest is active (config priority; default 0).")
+@click.option("--connect", multiple=True, type=ENDPOINT, help="Zenoh endpoint of another ground's router to join (repeatable), e.g. tcp/192.168.1.10:7447.")
 def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None,
-           pki_dir: str | None) -> None:
-    """Run the ground station: Zenoh router, fleet registry, event log, HTTP API."""
+           pki_dir: str | None, ground_id: str | None, priority: int | None, connect: tuple[str, ...]) -> None:
+    """Run the ground station: Zenoh router, fleet registry, event log, HTTP API. Several on
+    one mesh: the highest priority is active, the others standby (SPEC §14)."""
     from dronefleet.compose import run_ground
     from dronefleet.ground.config import GroundConfig
     from dronefleet.schemas.config import load_config
 
     config = load_config(
         GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir,
-                                    "security": security_with_pki(config_path, pki_dir)}
+                                    "security": security_with_pki(config_path, pki_dir), "ground_id": ground_id,
+                                    "priority": priority, "connect": list(connect) or None}
     )
     run_async(run_ground(config, lambda line: click.echo(line)))
 

@@ -130,20 +130,24 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
     for warning in exposure_warnings(config):
         out(f"fleet ground: WARNING: {warning}")
     try:
-        bus = await ZenohBus.open("router", listen=config.listen, extra=mesh_security(
+        bus = await ZenohBus.open("router", connect=config.connect, listen=config.listen, extra=mesh_security(
             config.security, "ground", config.listen, router=True, namespace=config.namespace))
         echo = EchoServer(config.listen)  # the agents' delivery probes (link quality)
         try:
-            station = GroundStation(config, bus, events)
+            host, port = sock.getsockname()[:2]
+            http_url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
+            station = GroundStation(config, bus, events, http_url=http_url, epoch_file=data_dir / "ground-epoch")
             station.record_missions(data_dir / "missions")
             missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True)
             server = _EmbeddedServer(uvicorn.Config(
                 create_app(station, missions), log_level="warning", lifespan="on",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
             ))
-            host, port = sock.getsockname()[:2]
             out(f"fleet ground: Zenoh router on {', '.join(config.listen)}; data in {data_dir}")
-            out(f"fleet ground: API on http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/ (OpenAPI at /openapi.json)")
+            if config.connect:
+                out(f"fleet ground: {config.ground_id} (priority {config.priority}, {config.role}) joins "
+                    f"{', '.join(config.connect)}")
+            out(f"fleet ground: API on {http_url} (OpenAPI at /openapi.json)")
             async with asyncio.TaskGroup() as tg:
                 station_task = tg.create_task(station.run(), name="ground station")
                 http_task = tg.create_task(server.serve(sockets=[sock]), name="ground http")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import re
 from collections.abc import AsyncIterator, Awaitable
 from typing import Annotated, Any, Literal
 
@@ -186,7 +187,7 @@ def show_drone(
 
 @post(
     "/drone/{drone_id:str}/cmd", status_code=200, operation_class=_CommandOperation,
-    responses=_errors(400, 404, 409, 502, 504), summary="Send a command; 200 when the agent accepted it",
+    responses=_errors(400, 404, 409, 502, 503, 504), summary="Send a command; 200 when the agent accepted it",
 )
 async def send_command(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[CommandReply]:
     return await _to_drone(drone_id, station.command(drone_id, await request.body(), who=_who(request)))
@@ -218,7 +219,7 @@ _BundleOperation = body_operation("application/json", _BUNDLE_SCHEMA, "A task bu
 
 @post(
     "/drone/{drone_id:str}/bundle", status_code=200, operation_class=_BundleOperation,
-    responses=_errors(400, 404, 409, 502, 504), summary="Send a task bundle; 200 when the agent accepted it",
+    responses=_errors(400, 404, 409, 502, 503, 504), summary="Send a task bundle; 200 when the agent accepted it",
 )
 async def push_bundle(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[BundleReply]:
     return await _to_drone(drone_id, station.push(drone_id, await request.body(), who=_who(request)))
@@ -248,7 +249,7 @@ async def _text(request: Request[Any, Any, Any], what: str, detail: dict[str, An
 
 @post(
     "/mission", status_code=201, operation_class=text_operation("The mission script (Python DSL, SPEC §5), as text."),
-    responses=_errors(400, 413, 422),
+    responses=_errors(400, 413, 422, 503),
     summary="Submit a mission script; 201 with its id and its preflight, 400 with line/column when its text is wrong, "
             "422 when its preflight (fast time against the live fleet) fails or cannot run",
 )
@@ -328,7 +329,7 @@ def show_mission(missions: MissionManager, mission_id: str) -> Response[MissionV
 
 
 @delete(
-    "/mission/{mission_id:str}", status_code=200, responses=_errors(404, 409),
+    "/mission/{mission_id:str}", status_code=200, responses=_errors(404, 409, 503),
     summary="Cancel a running mission (cause user)",
 )
 async def cancel_mission(missions: MissionManager, mission_id: str, request: Request[Any, Any, Any]) -> Response[MissionRecord]:
@@ -377,6 +378,11 @@ def _message(event: WatchEvent) -> ServerSentEventMessage:
     return ServerSentEventMessage(
         event=event.kind, data=msgspec.json.encode(data).decode(), id=str(event.id) if event.id is not None else None
     )
+
+
+@get("/ground", sync_to_thread=False, summary="The grounds heard on the mesh, their roles and epochs (SPEC §14)")
+def list_grounds(station: GroundStation) -> list[dict[str, Any]]:
+    return station.peers.listing()
 
 
 @get("/plugin", sync_to_thread=False, summary="Loaded plugins with their inputs, and plugin files that failed to load")
@@ -436,10 +442,30 @@ def _who(request: Request[Any, Any, Any]) -> str | None:
     return getattr(request.state, "who", None)
 
 
-def _authorize(tokens: list[ApiToken]) -> Any:
+_COMMANDING = re.compile(r"POST /drone/[^/]+/(cmd|bundle)|POST /mission|DELETE /mission/[^/]+")
+
+
+class StandbyError(msgspec.Struct, frozen=True, kw_only=True):
+    """SPEC §14: what a standby ground answers a command, a push or a mission submission."""
+
+    error: str = "standby"
+    active: str  # the active ground's id ("" while none is)
+    http: str  # where its API answers ("" unknown)
+
+
+def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
     by_token = {t.token: t for t in tokens}
 
-    async def authorize(request: Request[Any, Any, Any]) -> Response[ApiError] | None:
+    async def authorize(request: Request[Any, Any, Any]) -> Response[Any] | None:
+        refused = await _check_token(request)
+        if refused is not None:
+            return refused
+        refusal = station.standby() if _COMMANDING.fullmatch(f"{request.method} {request.url.path}") else None
+        if refusal is not None:  # everything stays visible; only the active ground commands
+            return Response(StandbyError(active=refusal["active"], http=refusal["http"]), status_code=503)
+        return None
+
+    async def _check_token(request: Request[Any, Any, Any]) -> Response[ApiError] | None:
         path = request.url.path
         if not by_token or _public(path):
             return None
@@ -470,7 +496,7 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
             import_mission_plan, list_field_sensors, show_field_sensor, check_mission_script, simulate_mission, export_mission_plan,
-            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file,
+            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, list_grounds,
         ],
         dependencies={
             "station": Provide(lambda: station, sync_to_thread=False),
@@ -485,7 +511,7 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
                 type="http", scheme="bearer", description="api.tokens: viewer (GET), operator (commands, missions), admin")}),
             security=[{"bearer": []}] if tokens else None,
         ),
-        before_request=_authorize(tokens),
+        before_request=_authorize(tokens, station),
         on_startup=[_add_command_components],
         debug=False,
         logging_config=None,  # the CLI configures logging, not the framework

@@ -25,7 +25,8 @@ REASONS = {
     413: "the script is too large",
     422: "the mission's preflight (fast time against the live fleet) failed, naming line, simulated time and cause; or it could not run",
     502: "the agent answered with an error",
-    503: "the ground is busy with another simulation, or a simulation ran out of time",
+    503: "a standby ground (SPEC §14: the body names the active ground and its API), or the ground is busy with "
+         "another simulation, or a simulation ran out of time",
     504: "the drone's agent did not answer (unreachable)",
 }
 

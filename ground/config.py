@@ -24,6 +24,14 @@ Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
 Millis = Annotated[int, Meta(ge=0, le=86_400_000)]
 
 
+def default_ground_id() -> str:
+    """The host name, as a key can carry it."""
+    import re
+    import socket
+
+    return re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname()) or "ground"
+
+
 def default_data_dir() -> str:
     """$XDG_DATA_HOME/fleet, i.e. ~/.local/share/fleet on a usual laptop."""
     base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
@@ -97,6 +105,12 @@ class ApiSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
 
 class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
+    # SPEC §14, two grounds on one mesh: who this ground is, how it ranks, whether it may
+    # ever command (`observer`: never), and the other grounds' routers it joins.
+    ground_id: str = msgspec.field(default_factory=default_ground_id)
+    priority: Annotated[int, Meta(ge=-1000, le=1000)] = 0
+    role: Literal["ground", "observer"] = "ground"
+    connect: list[str] = msgspec.field(default_factory=list)
     http_host: str = "127.0.0.1"  # 0.0.0.0 exposes the command API to the whole network
     http_port: Annotated[int, Meta(ge=0, le=65535)] = 8001
     data_dir: str = msgspec.field(default_factory=default_data_dir)
@@ -123,7 +137,17 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     dashboard: DashboardSettings = msgspec.field(default_factory=DashboardSettings)  # SPEC §10: the web page at GET /
 
     def __post_init__(self) -> None:
-        check_endpoints(listen=self.listen)
+        check_endpoints(listen=self.listen, connect=self.connect)
+        from dronefleet.schemas.errors import InvalidMessage
+        from dronefleet.schemas.grounds import RESERVED
+        from dronefleet.schemas.keys import check_id
+
+        try:
+            check_id(self.ground_id, "ground_id")
+        except InvalidMessage as exc:
+            raise ValueError(str(exc)) from None
+        if self.ground_id in RESERVED:
+            raise ValueError(f"ground_id {self.ground_id!r} is a reserved key word ({', '.join(sorted(RESERVED))})")
         if self.battery.critical > self.battery.low:
             raise ValueError("battery.critical must not exceed battery.low")
         if self.geofence.max_alt_m is None:

@@ -24,11 +24,13 @@ from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_security import relays_of
 from dronefleet.bus.port import Bus, Declaration, NoRoute, QueryRefused, Sample, Unreachable, echo
 from dronefleet.bus.recording import now_ns_of
+from dronefleet.ground.active_ground import Change
 from dronefleet.ground.airspace import Airspace
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.describe import describe_step
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.feeds import SensorFeeds
+from dronefleet.ground.ground_peers import GroundPeers
 from dronefleet.ground.mission_recording import MissionRecordings
 from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
 from dronefleet.ground.throttle import WarningThrottle
@@ -53,6 +55,7 @@ from dronefleet.schemas.commands import Command, CommandReply, decode_command, n
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
+from dronefleet.schemas.grounds import GroundInfo
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
@@ -81,7 +84,8 @@ class Watcher:
 
 
 class GroundStation:
-    def __init__(self, config: GroundConfig, bus: Bus, events: EventLog, clock: Clock | None = None) -> None:
+    def __init__(self, config: GroundConfig, bus: Bus, events: EventLog, clock: Clock | None = None,
+                 http_url: str = "", epoch_file: Path | None = None) -> None:
         self.config = config
         self.bus = bus
         self.events = events
@@ -103,6 +107,10 @@ class GroundStation:
         self._held_bundle_statuses: dict[tuple[str, str], list[BundleStatus]] = {}
         self._catching_up: set[asyncio.Task[None]] = set()
         self.feeds = SensorFeeds(self)  # About and field sensors (SPEC §2)
+        # SPEC §14: this ground among the grounds on the mesh; only the active one commands
+        self.peers = GroundPeers(bus, self.keys, GroundInfo(ground_id=config.ground_id, priority=config.priority,
+                                                            role=config.role, http=http_url),
+                                 self.clock, on_change=self._role_changed, epoch_file=epoch_file)
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -123,8 +131,11 @@ class GroundStation:
             self.bus.watch_liveliness(k.alive(), self._on_liveliness),
             self.bus.serve(k.ground_ping(), echo),
             self.bus.announce(k.ground_alive()),
+            *self.peers.declare(),
         ]
         self.log_ground("info", "Ground station started")
+        peers = asyncio.get_running_loop().create_task(self.peers.run(listen_first=bool(self.config.connect)),
+                                                       name="ground peers")
         try:
             while True:
                 self.emit(self.registry.tick(self.clock.time_ms()))
@@ -133,11 +144,35 @@ class GroundStation:
                     self.recordings.tick()
                 await self.clock.sleep(TICK_S)
         finally:
+            peers.cancel()
+            self.peers.close()
             self.log_ground("info", "Ground station stopped")
             if self.recordings is not None:
                 self.recordings.close()
             for declaration in reversed(declarations):
                 declaration.close()
+
+    def _role_changed(self, change: Change) -> None:
+        me = self.config.ground_id
+        if change.state == "active":
+            self.log_ground("info", f"Ground {me} is active (epoch {change.epoch}): {change.why}")
+        else:
+            active = self.peers.active_ground()
+            self.log_ground("warn", f"Ground {me} is standby ({active.ground_id if active else 'no ground'} "
+                                    f"is active): {change.why}")
+
+    def standby(self) -> dict[str, str] | None:
+        """None while this ground is active; else who is (SPEC §14's 503 body)."""
+        if self.peers.active:
+            return None
+        active = self.peers.active_ground()
+        return {"error": "standby", "active": active.ground_id if active else "", "http": active.http if active else ""}
+
+    def _check_active(self) -> None:
+        refusal = self.standby()
+        if refusal is not None:
+            raise CommandRejected(503, f"this ground is standby: {refusal['active'] or 'no ground'} is active"
+                                       + (f" ({refusal['http']})" if refusal["http"] else ""), code="standby")
 
     def log_ground(self, level: str, message: str) -> None:
         """A line about the ground itself (no drone)."""
@@ -181,8 +216,10 @@ class GroundStation:
     async def command(self, drone_id: str, body: bytes, mission_id: str | None = None, *, who: str | None = None) -> CommandReply:
         """Validate, check and forward one command (SPEC §4 POST /drone/{id}/cmd).
 
-        Raises InvalidMessage (400), CommandRejected (404/409) or bus Unreachable (504).
+        Raises InvalidMessage (400), CommandRejected (404/409; 503 on a standby ground)
+        or bus Unreachable (504).
         """
+        self._check_active()
         self._registered(drone_id)
         command = self._stamp(drone_id, body)
         self._check(drone_id, command.name, command.name, mission_id)
@@ -204,10 +241,12 @@ class GroundStation:
         """Validate, check and send one task bundle (SPEC §6; POST /drone/{id}/bundle).
 
         The whole bundle is checked here first (400 naming the step and field), then
-        by the agent. Raises InvalidMessage, CommandRejected (404/409) or Unreachable.
+        by the agent. Raises InvalidMessage, CommandRejected (404/409/503) or Unreachable.
         """
+        self._check_active()
         self._registered(drone_id)
         obj = self._body(drone_id, body)
+        obj["ground_epoch"] = self.peers.epoch
         obj.setdefault("bundle_id", "")
         if not obj["bundle_id"]:
             obj["bundle_id"] = self.new_bundle_id()
@@ -335,6 +374,7 @@ class GroundStation:
         obj = self._body(drone_id, body)
         if not obj.get("command_id"):
             obj["command_id"] = self.new_command_id()
+        obj["ground_epoch"] = self.peers.epoch  # SPEC §14: agents refuse an epoch older than they heard
         return decode_command(json.dumps(obj))
 
     # ---- events in -----------------------------------------------------------------

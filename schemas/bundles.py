@@ -62,6 +62,7 @@ class TaskBundle(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     timeout_s: Annotated[float, Meta(gt=0, le=86_400)] | None = None
     until: dict[str, Any] | None = None
     auth: Auth | None = None  # the ground's signature (SPEC §9)
+    ground_epoch: Annotated[int, Meta(ge=0)] = 0  # SPEC §14: the sending ground's epoch (0: none)
 
 
 class BundleReply(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):

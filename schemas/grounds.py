@@ -1,0 +1,29 @@
+"""What grounds say of themselves on a mesh they share (SPEC §14): `ground/<id>/info`
+and, from the active one, `ground/<id>/active` with its epoch, which agents fence on."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+
+GroundRole = Literal["ground", "observer"]
+RESERVED = frozenset({"alive", "ping"})  # `ground/alive`, `ground/ping` are keys of their own: not ground ids
+
+
+class GroundInfo(msgspec.Struct, frozen=True, kw_only=True):
+    """What a ground says of itself (queryable `ground/<id>/info`)."""
+
+    ground_id: str
+    priority: int = 0
+    role: GroundRole = "ground"
+    http: str = ""  # where its API answers, for a standby's 503 to point at
+    epoch_seen: int = 0  # the highest epoch it has heard or held: a ground taking over goes above it
+
+
+class ActiveGround(msgspec.Struct, frozen=True, kw_only=True):
+    """Published on `ground/<id>/active` by the active ground (and answered to a query)."""
+
+    ground_id: str
+    epoch: int
+    timestamp: int

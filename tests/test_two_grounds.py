@@ -1,0 +1,93 @@
+"""Two grounds on one mesh (SPEC §14) with real processes: `fleet ground` twice, the
+second joining the first's router, and an agent connected to both. The higher priority
+is active, the other standby (everything visible, commands 503 naming the active one);
+when the active ground dies the standby takes over with a newer epoch, the agent refuses
+the old epoch (`stale_ground`), and the first ground, back, takes over again above it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import httpx
+import pytest
+
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.commands import CommandReply
+from tests.harness import AgentProcess, GroundProcess, wait_state
+from tests.waiting import until
+
+pytestmark = pytest.mark.integration
+
+
+async def grounds(http: httpx.AsyncClient) -> dict[str, dict[str, object]]:
+    return {g["ground_id"]: g for g in (await http.get("/ground")).json()}
+
+
+async def log_lines(http: httpx.AsyncClient) -> list[str]:
+    return (await http.get("/drone/logs")).text.splitlines()
+
+
+@pytest.mark.slow(30)
+async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_epoch_when_the_active_one_dies(
+        tmp_path: Path) -> None:
+    for d in ("alpha", "bravo"):
+        (tmp_path / d).mkdir()
+    alpha = GroundProcess(tmp_path / "alpha", ground_id="alpha", priority=10)
+    bravo = GroundProcess(tmp_path / "bravo", ground_id="bravo", connect=[alpha.endpoint])
+    agent = AgentProcess("drone01", alpha.endpoint, tmp_path, extra_args=["--connect", bravo.endpoint])
+    try:
+        await alpha.ready()
+        await bravo.ready()
+        async with httpx.AsyncClient(base_url=alpha.url, timeout=10) as a, \
+                httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
+            await wait_state(a, "drone01", "ready", 30)
+            await wait_state(b, "drone01", "ready", 30)  # the standby sees the fleet too
+
+            async def bravo_standby() -> bool:
+                g = await grounds(b)
+                return g.get("alpha", {}).get("active") is True and g.get("bravo", {}).get("active") is False
+            await until(bravo_standby, 20, "bravo standby, alpha active")
+            assert (await grounds(a))["alpha"]["epoch"] == 1
+
+            refused = await b.post("/drone/drone01/cmd", json={"cmd": "arm"})
+            assert refused.status_code == 503, refused.text
+            assert refused.json() == {"error": "standby", "active": "alpha", "http": alpha.url + "/"}
+            assert (await b.post("/mission", content=b"print('hi')\n")).status_code == 503
+            assert (await a.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+
+            alpha.kill()  # SIGKILL: no goodbye, its token goes with its links
+
+            async def bravo_active() -> bool:
+                return (await grounds(b)).get("bravo", {}).get("active") is True
+            await until(bravo_active, 30, "bravo active after alpha died")
+            assert (await grounds(b))["bravo"]["epoch"] == 2
+            assert any("Ground bravo is active (epoch 2)" in line for line in await log_lines(b))
+            reply = await b.post("/drone/drone01/cmd", json={"cmd": "disarm"})
+            assert reply.status_code == 200, reply.text
+
+            # A command of the dead ground's epoch (a late one, or a partitioned ground) is fenced.
+            stale = {"cmd": "arm", "drone_id": "drone01", "command_id": "late-1", "ground_epoch": 1}
+            client = await ZenohBus.open("client", connect=[bravo.endpoint])
+            try:
+                answer = CommandReply(**json.loads(await client.query("drone/drone01/cmd", json.dumps(stale).encode())))
+            finally:
+                await client.close()
+            assert (answer.accepted, answer.reason) == (False, "stale_ground"), answer
+            assert "stale_ground" in agent.output()
+
+            alpha.start()  # the same ports and data: its priority makes it the active one again
+            await alpha.ready()
+
+            async def alpha_back() -> bool:
+                g = await grounds(b)
+                return g.get("alpha", {}).get("active") is True and g.get("bravo", {}).get("active") is False
+            await until(alpha_back, 30, "alpha active again, bravo standby")
+            assert (await grounds(a))["alpha"]["epoch"] == 3
+            assert (await b.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 503
+            assert (await a.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+            assert any("Ground bravo is standby" in line for line in await log_lines(b))
+    finally:
+        agent.stop()
+        bravo.stop()
+        alpha.stop()
