@@ -40,7 +40,7 @@ from dronefleet.schemas.bundles import BundleReply, BundleStatus, parse_bundle
 from dronefleet.schemas.codec import decode_sensor, encode
 from dronefleet.schemas.commands import Cancel, CommandReply, Land, Return, decode_command
 from dronefleet.schemas.errors import InvalidMessage
-from dronefleet.schemas.grounds import ActiveGround
+from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround
 from dronefleet.schemas.keys import Keys, check_id
 from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import GROUND_PEER, Telemetry
@@ -244,7 +244,7 @@ class Agent:
         if epoch < self.ground_epoch:
             log.warning("%s: refused %s %s from a ground of epoch %d: epoch %d is active (stale_ground)",
                         self.drone_id, what, message_id or "?", epoch, self.ground_epoch)
-            return "stale_ground"
+            return STALE_GROUND
         self.ground_epoch = epoch
         return None
 
@@ -284,7 +284,8 @@ class Agent:
         wrong = (self._not_mine(bundle.wire.drone_id) or self._unauthenticated(bundle.wire, bundle.bundle_id)
                  or self._stale(bundle.wire.ground_epoch, "bundle", bundle.bundle_id))
         if wrong is not None:
-            return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong))
+            return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong,
+                                      ground_epoch=self.ground_epoch if wrong == STALE_GROUND else None))
         self._signed_by_the_ground()
         return encode(self.bundles.submit(bundle))
 
@@ -297,7 +298,8 @@ class Agent:
         wrong = (self._not_mine(cmd.drone_id) or self._unauthenticated(cmd, cmd.command_id)
                  or self._stale(cmd.ground_epoch, cmd.name, cmd.command_id))
         if wrong is not None:
-            return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong))
+            return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong,
+                                       ground_epoch=self.ground_epoch if wrong == STALE_GROUND else None))
         self._signed_by_the_ground()
         if not cmd.command_id:
             cmd = msgspec.structs.replace(cmd, command_id=str(uuid.uuid4()))

@@ -64,7 +64,7 @@ class Standing:
     def heard_ground(self, info: GroundInfo) -> list[Change]:
         self.heard[info.ground_id] = info
         self.highest_epoch = max(self.highest_epoch, info.epoch_seen)
-        self._shared = self._shared or (self.active and info.epoch_seen >= self.epoch)
+        self._shared = self._shared or (self.active and info.epoch_held >= self.epoch)
         return self._decide(f"{info.ground_id} appeared")
 
     def lost_ground(self, ground_id: str) -> list[Change]:
@@ -93,7 +93,18 @@ class Standing:
         self.active = False
         self.active_id = said.ground_id
         changes = [Change("standby", said.epoch, f"{said.ground_id} is active with epoch {said.epoch} (this one: {self.epoch})")]
+        if said.ground_id not in self.heard:  # what it is (its priority) not known yet: decide once it is
+            return changes
         return changes + self._decide(f"the rule chooses {self.me.ground_id} over {said.ground_id}")
+
+    def heard_epoch(self, epoch: int, where: str) -> list[Change]:
+        """An epoch in use somewhere (an agent refused ours as older): above it, if the
+        rule still chooses this ground."""
+        if epoch <= self.highest_epoch and not (self.active and epoch >= self.epoch):
+            return []
+        self.highest_epoch = max(self.highest_epoch, epoch)
+        self._shared = self._shared or (self.active and epoch >= self.epoch)
+        return self._decide(f"{where} holds epoch {epoch}")
 
     def _decide(self, why: str) -> list[Change]:
         if not self.started:

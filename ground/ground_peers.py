@@ -19,7 +19,7 @@ from pathlib import Path
 import msgspec
 
 from dronefleet.bus.clock import Clock
-from dronefleet.bus.port import Bus, BusError, Declaration, Sample
+from dronefleet.bus.port import Bus, BusError, Declaration, NoRoute, Sample
 from dronefleet.ground.active_ground import Change, Standing
 from dronefleet.schemas.grounds import RESERVED, ActiveGround, GroundInfo
 from dronefleet.schemas.keys import Keys
@@ -27,6 +27,8 @@ from dronefleet.schemas.keys import Keys
 log = logging.getLogger(__name__)
 
 LISTEN_S = 1.5  # how long a starting ground listens for the others before it decides
+ASK_S = 2.0  # … and waits at most for what the grounds it heard say of themselves
+ASK_TRIES = 12  # a ground whose queryable has not reached this router yet is asked again (about 8 s in all)
 ANNOUNCE_S = 2.0  # the active ground says so this often
 _info = msgspec.json.Decoder(GroundInfo)
 _active = msgspec.json.Decoder(ActiveGround)
@@ -44,6 +46,7 @@ class GroundPeers:
         self.clock = clock
         self._on_change = on_change
         self._asking: set[asyncio.Task[None]] = set()
+        self._asked: set[str] = set()  # grounds being asked what they are
 
     @property
     def me(self) -> GroundInfo:
@@ -63,10 +66,14 @@ class GroundPeers:
         active_id = self.standing.active_id
         return None if active_id is None else self.standing.heard.get(active_id, GroundInfo(ground_id=active_id))
 
+    def heard_epoch(self, epoch: int, where: str) -> None:
+        self._apply(self.standing.heard_epoch(epoch, where))
+
     def listing(self) -> list[dict[str, object]]:
         """`GET /ground`: every ground heard, its role and the epoch it said it holds."""
         s = self.standing
-        return [{**{k: v for k, v in msgspec.structs.asdict(g).items() if k != "epoch_seen"}, "active": g.ground_id == s.active_id,
+        return [{**{k: v for k, v in msgspec.structs.asdict(g).items() if not k.startswith("epoch_")},
+                 "active": g.ground_id == s.active_id,
                  "epoch": s.epoch if g.ground_id == s.me.ground_id else s.epochs.get(g.ground_id, 0)}
                 for g in sorted(s.heard.values(), key=lambda g: g.ground_id)]
 
@@ -85,6 +92,8 @@ class GroundPeers:
         say so every ANNOUNCE_S while active."""
         if listen_first:
             await self.clock.sleep(LISTEN_S)
+            if self._asking:  # grounds heard but not yet asked what they are: their answers first
+                await asyncio.wait(list(self._asking), timeout=ASK_S)
         self._apply(self.standing.start())
         while True:
             if self.active:
@@ -98,7 +107,8 @@ class GroundPeers:
     # ---- the mesh in ----------------------------------------------------------------
 
     async def _answer_info(self, key: str, payload: bytes) -> bytes:
-        return msgspec.json.encode(msgspec.structs.replace(self.me, epoch_seen=self.standing.highest_epoch))
+        s = self.standing
+        return msgspec.json.encode(msgspec.structs.replace(self.me, epoch_seen=s.highest_epoch, epoch_held=s.epoch))
 
     async def _answer_active(self, key: str, payload: bytes) -> bytes:
         return msgspec.json.encode(self._said()) if self.active else b"{}"
@@ -110,18 +120,34 @@ class GroundPeers:
         if not alive:
             self._apply(self.standing.lost_ground(ground_id))
             return
+        self._ask(ground_id)
+
+    def _ask(self, ground_id: str) -> None:
+        if ground_id in self._asked:
+            return
+        self._asked.add(ground_id)
         task = asyncio.get_running_loop().create_task(self._ask_info(ground_id), name=f"ground {ground_id} info")
         self._asking.add(task)
         task.add_done_callback(self._asking.discard)
+        task.add_done_callback(lambda _: self._asked.discard(ground_id))
 
     async def _ask_info(self, ground_id: str) -> None:
         """What a ground that appeared says of itself (unanswered, it counts with
         defaults), then its epoch if it is the active one."""
-        try:
-            info = _info.decode(await self.bus.query(self.keys.ground(ground_id, "info"), timeout_s=2.0))
-        except (BusError, msgspec.MsgspecError) as exc:
-            log.warning("ground %s did not say what it is (%s): counted as priority 0", ground_id, exc)
-            info = GroundInfo(ground_id=ground_id)
+        info = GroundInfo(ground_id=ground_id)
+        pause_s = 0.1
+        for _ in range(ASK_TRIES):  # its token can cross the mesh before its queryable does
+            try:
+                info = _info.decode(await self.bus.query(self.keys.ground(ground_id, "info"), timeout_s=ASK_S))
+                break
+            except NoRoute:
+                await self.clock.sleep(pause_s)
+                pause_s = min(2 * pause_s, 1.0)
+            except (BusError, msgspec.MsgspecError) as exc:
+                log.warning("ground %s did not say what it is (%s): counted as priority 0", ground_id, exc)
+                break
+        else:
+            log.warning("ground %s did not say what it is after %d tries: counted as priority 0", ground_id, ASK_TRIES)
         self._apply(self.standing.heard_ground(info))
         try:  # and its epoch, if it is active: not only at its next announcement
             said = await self.bus.query(self.keys.ground(ground_id, "active"), timeout_s=2.0)
@@ -135,6 +161,8 @@ class GroundPeers:
             said = _active.decode(sample.payload)
         except msgspec.MsgspecError:
             return
+        if said.ground_id not in self.standing.heard and said.ground_id != self.me.ground_id:
+            self._ask(said.ground_id)  # heard before its token: what is it?
         self._apply(self.standing.heard_active(said))
 
     # ---- the mesh out ---------------------------------------------------------------

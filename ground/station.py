@@ -39,6 +39,7 @@ from dronefleet.schemas.bundles import (
     BundleRecord,
     BundleReply,
     BundleStatus,
+    TaskBundle,
     new_bundle_id,
     parse_bundle,
     sensor_guards,
@@ -55,7 +56,7 @@ from dronefleet.schemas.commands import Command, CommandReply, decode_command, n
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
-from dronefleet.schemas.grounds import GroundInfo
+from dronefleet.schemas.grounds import STALE_GROUND, GroundInfo
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
@@ -229,8 +230,8 @@ class GroundStation:
         self._audit(drone_id, f"{command.name} (command {command.command_id})", who)
         self.airspace.sent(drone_id, command, spot)
         try:
-            reply: CommandReply = await self._deliver(self.keys.cmd(drone_id), encode(self._signed(command)), _reply_decoder,
-                                                      "CommandReply")
+            reply: CommandReply = await self._deliver_as_active(self.keys.cmd(drone_id), command, _reply_decoder,
+                                                                "CommandReply")
         except BaseException:
             if spot is not None:
                 self.airspace.undo(drone_id, command.command_id)
@@ -257,8 +258,8 @@ class GroundStation:
         # Noted before sending: the agent's first status may arrive before its reply.
         self.registry.note_bundle(drone_id, bundle.bundle_id, [describe_step(step) for step in bundle.steps])
         try:
-            reply: BundleReply = await self._deliver(self.keys.bundle(drone_id), encode(self._signed(bundle.wire)),
-                                                     _bundle_reply_decoder, "BundleReply")
+            reply: BundleReply = await self._deliver_as_active(self.keys.bundle(drone_id), bundle.wire,
+                                                               _bundle_reply_decoder, "BundleReply")
         except BaseException:
             self.registry.forget_bundle(drone_id, bundle.bundle_id)
             raise
@@ -320,6 +321,18 @@ class GroundStation:
     def _signed(self, message: T) -> T:
         return message if self.signer is None else self.signer.sign(message, self.clock.time_ms())
 
+    async def _deliver_as_active(self, key: str, message: Command | TaskBundle, decoder: msgspec.json.Decoder[Any],
+                                 kind: str) -> Any:
+        """`_deliver`, and once more if the agent held a newer epoch than ours and this
+        ground, still chosen, took one above it (a ground whose data dir was lost)."""
+        try:
+            return await self._deliver(key, encode(self._signed(message)), decoder, kind)
+        except CommandRejected as exc:
+            if exc.code != STALE_GROUND or not self.peers.active or self.peers.epoch <= message.ground_epoch:
+                raise
+        again = msgspec.structs.replace(message, ground_epoch=self.peers.epoch)
+        return await self._deliver(key, encode(self._signed(again)), decoder, kind)
+
     async def _deliver(self, key: str, payload: bytes, decoder: msgspec.json.Decoder[Any], kind: str) -> Any:
         """Query the agent's queryable and hold it to its reply (`accepted`, `reason`)."""
         if self.recordings is not None:
@@ -331,6 +344,10 @@ class GroundStation:
             raise CommandRejected(502, f"the agent answered something that is not a {kind}: {exc}") from None
         if not reply.accepted:
             reason = reply.reason or "refused by the agent"
+            if reason == STALE_GROUND and reply.ground_epoch:  # a newer epoch than ours is in use: learn it
+                self.peers.heard_epoch(reply.ground_epoch, key.split("/")[-2])
+                raise CommandRejected(409, f"{STALE_GROUND}: the agent holds epoch {reply.ground_epoch}",
+                                      code=STALE_GROUND)
             raise CommandRejected(409, reason, code=FENCE if reason.startswith(FENCE) else None)
         return reply
 

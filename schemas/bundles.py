@@ -69,6 +69,7 @@ class BundleReply(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True)
     bundle_id: str
     accepted: bool
     reason: str | None = None
+    ground_epoch: int | None = None  # with `stale_ground`: the newest ground epoch the agent heard (SPEC §14)
 
 
 class BundleStatus(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):

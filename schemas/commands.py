@@ -178,6 +178,7 @@ class CommandReply(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True
     command_id: str
     accepted: bool
     reason: str | None = None
+    ground_epoch: int | None = None  # with `stale_ground`: the newest ground epoch the agent heard (SPEC §14)
 
 
 _decoder = msgspec.json.Decoder(Command)

@@ -8,6 +8,7 @@ from typing import Literal
 import msgspec
 
 GroundRole = Literal["ground", "observer"]
+STALE_GROUND = "stale_ground"  # an agent's refusal of a command or bundle from an older epoch than it heard
 RESERVED = frozenset({"alive", "ping"})  # `ground/alive`, `ground/ping` are keys of their own: not ground ids
 
 
@@ -19,6 +20,7 @@ class GroundInfo(msgspec.Struct, frozen=True, kw_only=True):
     role: GroundRole = "ground"
     http: str = ""  # where its API answers, for a standby's 503 to point at
     epoch_seen: int = 0  # the highest epoch it has heard or held: a ground taking over goes above it
+    epoch_held: int = 0  # the highest epoch it held itself: one holding ours too makes ours ambiguous
 
 
 class ActiveGround(msgspec.Struct, frozen=True, kw_only=True):

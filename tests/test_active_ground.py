@@ -70,7 +70,7 @@ class Mesh:
     def info(self, ground_id: str) -> GroundInfo:
         """What a ground answers about itself now: the highest epoch it heard included."""
         s = self.standing[ground_id]
-        return msgspec.structs.replace(s.me, epoch_seen=s.highest_epoch)
+        return msgspec.structs.replace(s.me, epoch_seen=s.highest_epoch, epoch_held=s.epoch)
 
     def connect(self, a: str, b: str) -> None:
         self.links[a].add(b)

@@ -46,7 +46,8 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
 
             async def bravo_standby() -> bool:
                 g = await grounds(b)
-                return g.get("alpha", {}).get("active") is True and g.get("bravo", {}).get("active") is False
+                return (g.get("alpha", {}).get("active") is True and g.get("bravo", {}).get("active") is False
+                        and g["alpha"].get("http") == alpha.url + "/")
             await until(bravo_standby, 20, "bravo standby, alpha active")
             assert (await grounds(a))["alpha"]["epoch"] == 1
 
@@ -78,6 +79,7 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
 
             alpha.start()  # the same ports and data: its priority makes it the active one again
             await alpha.ready()
+            await wait_state(a, "drone01", "ready", 30)
 
             async def alpha_back() -> bool:
                 g = await grounds(b)
@@ -91,3 +93,37 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
         agent.stop()
         bravo.stop()
         alpha.stop()
+
+
+@pytest.mark.slow(15)
+async def test_a_ground_that_lost_its_epoch_learns_the_agents_and_commands_above_it(tmp_path: Path) -> None:
+    """A laptop replaced, or its data directory lost: the ground starts at epoch 1 while
+    the drones hold a newer one. The first refusal (`stale_ground`, with the agent's
+    epoch) teaches it; it takes one above and the command goes through."""
+    ground = GroundProcess(tmp_path)
+    agent = AgentProcess("drone01", ground.endpoint, tmp_path)
+    try:
+        for epoch in (1, 2, 3):  # each start one above the last (kept in the data directory)
+            if epoch > 1:
+                ground.start()
+            await ground.ready()
+            async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+                await wait_state(http, "drone01", "ready", 30)
+                assert [g["epoch"] for g in (await http.get("/ground")).json()] == [epoch]
+                for cmd in ("arm", "disarm"):  # the agent holds this epoch now
+                    reply = await http.post("/drone/drone01/cmd", json={"cmd": cmd})
+                    assert reply.status_code == 200, reply.text
+            ground.stop()
+        (ground.data_dir / "ground-epoch").unlink()
+        ground.start()
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            await wait_state(http, "drone01", "ready", 30)
+            assert [g["epoch"] for g in (await http.get("/ground")).json()] == [1]
+            reply = await http.post("/drone/drone01/cmd", json={"cmd": "arm"})
+            assert reply.status_code == 200, reply.text
+            assert [g["epoch"] for g in (await http.get("/ground")).json()] == [4]
+            assert any("epoch 3 was in use" in line for line in (await http.get("/drone/logs")).text.splitlines())
+    finally:
+        agent.stop()
+        ground.stop()
