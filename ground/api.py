@@ -385,6 +385,22 @@ def list_grounds(station: GroundStation) -> list[dict[str, Any]]:
     return station.peers.listing()
 
 
+@get(
+    "/ground/{ground_id:str}/log", sync_to_thread=False, media_type=MediaType.TEXT, responses=_errors(400, 404),
+    summary="Another ground's event log as this ground keeps a copy of it (SPEC §14), oldest first",
+)
+def ground_log(
+    station: GroundStation, ground_id: str,
+    after: Annotated[int, Parameter(ge=0, le=2**62, description="only lines after this one")] = 0,
+) -> Response[Any]:
+    if ground_id not in station.events.origins():
+        return Response(ApiError(error=f"no copy of ground {ground_id!r}'s log here", detail={"ground_id": ground_id}),
+                        status_code=404, media_type=MediaType.JSON)
+    rows = station.events.copies(ground_id, after_seq=after)
+    return Response("".join(format_line(line) + "\n" for _, line in rows), media_type=MediaType.TEXT,
+                    headers={LOG_CURSOR: str(rows[-1][0] if rows else after)})
+
+
 @get("/plugin", sync_to_thread=False, summary="Loaded plugins with their inputs, and plugin files that failed to load")
 def list_plugins(missions: MissionManager) -> PluginListing:
     return missions.plugins.describe() if missions.plugins is not None else PluginListing(plugins=[], errors=[])
@@ -496,7 +512,7 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
             import_mission_plan, list_field_sensors, show_field_sensor, check_mission_script, simulate_mission, export_mission_plan,
-            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, list_grounds,
+            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, list_grounds, ground_log,
         ],
         dependencies={
             "station": Provide(lambda: station, sync_to_thread=False),

@@ -26,6 +26,15 @@ CREATE TABLE IF NOT EXISTS events (
     message TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS events_drone ON events (drone_id, id);
+CREATE TABLE IF NOT EXISTS copies (
+    origin TEXT NOT NULL,
+    seq INTEGER NOT NULL,
+    timestamp_ms INTEGER NOT NULL,
+    level TEXT NOT NULL,
+    drone_id TEXT,
+    message TEXT NOT NULL,
+    PRIMARY KEY (origin, seq)
+);
 """
 
 
@@ -80,6 +89,37 @@ class EventLog:
             (row[0], LogLine(timestamp=row[1], level=row[2], drone_id=row[3], message=row[4]))
             for row in self._db.execute(sql, args)
         ]
+
+    def keep_copy(self, origin: str, seq: int, line: LogLine) -> bool:
+        """Another ground's line `seq` (SPEC §14: a standby keeps the active ground's log);
+        False if it was kept already."""
+        cur = self._db.execute(
+            "INSERT OR IGNORE INTO copies (origin, seq, timestamp_ms, level, drone_id, message) VALUES (?, ?, ?, ?, ?, ?)",
+            (origin, seq, line.timestamp, line.level, line.drone_id, line.message),
+        )
+        return cur.rowcount > 0
+
+    def copied_up_to(self, origin: str, known: int = 0) -> int:
+        """The highest line of `origin` kept with every one before it (0: none), looking
+        from `known` (a number already known to be kept with all before it) on."""
+        upto = known
+        for (seq,) in self._db.execute("SELECT seq FROM copies WHERE origin = ? AND seq > ? ORDER BY seq", (origin, known)):
+            if seq != upto + 1:  # lines are numbered from 1 with no holes on the ground that wrote them
+                break
+            upto = seq
+        return upto
+
+    def copies(self, origin: str, after_seq: int = 0, limit: int | None = None) -> list[tuple[int, LogLine]]:
+        sql = "SELECT seq, timestamp_ms, level, drone_id, message FROM copies WHERE origin = ? AND seq > ? ORDER BY seq"
+        args: list[object] = [origin, after_seq]
+        if limit is not None:
+            sql += " LIMIT ?"
+            args.append(limit)
+        return [(row[0], LogLine(timestamp=row[1], level=row[2], drone_id=row[3], message=row[4]))
+                for row in self._db.execute(sql, args)]
+
+    def origins(self) -> list[str]:
+        return [r[0] for r in self._db.execute("SELECT DISTINCT origin FROM copies ORDER BY origin")]
 
     def last_id(self) -> int:
         row = self._db.execute("SELECT MAX(id) FROM events").fetchone()

@@ -31,6 +31,7 @@ from dronefleet.ground.describe import describe_step
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.feeds import SensorFeeds
 from dronefleet.ground.ground_peers import GroundPeers
+from dronefleet.ground.log_copy import LogCopy
 from dronefleet.ground.mission_recording import MissionRecordings
 from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
 from dronefleet.ground.throttle import WarningThrottle
@@ -111,7 +112,10 @@ class GroundStation:
         # SPEC §14: this ground among the grounds on the mesh; only the active one commands
         self.peers = GroundPeers(bus, self.keys, GroundInfo(ground_id=config.ground_id, priority=config.priority,
                                                             role=config.role, http=http_url),
-                                 self.clock, on_change=self._role_changed, epoch_file=epoch_file)
+                                 self.clock, on_change=self._role_changed, epoch_file=epoch_file,
+                                 log_seq=self.events.last_id,
+                                 on_active=lambda said: self.log_copy.heard_active(said.ground_id, said.log_seq))
+        self.log_copy = LogCopy(bus, self.keys, events, config.ground_id)  # SPEC §14: the active ground's log, kept
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -133,6 +137,7 @@ class GroundStation:
             self.bus.serve(k.ground_ping(), echo),
             self.bus.announce(k.ground_alive()),
             *self.peers.declare(),
+            *self.log_copy.declare(),
         ]
         self.log_ground("info", "Ground station started")
         peers = asyncio.get_running_loop().create_task(self.peers.run(listen_first=bool(self.config.connect)),
@@ -147,6 +152,7 @@ class GroundStation:
         finally:
             peers.cancel()
             self.peers.close()
+            self.log_copy.close()
             self.log_ground("info", "Ground station stopped")
             if self.recordings is not None:
                 self.recordings.close()
@@ -494,6 +500,8 @@ class GroundStation:
         for event in events:
             if isinstance(event, LogLine):
                 row = self.events.append(event)
+                if self.peers.active:  # the standby grounds keep a copy
+                    self.log_copy.published(row, event)
                 log.log(_LOG_LEVELS[event.level], "%s - %s", event.drone_id or "ground", event.message)
                 self.broadcast(WatchEvent("log", event, row))
             elif isinstance(event, InfoChanged):

@@ -23,9 +23,20 @@ class GroundInfo(msgspec.Struct, frozen=True, kw_only=True):
     epoch_held: int = 0  # the highest epoch it held itself: one holding ours too makes ours ambiguous
 
 
+class GroundLogLine(msgspec.Struct, frozen=True, kw_only=True):
+    """One line of a ground's event log on `ground/<id>/log`, numbered as in that log."""
+
+    seq: int
+    timestamp: int
+    level: str
+    drone_id: str | None = None
+    message: str
+
+
 class ActiveGround(msgspec.Struct, frozen=True, kw_only=True):
     """Published on `ground/<id>/active` by the active ground (and answered to a query)."""
 
     ground_id: str
     epoch: int
     timestamp: int
+    log_seq: int = 0  # the last line of its event log: a standby behind it catches up (ground/<id>/log)

@@ -7,6 +7,8 @@ the old epoch (`stale_ground`), and the first ground, back, takes over again abo
 from __future__ import annotations
 
 import json
+import sqlite3
+import time
 from pathlib import Path
 
 import httpx
@@ -57,7 +59,20 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
             assert (await b.post("/mission", content=b"print('hi')\n")).status_code == 503
             assert (await a.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
 
+            async def copied_live() -> bool:  # the standby keeps the active ground's log as it is written
+                reply = await b.get("/ground/alpha/log")
+                return reply.status_code == 200 and "drone01 - Success on arm" in reply.text
+            await until(copied_live, 10, "alpha's log line of the arm in bravo's copy")
+
+            killed_ms = time.time() * 1000
             alpha.kill()  # SIGKILL: no goodbye, its token goes with its links
+            # Every line alpha had logged a second before it died is in bravo's copy.
+            with sqlite3.connect(alpha.data_dir / "events.db") as db:
+                logged = [f"{level.upper()} {drone or '-'} {message}" for level, drone, message in db.execute(
+                    "SELECT level, drone_id, message FROM events WHERE timestamp_ms <= ? ORDER BY id", (killed_ms - 1000,))]
+            copy = (await b.get("/ground/alpha/log")).text
+            assert all(line.split(" ", 2)[2] in copy for line in logged), (logged, copy)
+            assert "Ground alpha is active (epoch 1)" in copy and "Registered" in copy
 
             async def bravo_active() -> bool:
                 return (await grounds(b)).get("bravo", {}).get("active") is True
