@@ -85,6 +85,13 @@ class Mesh:
         self.links[b].discard(a)
         self.queue += [(a, "gone", b), (b, "gone", a)]
 
+    def start_all(self) -> None:
+        """Every ground starts and hears every other's token, in the seed's order."""
+        for a in self.standing:
+            self.queue.append((a, "start", None))
+            self.queue += [(a, "token", self.standing[b].me) for b in self.standing if b != a]
+        self.settle()
+
     def actives(self) -> list[str]:
         return [g for g, s in self.standing.items() if s.active]
 
@@ -93,13 +100,7 @@ class Mesh:
 @given(infos=grounds, seed=st.integers(0, 2**32))
 def test_grounds_that_hear_each_other_agree_on_one_active_the_rule_chooses(infos: list[GroundInfo], seed: int) -> None:
     mesh = Mesh(infos, seed)
-    ids = list(mesh.standing)
-    for a in ids:
-        mesh.queue.append((a, "start", None))
-        for b in ids:
-            if a != b:
-                mesh.queue.append((a, "token", mesh.standing[b].me))
-    mesh.settle()
+    mesh.start_all()
     want = chosen(infos)
     assert mesh.actives() == ([want] if want else [])
     if want:
@@ -118,12 +119,7 @@ def test_after_a_partition_heals_one_ground_is_active_with_the_newest_epoch(
     is above every epoch any ground took or heard."""
     mesh = Mesh(infos, seed)
     ids = list(mesh.standing)
-    for a in ids:
-        mesh.queue.append((a, "start", None))
-        for b in ids:
-            if a != b:
-                mesh.queue.append((a, "token", mesh.standing[b].me))
-    mesh.settle()
+    mesh.start_all()
     left, right = ids[: split % len(ids) or 1], ids[split % len(ids) or 1:]
     for a in left:
         for b in right:

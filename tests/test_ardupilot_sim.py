@@ -59,6 +59,14 @@ def fly_for(endpoint: MavlinkVehicle, seconds: float, step_s: float = 0.05) -> N
 ACCEPTED, FAILED = mav2.MAV_RESULT_ACCEPTED, mav2.MAV_RESULT_FAILED
 
 
+async def hovering(endpoint: MavlinkVehicle, gcs: Gcs, alt_m: float = 5) -> None:
+    """GUIDED, armed, taken off to `alt_m` and there."""
+    for cmd, params in ((mav2.MAV_CMD_DO_SET_MODE, (1, ardupilot.GUIDED)), (mav2.MAV_CMD_COMPONENT_ARM_DISARM, (1,)),
+                        (mav2.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, 0, 0, 0, alt_m))):
+        assert (await command(gcs, cmd, *params))[0] == ACCEPTED
+    fly_for(endpoint, alt_m / 1.1 + 3)
+
+
 async def test_it_says_ardupilot_and_streams_nothing_but_its_heartbeat_until_asked(copter) -> None:
     endpoint, gcs = copter
     beat = endpoint.heartbeat()
@@ -100,10 +108,7 @@ async def test_a_takeoff_climbs_in_guided_and_stays_there_then_land_disarms_and_
 
 async def test_hold_is_brake_where_speed_changes_fail_and_a_heading_is_condition_yaw(copter) -> None:
     endpoint, gcs = copter
-    await set_mode(gcs, ardupilot.GUIDED)
-    await command(gcs, mav2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    await command(gcs, mav2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5)
-    fly_for(endpoint, 8.0)
+    await hovering(endpoint, gcs)
     assert (await command(gcs, mav2.MAV_CMD_CONDITION_YAW, 90, 0, 0, 0))[0] == ACCEPTED
     fly_for(endpoint, 3.0)
     assert endpoint.vehicle.heading == pytest.approx(90.0, abs=0.5)
@@ -115,10 +120,7 @@ async def test_hold_is_brake_where_speed_changes_fail_and_a_heading_is_condition
 
 async def test_a_pilots_radio_and_a_failsafe_show_as_ardupilot_modes(copter) -> None:
     endpoint, gcs = copter
-    await set_mode(gcs, ardupilot.GUIDED)
-    await command(gcs, mav2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-    await command(gcs, mav2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5)
-    fly_for(endpoint, 8.0)
+    await hovering(endpoint, gcs)
     endpoint.vehicle.inject_manual(True)
     assert mode(endpoint) == ardupilot.POSHOLD
     endpoint.vehicle.inject_manual(False)
