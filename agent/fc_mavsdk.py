@@ -75,7 +75,7 @@ AUTOPILOTS = {
     "ardupilot": Autopilot(
         "ardupilot",
         rates_hz={"position": 10.0, "position_velocity_ned": 10.0, "velocity_ned": 10.0, "attitude_euler": 10.0,
-                  "gps_info": 2.0, "battery": 1.0, "home": 1.0, "landed_state": 2.0, "health": 1.0},
+                  "gps_info": 2.0, "battery": 1.0, "home": 1.0, "landed_state": 2.0},
         guided=True, idle_modes=frozenset({"stabilized", "altctl", "posctl", "acro", "manual"}),
         arm_from_mode=GUIDED_MODE, return_alt_param=("RTL_ALT", 0.01), yaw_command=True,
         fence_enable_param="FENCE_ENABLE",
