@@ -33,7 +33,7 @@ from dronefleet.schemas.about import About
 from dronefleet.schemas.bundles import BundleStatus, TaskBundle
 from dronefleet.schemas.commands import Command
 from dronefleet.schemas.errors import FleetError
-from dronefleet.schemas.grounds import RESERVED, ActiveGround, GroundLogLine
+from dronefleet.schemas.grounds import RESERVED, ActiveGround, GroundLogLine, GroundMissionChange
 from dronefleet.schemas.status import CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
@@ -59,12 +59,13 @@ MESH_KINDS: dict[str, Any] = {
     "About": About,
     "ActiveGround": ActiveGround,
     "GroundLogLine": GroundLogLine,
+    "GroundMissionChange": GroundMissionChange,
 }
 _BY_LAST_CHUNK = {"telem": "Telemetry", "status": "Status", "link": "LinkQuality", "cmd": "Command",
                   "bundle": "TaskBundle", "alive": "Liveliness", "about": "About"}
 # Sent as queries (commands, bundles) or the ground's own: kept in a recording, never replayed.
 # A ground's epoch (SPEC §14) is kept too: replayed into a live mesh, it would fence its grounds.
-NOT_REPLAYED = frozenset({"Command", "TaskBundle", "ActiveGround", "GroundLogLine"})
+NOT_REPLAYED = frozenset({"Command", "TaskBundle", "ActiveGround", "GroundLogLine", "GroundMissionChange"})
 
 
 def kind_of(key: str) -> str | None:
@@ -83,8 +84,10 @@ def kind_of(key: str) -> str | None:
         return "Liveliness"
     if len(parts) >= 3 and parts[-3] == "ground" and parts[-1] == "active":  # SPEC §14: the active ground's epoch
         return "ActiveGround"
-    if len(parts) >= 3 and parts[-3] == "ground" and parts[-1] == "log":  # … and its event log, line by line
+    if len(parts) >= 3 and parts[-3] == "ground" and parts[-1] == "log":  # … its event log, line by line
         return "GroundLogLine"
+    if len(parts) >= 3 and parts[-3] == "ground" and parts[-1] == "missions":  # … and its missions' changes
+        return "GroundMissionChange"
     if len(parts) >= 2 and parts[-2] == "ground" and parts[-1] not in RESERVED:  # a ground's own token
         return "Liveliness"
     return None

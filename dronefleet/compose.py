@@ -137,6 +137,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
             host, port = sock.getsockname()[:2]
             http_url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
             station = GroundStation(config, bus, events, http_url=http_url, epoch_file=data_dir / "ground-epoch")
+            station.keep_copies("missions", store.stream(), store.last_change, store)
             station.record_missions(data_dir / "missions")
             missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True)
             server = _EmbeddedServer(uvicorn.Config(

@@ -401,6 +401,22 @@ def ground_log(
                     headers={LOG_CURSOR: str(rows[-1][0] if rows else after)})
 
 
+@get("/ground/{ground_id:str}/mission", sync_to_thread=False,
+     summary="Another ground's missions as this ground keeps a copy of them (SPEC §14)")
+def ground_missions(missions: MissionManager, ground_id: str) -> list[MissionRecord]:
+    return missions.store.copied_records(ground_id)
+
+
+@get("/ground/{ground_id:str}/mission/{mission_id:str}", sync_to_thread=False, responses=_errors(404),
+     summary="One of another ground's missions and its log, as copied here (SPEC §14)")
+def ground_mission(missions: MissionManager, ground_id: str, mission_id: str) -> Response[Any]:
+    record = next((r for r in missions.store.copied_records(ground_id) if r.mission_id == mission_id), None)
+    if record is None:
+        return _error(404, f"no copy of mission {mission_id!r} of ground {ground_id!r} here",
+                      {"ground_id": ground_id, "mission_id": mission_id})
+    return Response({**msgspec.to_builtins(record), "log": msgspec.to_builtins(missions.store.copied_log(ground_id, mission_id))})
+
+
 @get("/plugin", sync_to_thread=False, summary="Loaded plugins with their inputs, and plugin files that failed to load")
 def list_plugins(missions: MissionManager) -> PluginListing:
     return missions.plugins.describe() if missions.plugins is not None else PluginListing(plugins=[], errors=[])
@@ -512,7 +528,7 @@ def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
             import_mission_plan, list_field_sensors, show_field_sensor, check_mission_script, simulate_mission, export_mission_plan,
-            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, list_grounds, ground_log,
+            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, list_grounds, ground_log, ground_missions, ground_mission,
         ],
         dependencies={
             "station": Provide(lambda: station, sync_to_thread=False),

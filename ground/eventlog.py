@@ -14,7 +14,11 @@ import sqlite3
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
+import msgspec
+
+from dronefleet.bus.stream_copy import Stream
 from dronefleet.ground.registry import LogLine
 
 _SCHEMA = """
@@ -117,6 +121,17 @@ class EventLog:
             args.append(limit)
         return [(row[0], LogLine(timestamp=row[1], level=row[2], drone_id=row[3], message=row[4]))
                 for row in self._db.execute(sql, args)]
+
+    def stream(self) -> Stream:
+        """The log as a numbered stream the other grounds copy (ground/stream_copy.py)."""
+        def after(since: int, limit: int) -> list[tuple[int, dict[str, Any]]]:
+            return [(i, msgspec.structs.asdict(x)) for i, x in self.query(after_id=since, limit=limit)]
+
+        def keep(origin: str, seq: int, entry: dict[str, Any]) -> None:
+            self.keep_copy(origin, seq, LogLine(timestamp=entry["timestamp"], level=entry["level"],
+                                                drone_id=entry.get("drone_id"), message=entry["message"]))
+
+        return Stream("log", after, keep, self.copied_up_to)
 
     def origins(self) -> list[str]:
         return [r[0] for r in self._db.execute("SELECT DISTINCT origin FROM copies ORDER BY origin")]

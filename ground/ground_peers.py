@@ -37,14 +37,14 @@ _active = msgspec.json.Decoder(ActiveGround)
 class GroundPeers:
     def __init__(self, bus: Bus, keys: Keys, me: GroundInfo, clock: Clock,
                  on_change: Callable[[Change], None] = lambda change: None, epoch_file: Path | None = None,
-                 log_seq: Callable[[], int] = lambda: 0,
+                 streams: Callable[[], dict[str, int]] = dict,
                  on_active: Callable[[ActiveGround], None] = lambda said: None) -> None:
         """`epoch_file` keeps the highest epoch across restarts (a ground back alone never
         takes an epoch another ground already used)."""
         self.bus = bus
         self.keys = keys
         self._epoch_file = epoch_file
-        self._log_seq = log_seq
+        self._streams = streams
         self._on_active_said = on_active
         self.standing = Standing(me, remembered_epoch=_read_epoch(epoch_file))
         self.clock = clock
@@ -175,7 +175,7 @@ class GroundPeers:
 
     def _said(self) -> ActiveGround:
         return ActiveGround(ground_id=self.me.ground_id, epoch=self.epoch, timestamp=self.clock.time_ms(),
-                            log_seq=self._log_seq())
+                            streams=self._streams())
 
     def _publish(self) -> None:
         self.bus.publish(self.keys.ground(self.me.ground_id, "active"), msgspec.json.encode(self._said()))

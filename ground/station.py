@@ -24,6 +24,7 @@ from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_security import relays_of
 from dronefleet.bus.port import Bus, Declaration, NoRoute, QueryRefused, Sample, Unreachable, echo
 from dronefleet.bus.recording import now_ns_of
+from dronefleet.bus.stream_copy import Stream, StreamCopy
 from dronefleet.ground.active_ground import Change
 from dronefleet.ground.airspace import Airspace
 from dronefleet.ground.config import GroundConfig
@@ -31,7 +32,6 @@ from dronefleet.ground.describe import describe_step
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.feeds import SensorFeeds
 from dronefleet.ground.ground_peers import GroundPeers
-from dronefleet.ground.log_copy import LogCopy
 from dronefleet.ground.mission_recording import MissionRecordings
 from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
 from dronefleet.ground.throttle import WarningThrottle
@@ -57,7 +57,7 @@ from dronefleet.schemas.commands import Command, CommandReply, decode_command, n
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
-from dronefleet.schemas.grounds import STALE_GROUND, GroundInfo
+from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround, GroundInfo
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
@@ -113,9 +113,10 @@ class GroundStation:
         self.peers = GroundPeers(bus, self.keys, GroundInfo(ground_id=config.ground_id, priority=config.priority,
                                                             role=config.role, http=http_url),
                                  self.clock, on_change=self._role_changed, epoch_file=epoch_file,
-                                 log_seq=self.events.last_id,
-                                 on_active=lambda said: self.log_copy.heard_active(said.ground_id, said.log_seq))
-        self.log_copy = LogCopy(bus, self.keys, events, config.ground_id)  # SPEC §14: the active ground's log, kept
+                                 streams=self.stream_ends, on_active=self._heard_active)
+        # SPEC §14: what the active ground records, kept by the others (more added by whoever owns them)
+        self.log_copy = StreamCopy(bus, self.keys, config.ground_id, events.stream())
+        self.copies: dict[str, tuple[StreamCopy, Callable[[], int]]] = {"log": (self.log_copy, events.last_id)}
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -137,7 +138,7 @@ class GroundStation:
             self.bus.serve(k.ground_ping(), echo),
             self.bus.announce(k.ground_alive()),
             *self.peers.declare(),
-            *self.log_copy.declare(),
+            *(d for copy, _ in self.copies.values() for d in copy.declare()),
         ]
         self.log_ground("info", "Ground station started")
         peers = asyncio.get_running_loop().create_task(self.peers.run(listen_first=bool(self.config.connect)),
@@ -152,12 +153,28 @@ class GroundStation:
         finally:
             peers.cancel()
             self.peers.close()
-            self.log_copy.close()
+            for copy, _ in self.copies.values():
+                copy.close()
             self.log_ground("info", "Ground station stopped")
             if self.recordings is not None:
                 self.recordings.close()
             for declaration in reversed(declarations):
                 declaration.close()
+
+    def keep_copies(self, name: str, stream: Stream, last: Callable[[], int], source: Any) -> None:
+        """Another numbered record this ground keeps (`source.on_change(seq, entry)` tells
+        of each new entry), copied by the others like its event log: before `run`."""
+        copy = StreamCopy(self.bus, self.keys, self.config.ground_id, stream)
+        self.copies[name] = (copy, last)
+        source.on_change = lambda seq, entry: copy.published(seq, entry) if self.peers.active else None
+
+    def stream_ends(self) -> dict[str, int]:
+        """Where each record this ground keeps numbered ends (its announcement carries them)."""
+        return {name: last() for name, (_, last) in self.copies.items()}
+
+    def _heard_active(self, said: ActiveGround) -> None:
+        for name, (copy, _) in self.copies.items():
+            copy.heard_active(said.ground_id, said.streams.get(name, 0))
 
     def _role_changed(self, change: Change) -> None:
         me = self.config.ground_id
@@ -501,7 +518,7 @@ class GroundStation:
             if isinstance(event, LogLine):
                 row = self.events.append(event)
                 if self.peers.active:  # the standby grounds keep a copy
-                    self.log_copy.published(row, event)
+                    self.log_copy.published(row, msgspec.structs.asdict(event))
                 log.log(_LOG_LEVELS[event.level], "%s - %s", event.drone_id or "ground", event.message)
                 self.broadcast(WatchEvent("log", event, row))
             elif isinstance(event, InfoChanged):

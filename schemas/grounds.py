@@ -33,10 +33,20 @@ class GroundLogLine(msgspec.Struct, frozen=True, kw_only=True):
     message: str
 
 
+class GroundMissionChange(msgspec.Struct, frozen=True, kw_only=True):
+    """One change to a ground's missions on `ground/<id>/missions`, numbered: a mission
+    record as it now is (`record`) or a line of its log (`line`), as JSON text."""
+
+    seq: int
+    mission_id: str
+    kind: str
+    body: str
+
+
 class ActiveGround(msgspec.Struct, frozen=True, kw_only=True):
     """Published on `ground/<id>/active` by the active ground (and answered to a query)."""
 
     ground_id: str
     epoch: int
     timestamp: int
-    log_seq: int = 0  # the last line of its event log: a standby behind it catches up (ground/<id>/log)
+    streams: dict[str, int] = {}  # where each numbered record ends ("log", "missions"): a copy behind catches up

@@ -71,7 +71,8 @@ def test_generated_requests_never_5xx_and_always_match_the_schema(ground: Ground
         "GET /drone", "GET /drone/logs", "GET /drone/{drone_id}", "POST /drone/{drone_id}/cmd",
         "POST /drone/{drone_id}/bundle", "GET /drone/{drone_id}/bundle/{bundle_id}",
         "POST /mission", "GET /mission", "GET /mission/{mission_id}", "DELETE /mission/{mission_id}",
-        "GET /plugin", "GET /ground", "GET /ground/{ground_id}/log", "POST /mission/plan", "GET /sensor", "GET /sensor/{sensor_id}",
+        "GET /plugin", "GET /ground", "GET /ground/{ground_id}/log", "GET /ground/{ground_id}/mission",
+        "GET /ground/{ground_id}/mission/{mission_id}", "POST /mission/plan", "GET /sensor", "GET /sensor/{sensor_id}",
         "POST /mission/check", "POST /mission/simulate", "POST /mission/plan/export",
     }
     for op in operations:

@@ -16,7 +16,7 @@ import pytest
 
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.commands import CommandReply
-from tests.harness import AgentProcess, GroundProcess, wait_state
+from tests.harness import AgentProcess, GroundProcess, ended, submit, wait_state
 from tests.waiting import until
 
 pytestmark = pytest.mark.integration
@@ -58,6 +58,14 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
             assert refused.json() == {"error": "standby", "active": "alpha", "http": alpha.url + "/"}
             assert (await b.post("/mission", content=b"print('hi')\n")).status_code == 503
             assert (await a.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+            mission_id = await submit(a, "print('hello from alpha')\n", "short")
+            assert (await ended(a, mission_id, 30))["status"] == "finished"
+
+            async def mission_copied() -> bool:  # its record and log follow too
+                reply = await b.get(f"/ground/alpha/mission/{mission_id}")
+                return (reply.status_code == 200 and reply.json()["status"] == "finished"
+                        and "hello from alpha" in [x["message"] for x in reply.json()["log"]])
+            await until(mission_copied, 10, "alpha's mission in bravo's copy")
 
             async def copied_live() -> bool:  # the standby keeps the active ground's log as it is written
                 reply = await b.get("/ground/alpha/log")

@@ -22,6 +22,7 @@ from typing import Any
 import msgspec
 
 from dronefleet.bus.clock import Clock
+from dronefleet.bus.stream_copy import Stream
 from dronefleet.mission.hosting.isolation import IsolatedMission
 from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import Mission
@@ -50,8 +51,23 @@ CREATE TABLE IF NOT EXISTS mission_log (
     message TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS mission_log_mission ON mission_log (mission_id, id);
+CREATE TABLE IF NOT EXISTS mission_changes (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    mission_id TEXT NOT NULL,
+    kind TEXT NOT NULL CHECK (kind IN ('record', 'line')),
+    body TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS mission_copies (
+    origin TEXT NOT NULL,
+    seq INTEGER NOT NULL,
+    mission_id TEXT NOT NULL,
+    kind TEXT NOT NULL,
+    body TEXT NOT NULL,
+    PRIMARY KEY (origin, seq)
+);
 """
 _record_decoder = msgspec.json.Decoder(MissionRecord)
+_line_decoder = msgspec.json.Decoder(MissionLogLine)
 Running = Mission | IsolatedMission
 
 
@@ -64,9 +80,15 @@ class MissionEnded(FleetError):
 
 
 class MissionStore:
-    """SQLite persistence of records and log lines; ':memory:' for simulations."""
+    """SQLite persistence of records and log lines; ':memory:' for simulations.
+
+    Every change (a record as it now is, a line of a log) is also numbered in
+    `mission_changes`, the stream the other grounds on the mesh copy (SPEC §14;
+    `on_change(seq, entry)` tells whoever publishes it), and their copies of another
+    ground's changes are kept in `mission_copies`."""
 
     def __init__(self, path: Path | str) -> None:
+        self.on_change: Callable[[int, dict[str, Any]], None] = lambda seq, entry: None
         self._db = sqlite3.connect(str(path), isolation_level=None, check_same_thread=False)
         if str(path) != ":memory:":
             self._db.execute("PRAGMA journal_mode=WAL")
@@ -80,22 +102,66 @@ class MissionStore:
         return f"m{row[0]}"
 
     def create(self, record: MissionRecord, source: str) -> None:
-        self._db.execute(
-            "INSERT INTO missions (mission_id, record, source) VALUES (?, ?, ?)",
-            (record.mission_id, msgspec.json.encode(record).decode(), source),
-        )
+        body = msgspec.json.encode(record).decode()
+        self._db.execute("INSERT INTO missions (mission_id, record, source) VALUES (?, ?, ?)",
+                         (record.mission_id, body, source))
+        self._changed(record.mission_id, "record", body)
 
     def save(self, record: MissionRecord) -> None:
-        self._db.execute(
-            "UPDATE missions SET record = ? WHERE mission_id = ?",
-            (msgspec.json.encode(record).decode(), record.mission_id),
-        )
+        body = msgspec.json.encode(record).decode()
+        self._db.execute("UPDATE missions SET record = ? WHERE mission_id = ?", (body, record.mission_id))
+        self._changed(record.mission_id, "record", body)
 
     def append(self, mission_id: str, line: MissionLogLine) -> None:
         self._db.execute(
             "INSERT INTO mission_log (mission_id, timestamp_ms, level, message) VALUES (?, ?, ?, ?)",
             (mission_id, line.timestamp, line.level, line.message),
         )
+        self._changed(mission_id, "line", msgspec.json.encode(line).decode())
+
+    def _changed(self, mission_id: str, kind: str, body: str) -> None:
+        cur = self._db.execute("INSERT INTO mission_changes (mission_id, kind, body) VALUES (?, ?, ?)",
+                               (mission_id, kind, body))
+        assert cur.lastrowid is not None
+        self.on_change(cur.lastrowid, {"mission_id": mission_id, "kind": kind, "body": body})
+
+    def last_change(self) -> int:
+        return int(self._db.execute("SELECT COALESCE(MAX(seq), 0) FROM mission_changes").fetchone()[0])
+
+    def stream(self) -> Stream:
+        """The missions' changes as a numbered stream the other grounds copy."""
+        def after(since: int, limit: int) -> list[tuple[int, dict[str, Any]]]:
+            rows = self._db.execute("SELECT seq, mission_id, kind, body FROM mission_changes WHERE seq > ? ORDER BY seq "
+                                    "LIMIT ?", (since, limit))
+            return [(seq, {"mission_id": m, "kind": k, "body": b}) for seq, m, k, b in rows]
+
+        def keep(origin: str, seq: int, entry: dict[str, Any]) -> None:
+            self._db.execute("INSERT OR IGNORE INTO mission_copies (origin, seq, mission_id, kind, body) "
+                             "VALUES (?, ?, ?, ?, ?)", (origin, seq, entry["mission_id"], entry["kind"], entry["body"]))
+
+        def copied_up_to(origin: str, known: int) -> int:
+            upto = known
+            for (seq,) in self._db.execute("SELECT seq FROM mission_copies WHERE origin = ? AND seq > ? ORDER BY seq",
+                                           (origin, known)):
+                if seq != upto + 1:
+                    break
+                upto = seq
+            return upto
+
+        return Stream("missions", after, keep, copied_up_to)
+
+    def copied_records(self, origin: str) -> list[MissionRecord]:
+        """Another ground's missions as this ground's copy last saw each."""
+        rows = self._db.execute(
+            "SELECT body FROM mission_copies WHERE origin = ? AND kind = 'record' AND seq IN "
+            "(SELECT MAX(seq) FROM mission_copies WHERE origin = ? AND kind = 'record' GROUP BY mission_id) "
+            "ORDER BY mission_id", (origin, origin)).fetchall()
+        return [_record_decoder.decode(r[0]) for r in rows]
+
+    def copied_log(self, origin: str, mission_id: str) -> list[MissionLogLine]:
+        rows = self._db.execute("SELECT body FROM mission_copies WHERE origin = ? AND mission_id = ? AND kind = 'line' "
+                                "ORDER BY seq", (origin, mission_id)).fetchall()
+        return [_line_decoder.decode(r[0]) for r in rows]
 
     def get(self, mission_id: str) -> MissionRecord | None:
         row = self._db.execute("SELECT record FROM missions WHERE mission_id = ?", (mission_id,)).fetchone()
