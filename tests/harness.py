@@ -296,6 +296,13 @@ async def wait_state(http: httpx.AsyncClient, drone_id: str, state: str, timeout
     await until(reached, timeout_s, f"{drone_id} {state}")
 
 
+async def ready_at(ground: GroundProcess, drone_id: str, timeout_s: float = 30) -> None:
+    """Once `ground` answers, wait until it shows `drone_id` ready."""
+    await ground.ready()
+    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+        await wait_state(http, drone_id, "ready", timeout_s)
+
+
 # ---- missions over HTTP ----------------------------------------------------
 
 

@@ -37,7 +37,7 @@ from tests.dashboard.page import (
     served_from_the_package,
 )
 from tests.dashboard.tiles import TileServer, tile_of
-from tests.harness import AgentProcess, GroundFleet, GroundProcess, submit, wait_state
+from tests.harness import AgentProcess, GroundFleet, GroundProcess, ready_at, submit
 from tests.waiting import until
 
 # One Chromium at a time (`--dist loadgroup`): with 200 drones a page takes a core, and
@@ -212,9 +212,7 @@ async def test_a_tile_server_holding_only_zooms_15_to_18_draws_the_first_view_an
     ground = GroundProcess(tmp_path, dashboard={"tiles": tiles.template})
     agent = AgentProcess("drone01", ground.endpoint, tmp_path)
     try:
-        await ground.ready()
-        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-            await wait_state(http, "drone01", "ready", 30)
+        await ready_at(ground, "drone01")
         page = dashboard.page
         await dashboard.open(ground.url)
         await expect(page.locator("#map")).to_have_attribute("data-drones", "1", timeout=UI_S * 1000)
@@ -248,9 +246,7 @@ async def test_a_restarted_ground_is_announced_and_the_page_recovers_without_rel
     ground = GroundProcess(tmp_path, dashboard={"tiles": tile_server.template})
     agent = AgentProcess("drone01", ground.endpoint, tmp_path)
     try:
-        await ground.ready()
-        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-            await wait_state(http, "drone01", "ready", 30)
+        await ready_at(ground, "drone01")
         await dashboard.open(ground.url)
         row = page.locator("#drone-list li[data-drone=drone01]")
         await expect(row.locator(".st")).to_have_text("ready", timeout=UI_S * 1000)
