@@ -9,6 +9,7 @@ import struct
 import subprocess
 from collections.abc import AsyncIterator, Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from pymavlink import mavutil
@@ -26,6 +27,7 @@ from dronefleet.sim.vehicle import Vehicle
 from tests.harness import AgentProcess, Operator, SimProcess, at, fleet_command
 from tests.mavlink_gcs import Gcs
 from tests.ports import free_udp_base
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 
@@ -204,11 +206,12 @@ def assert_same_polygon(got: list[tuple[float, float]], want: list[tuple[float, 
         assert abs(lat - want_lat) <= 1e-7 and abs(lon - want_lon) <= 1e-7, (got, want)
 
 
-@pytest.fixture
-async def px4() -> AsyncIterator[MavlinkVehicle]:
-    """One simulated PX4 in this process, stepping, sending to a free loopback port."""
+@pytest.fixture(params=["px4"])
+async def px4(request: pytest.FixtureRequest) -> AsyncIterator[MavlinkVehicle]:
+    """One simulated PX4 (or, asked for, ArduCopter) in this process, stepping, sending
+    to a free loopback port."""
     port = free_udp_base(1)
-    endpoint = MavlinkVehicle(Vehicle(40.633490, -8.660815, 8.2), 1, [("127.0.0.1", port)])
+    endpoint = MavlinkVehicle(Vehicle(40.633490, -8.660815, 8.2), 1, [("127.0.0.1", port)], autopilot=request.param)
     await endpoint.start(("127.0.0.1", 0))
     stepping = asyncio.get_running_loop().create_task(endpoint.run())
     try:
@@ -336,3 +339,27 @@ async def test_a_ground_station_uploads_and_downloads_a_mission_and_rally_points
         assert all(not items for items in px4.missions.plans.values())
     finally:
         transport.close()
+
+
+@pytest.mark.parametrize("px4", ["px4", "ardupilot"], indirect=True)
+async def test_a_health_flag_and_a_failsafe_reach_the_adapter_alike_on_both_autopilots(
+    px4: MavlinkVehicle, mavsdk_fc: MavsdkFlightController,
+) -> None:
+    """What the ground judges a flicker or a failsafe from (issue 58 part 3: the same
+    rule on both autopilots) reaches the agent's state the same way: a failing check
+    shows and clears, a low battery's automatic return shows as `return_to_launch`."""
+    async def state_is(what: str, check: Callable[[Any], bool]) -> None:
+        async def ok() -> bool:
+            return check(mavsdk_fc.state())
+        await until(ok, 15, what)
+
+    await state_is("every check passing", lambda s: s.health_failures == () and s.position is not None)
+    px4.vehicle.inject_health_failure("global_position")
+    await state_is("global_position failing", lambda s: "global_position" in s.health_failures)
+    px4.vehicle.inject_health_failure()
+    await state_is("the check passing again", lambda s: s.health_failures == ())
+    await mavsdk_fc.arm()
+    await mavsdk_fc.takeoff(5.0)
+    await state_is("in the air", lambda s: s.landed_state == "in_air" and s.flight_mode == "hold")
+    px4.vehicle.inject_battery(0.05)
+    await state_is("the automatic return", lambda s: s.flight_mode == "return_to_launch")
