@@ -1,7 +1,8 @@
 """A PX4 drone and an ArduCopter drone in one mission (issue 58), on real processes:
 `fleet sim --autopilot px4,ardupilot`, a `fleet agent` on each (real libmavsdk),
 `fleet ground` and the HTTP API. Concurrent subroutines wait on each other through a
-channel and each flies a task bundle."""
+channel and each flies a task bundle; a health flag flickering on the ArduCopter in
+flight is a warning, and the mission finishes."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from dronefleet.sim.faults import send_fault
 from tests.harness import GroundFleet, SimProcess, ended, submit
+from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 
@@ -43,6 +46,20 @@ async def test_a_px4_and_an_ardupilot_drone_fly_one_mission_with_a_channel_and_a
     try:
         async with fleet.client() as http:
             mission_id = await submit(http, MISSION, "mixed")
+
+            # A health flag that drops for a moment on the ArduCopter in flight is a warning,
+            # not the end of the mission (issue 58 part 3, on this personality too).
+            async def copter_flying() -> bool:
+                telem = (await http.get("/drone/drone02", params={"data": "telem"})).json().get("telem") or {}
+                return telem.get("landed_state") == "in_air"
+            await until(copter_flying, 60, "drone02 in the air")
+            assert (await send_fault("drone02", "health_failure", "global_position", sim.control))["ok"]
+
+            async def warned() -> bool:
+                return any("drone02 - Health check failing: global_position" in line
+                           for line in (await http.get("/drone/logs")).text.splitlines())
+            await until(warned, 10, "the warning of drone02's failing check")
+            assert (await send_fault("drone02", "health_ok", None, sim.control))["ok"]
             record = await ended(http, mission_id, 240)
             messages = [line["message"] for line in record["log"]]
             assert (record["status"], record["cause"]) == ("finished", "success"), messages[-8:]
