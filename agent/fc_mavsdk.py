@@ -358,9 +358,12 @@ class MavsdkFlightController:
         param = self.autopilot.return_alt_param
         if param is None:
             await self._call("return altitude", self.action.set_return_to_launch_altitude(alt_m))
-        else:
+        else:  # a preference: the return flies at the autopilot's own altitude if it refuses ours
             name, unit_m = param
-            await self._call("return altitude", self._params().set_param_int(name, round(alt_m / unit_m)))
+            try:
+                await self._call("return altitude", self._params().set_param_int(name, round(alt_m / unit_m)))
+            except FcRejected as exc:
+                log.warning("flight controller: %s (%s) not set, returning at the autopilot's own: %s", name, alt_m, exc)
         await self._call("return", self.action.return_to_launch())
         self._takeoff_to = self._snapshot = None
 
