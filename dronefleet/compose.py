@@ -24,7 +24,6 @@ import logging
 import random
 import shutil
 import socket
-import tempfile
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -60,6 +59,7 @@ from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, spot_of
 from dronefleet.sim.radio_air import AirEcho, RadioAir
+from dronefleet.sim.scratch import scratch_dir
 from dronefleet.sim.sensor_publisher import world_field_sensor
 from dronefleet.sim.sensors import simulated_sensor
 from dronefleet.sim.vehicle import Vehicle
@@ -213,7 +213,7 @@ class SimField:
         self._agent_runtimes: dict[str, Agent] = {}
         self.air = RadioAir(radio, self._where, self.clock, seed, agent=self._agent_runtimes.get) if radio is not None else None
         self.network = MemoryNetwork(medium=self.air)
-        self._tmp = tempfile.TemporaryDirectory(prefix="fleet-sim-") if data_dir is None else None
+        self._tmp = scratch_dir() if data_dir is None else None
         self.data_dir = data_dir or Path(self._tmp.name)  # type: ignore[union-attr]
         self.config = ground_config or GroundConfig(data_dir=str(self.data_dir))
         self.agent_config = agent_config or AgentConfig(telemetry_rate_ms=telemetry_rate_ms)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import subprocess
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -35,6 +34,7 @@ from dronefleet.sim.mavlink_endpoint import AUTOPILOTS, MavlinkVehicle
 from dronefleet.sim.radio import Spot3, spot_of
 from dronefleet.sim.radio_field import RadioField
 from dronefleet.sim.radio_net import die_with_parent, socket_in_netns
+from dronefleet.sim.scratch import scratch_dir
 from dronefleet.sim.vehicle import Vehicle
 from dronefleet.sim.world import DroneSpec, World
 
@@ -120,7 +120,7 @@ async def run_sim(
     # off the radio, the sensor programs connect where the agents do
     sensor_connect = connect or (read_yaml(agent_config).get("connect") if agent_config else None) or ["tcp/127.0.0.1:7447"]
     field = RadioField(world, [s.id for s in specs], ground_port, security).up() if radio else None
-    scratch = tempfile.TemporaryDirectory(prefix="fleet-sim-")
+    scratch = scratch_dir()
     try:
         if field is not None:
             for line in field.describe():
