@@ -105,7 +105,7 @@ class GroundPeers:
             await self.clock.sleep(ANNOUNCE_S)
 
     def close(self) -> None:
-        for task in self._asking:
+        for task in list(self._asking):
             task.cancel()
 
     # ---- the mesh in ----------------------------------------------------------------
