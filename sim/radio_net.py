@@ -86,7 +86,8 @@ def _run(*args: str, stdin: str | None = None, check: bool = True) -> subprocess
     return result
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process of this id runs (someone else's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -101,7 +102,7 @@ def list_netns() -> list[str]:
     return [line.split()[0] for line in out.splitlines() if line.strip()]
 
 
-def leftovers(alive: Callable[[int], bool] = _pid_alive) -> tuple[list[str], list[str]]:
+def leftovers(alive: Callable[[int], bool] = pid_alive) -> tuple[list[str], list[str]]:
     """Namespaces and laptop-side links of Fleet runs whose process is gone."""
     namespaces = [ns for ns in list_netns() if (m := _NETNS_RE.match(ns)) and not alive(int(m.group(1)))]
     links = []

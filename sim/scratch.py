@@ -10,18 +10,10 @@ import shutil
 import tempfile
 from pathlib import Path
 
+from dronefleet.sim.radio_net import pid_alive
+
 PREFIX = "fleet-sim-"
 _OWNED = re.compile(rf"{PREFIX}(\d+)-")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True  # someone else's, alive
-    return True
 
 
 def scratch_dir(base: Path | None = None) -> tempfile.TemporaryDirectory[str]:
@@ -29,6 +21,6 @@ def scratch_dir(base: Path | None = None) -> tempfile.TemporaryDirectory[str]:
     base = base or Path(tempfile.gettempdir())
     for old in base.glob(f"{PREFIX}*"):
         owner = _OWNED.match(old.name)
-        if owner is not None and int(owner.group(1)) != os.getpid() and not _alive(int(owner.group(1))):
+        if owner is not None and int(owner.group(1)) != os.getpid() and not pid_alive(int(owner.group(1))):
             shutil.rmtree(old, ignore_errors=True)
     return tempfile.TemporaryDirectory(prefix=f"{PREFIX}{os.getpid()}-", dir=base)
