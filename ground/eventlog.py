@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import sqlite3
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +53,8 @@ class EventLog:
     """Append-only log lines in SQLite; used from one thread (the ground's event loop)."""
 
     def __init__(self, path: Path | str) -> None:
+        # each line appended, numbered, for whoever publishes it (SPEC §14: the other grounds copy it)
+        self.on_change: Callable[[int, dict[str, Any]], None] = lambda seq, entry: None
         self._db = sqlite3.connect(str(path), isolation_level=None)
         self._db.execute("PRAGMA journal_mode=WAL")
         # NORMAL in WAL mode: a committed line survives a process crash; only an OS
@@ -66,6 +68,7 @@ class EventLog:
             (line.timestamp, line.level, line.drone_id, line.message),
         )
         assert cur.lastrowid is not None
+        self.on_change(cur.lastrowid, msgspec.structs.asdict(line))
         return cur.lastrowid
 
     def query(

@@ -115,8 +115,8 @@ class GroundStation:
                                  self.clock, on_change=self._role_changed, epoch_file=epoch_file,
                                  streams=self.stream_ends, on_active=self._heard_active)
         # SPEC §14: what the active ground records, kept by the others (more added by whoever owns them)
-        self.log_copy = StreamCopy(bus, self.keys, config.ground_id, events.stream())
-        self.copies: dict[str, tuple[StreamCopy, Callable[[], int]]] = {"log": (self.log_copy, events.last_id)}
+        self.copies: dict[str, tuple[StreamCopy, Callable[[], int]]] = {}
+        self.keep_copies("log", events.stream(), events.last_id, events)
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
         """Record each mission from now on to `<directory>/<id>.mcap` (SPEC §12)."""
@@ -516,9 +516,7 @@ class GroundStation:
     def emit(self, events: list[Event]) -> None:
         for event in events:
             if isinstance(event, LogLine):
-                row = self.events.append(event)
-                if self.peers.active:  # the standby grounds keep a copy
-                    self.log_copy.published(row, msgspec.structs.asdict(event))
+                row = self.events.append(event)  # published to the standby grounds while active (keep_copies)
                 log.log(_LOG_LEVELS[event.level], "%s - %s", event.drone_id or "ground", event.message)
                 self.broadcast(WatchEvent("log", event, row))
             elif isinstance(event, InfoChanged):
