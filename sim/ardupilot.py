@@ -82,11 +82,7 @@ def default_params(v: Vehicle) -> dict[str, Param]:
 class ArduCopter:
     """ArduCopter's mode and its answers to commands, over one vehicle model."""
 
-    name = "ardupilot"
     autopilot = mav.MAV_AUTOPILOT_ARDUPILOTMEGA
-    version = FLIGHT_SW_VERSION
-    streams = STREAMS
-    int_params_cast = True  # integers travel as their value in a float (PX4: bytewise)
 
     def __init__(self, vehicle: Vehicle) -> None:
         self.vehicle = vehicle
