@@ -49,8 +49,7 @@ class GroundPeers:
         self.standing = Standing(me, remembered_epoch=_read_epoch(epoch_file))
         self.clock = clock
         self._on_change = on_change
-        self._asking: set[asyncio.Task[None]] = set()
-        self._asked: set[str] = set()  # grounds being asked what they are
+        self._asking: dict[str, asyncio.Task[None]] = {}  # grounds being asked what they are
 
     @property
     def me(self) -> GroundInfo:
@@ -97,7 +96,7 @@ class GroundPeers:
         if listen_first:
             await self.clock.sleep(LISTEN_S)
             if self._asking:  # grounds heard but not yet asked what they are: their answers first
-                await asyncio.wait(list(self._asking), timeout=ASK_S)
+                await asyncio.wait(list(self._asking.values()), timeout=ASK_S)
         self._apply(self.standing.start())
         while True:
             if self.active:
@@ -105,7 +104,7 @@ class GroundPeers:
             await self.clock.sleep(ANNOUNCE_S)
 
     def close(self) -> None:
-        for task in list(self._asking):
+        for task in list(self._asking.values()):
             task.cancel()
 
     # ---- the mesh in ----------------------------------------------------------------
@@ -127,13 +126,11 @@ class GroundPeers:
         self._ask(ground_id)
 
     def _ask(self, ground_id: str) -> None:
-        if ground_id in self._asked:
+        if ground_id in self._asking:
             return
-        self._asked.add(ground_id)
         task = asyncio.get_running_loop().create_task(self._ask_info(ground_id), name=f"ground {ground_id} info")
-        self._asking.add(task)
-        task.add_done_callback(self._asking.discard)
-        task.add_done_callback(lambda _: self._asked.discard(ground_id))
+        self._asking[ground_id] = task
+        task.add_done_callback(lambda _: self._asking.pop(ground_id, None))
 
     async def _ask_info(self, ground_id: str) -> None:
         """What a ground that appeared says of itself (unanswered, it counts with
