@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,6 +38,18 @@ class Stream:
     after: Callable[[int, int], list[tuple[int, Entry]]]  # this ground's entries after a number (at most a page)
     keep: Callable[[str, int, Entry], None]  # a copy of another ground's entry
     copied_up_to: Callable[[str, int], int]  # the highest kept with every one before it, from a known one on
+
+
+def unbroken_from(known: int, seqs: Iterable[int]) -> int:
+    """The highest of `seqs` (ascending, all above `known`) reached from `known` with no
+    number missing: how far a copy is whole (entries are numbered from 1 with no holes
+    on the ground that wrote them)."""
+    upto = known
+    for seq in seqs:
+        if seq != upto + 1:
+            break
+        upto = seq
+    return upto
 
 
 _entry = msgspec.json.Decoder(dict[str, Any])

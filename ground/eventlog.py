@@ -18,7 +18,7 @@ from typing import Any
 
 import msgspec
 
-from dronefleet.bus.stream_copy import Stream
+from dronefleet.bus.stream_copy import Stream, unbroken_from
 from dronefleet.ground.registry import LogLine
 
 _SCHEMA = """
@@ -109,12 +109,8 @@ class EventLog:
     def copied_up_to(self, origin: str, known: int = 0) -> int:
         """The highest line of `origin` kept with every one before it (0: none), looking
         from `known` (a number already known to be kept with all before it) on."""
-        upto = known
-        for (seq,) in self._db.execute("SELECT seq FROM copies WHERE origin = ? AND seq > ? ORDER BY seq", (origin, known)):
-            if seq != upto + 1:  # lines are numbered from 1 with no holes on the ground that wrote them
-                break
-            upto = seq
-        return upto
+        rows = self._db.execute("SELECT seq FROM copies WHERE origin = ? AND seq > ? ORDER BY seq", (origin, known))
+        return unbroken_from(known, (seq for (seq,) in rows))
 
     def copies(self, origin: str, after_seq: int = 0, limit: int | None = None) -> list[tuple[int, LogLine]]:
         sql = "SELECT seq, timestamp_ms, level, drone_id, message FROM copies WHERE origin = ? AND seq > ? ORDER BY seq"

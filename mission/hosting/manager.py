@@ -22,7 +22,7 @@ from typing import Any
 import msgspec
 
 from dronefleet.bus.clock import Clock
-from dronefleet.bus.stream_copy import Stream
+from dronefleet.bus.stream_copy import Stream, unbroken_from
 from dronefleet.mission.hosting.isolation import IsolatedMission
 from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import Mission
@@ -140,13 +140,9 @@ class MissionStore:
                              "VALUES (?, ?, ?, ?, ?)", (origin, seq, entry["mission_id"], entry["kind"], entry["body"]))
 
         def copied_up_to(origin: str, known: int) -> int:
-            upto = known
-            for (seq,) in self._db.execute("SELECT seq FROM mission_copies WHERE origin = ? AND seq > ? ORDER BY seq",
-                                           (origin, known)):
-                if seq != upto + 1:
-                    break
-                upto = seq
-            return upto
+            rows = self._db.execute("SELECT seq FROM mission_copies WHERE origin = ? AND seq > ? ORDER BY seq",
+                                    (origin, known))
+            return unbroken_from(known, (seq for (seq,) in rows))
 
         return Stream("missions", after, keep, copied_up_to)
 
