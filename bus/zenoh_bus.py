@@ -43,6 +43,7 @@ from dronefleet.bus.port import (
     Sample,
     SampleHandler,
 )
+from dronefleet.bus.sockets import LingerOff
 
 log = logging.getLogger(__name__)
 Mode = Literal["client", "peer", "router"]
@@ -188,6 +189,7 @@ class ZenohBus:
         """Open a session. With `wait`, a client retries until a router answers
         (logging each attempt) instead of failing; cancellation stops the wait."""
         conf_args = (mode, connect, listen)
+        LingerOff.start()  # Zenoh's links linger 10 s on close, holding a router's thread (ADR 0003)
         attempt = 0
         while True:
             attempt += 1
