@@ -63,13 +63,14 @@ def test_the_lower_bound_uses_the_longest_hop_that_holds_and_keeps_the_min_quali
 
 
 @pytest.mark.slow(5)  # of one core: ordered among the long tests, while cores are idle (ADR 0011)
-@pytest.mark.parametrize("seed", range(20))
+@pytest.mark.parametrize("seed", range(8))
 def test_corpus_worlds_never_fail_through_a_relay(seed: int) -> None:
-    """Issue 32 item 2 on 20 worlds: a relay on duty is part of the link, so no mission
-    fails because a relay's failsafe pulled it off duty or a relay's move was refused,
-    and no relay's command is interrupted by its lost-link failsafe. (The rates the
-    issue asks for are the bench's: bench/relay_corpus.py.) One test per world, so the
-    suite's workers share the 20 (each is a few seconds of one core)."""
+    """Issue 32 item 2 on the first 8 worlds: a relay on duty is part of the link, so no
+    mission fails because a relay's failsafe pulled it off duty or a relay's move was
+    refused, and no relay's command is interrupted by its lost-link failsafe. The bench
+    holds the same judgement over hundreds of worlds with the rates the issue asks for
+    (bench/relay_corpus.py); here, one test per world, so the suite's workers share them
+    (each is a few seconds of one core)."""
     world = generate(seed)
     result = asyncio.run(rc.fly(world, "measured"))
     o = rc.judge(world, "measured", result)
