@@ -73,10 +73,11 @@ class GroundPeers:
         self._apply(self.standing.heard_epoch(epoch, where))
 
     def listing(self) -> list[dict[str, object]]:
-        """`GET /ground`: every ground heard, its role and the epoch it said it holds."""
+        """`GET /ground`: every ground heard, its role, the epoch it said it holds, and
+        which is this one (`this`: the dashboard says whether it shows a standby)."""
         s = self.standing
         return [{**{k: v for k, v in msgspec.structs.asdict(g).items() if not k.startswith("epoch_")},
-                 "active": g.ground_id == s.active_id,
+                 "active": g.ground_id == s.active_id, "this": g.ground_id == s.me.ground_id,
                  "epoch": s.epoch if g.ground_id == s.me.ground_id else s.epochs.get(g.ground_id, 0)}
                 for g in sorted(s.heard.values(), key=lambda g: g.ground_id)]
 

@@ -14,6 +14,7 @@ import { View } from "./view.js";
 const $ = (id) => document.getElementById(id);
 const WORK_SAMPLES = 600;
 const FIELD_SENSORS_MS = 3000;
+const GROUNDS_MS = 3000; // which ground is active (SPEC §14), asked again this often
 const CONFIG_TIMEOUT_MS = 5000; // the first request: unanswered, the page asks again (and says so)
 
 async function loadConfig() {
@@ -32,6 +33,35 @@ function showDown(attempt, why = "") {
   const conn = $("conn");
   conn.textContent = "reconnecting";
   conn.className = "conn down";
+}
+
+/** The grounds on the mesh (GET /ground): this one's role and epoch in the header,
+ * and while it is standby, a notice that commands go to the active one. */
+function showGrounds(grounds) {
+  const me = grounds.find((g) => g.this);
+  if (!me) return;
+  const active = grounds.find((g) => g.active);
+  const others = grounds.filter((g) => !g.this).map((g) => `${g.ground_id} ${g.active ? `active, epoch ${g.epoch}` : "standby"}`);
+  const label = $("ground");
+  label.textContent = `ground ${me.ground_id} · ${me.active ? `active · epoch ${me.epoch}` : "standby"}`
+    + (others.length ? ` · also ${others.join(", ")}` : "");
+  label.className = me.active ? "" : "standby";
+  const notice = $("standby");
+  notice.hidden = me.active;
+  if (me.active) return;
+  notice.textContent = "Standby ground: everything is shown, commands are refused here. ";
+  if (active) {
+    notice.append(`The active ground is ${active.ground_id} (epoch ${active.epoch})`);
+    if (active.http) {
+      const link = document.createElement("a");
+      link.href = active.http;
+      link.textContent = active.http;
+      notice.append(" at ", link);
+    }
+    notice.append(".");
+  } else {
+    notice.append("No ground is active yet.");
+  }
 }
 
 function showUp() {
@@ -171,6 +201,11 @@ async function main() {
     }
   };
   setInterval(() => { if (!document.hidden) loadFieldSensors(); }, FIELD_SENSORS_MS);
+  const loadGrounds = async () => {
+    const r = await call("GET", "/ground");
+    if (r.ok) showGrounds(r.data);
+  };
+  setInterval(() => { if (!document.hidden) loadGrounds(); }, GROUNDS_MS);
   const stream = new EventStream("/events", {
     telemetry: (t) => { fleet.stats.events++; fleet.onTelemetry(t); data(); },
     drone: (info) => { fleet.stats.events++; fleet.onDrone(info); data(); },
@@ -184,7 +219,8 @@ async function main() {
     onOpen: async () => {
       showUp();
       const epoch = ++fleet.epoch;
-      const [views] = await Promise.all([call("GET", "/drone"), missions.reload(), drones.loadLog(), loadFieldSensors()]);
+      const [views] = await Promise.all([call("GET", "/drone"), missions.reload(), drones.loadLog(), loadFieldSensors(),
+        loadGrounds()]);
       if (views.ok && epoch === fleet.epoch) fleet.resync(views.data, epoch);
       redraw();
     },

@@ -507,3 +507,32 @@ async def test_a_drones_kind_roles_and_declared_sensors_and_field_sensors_on_the
         if field_bus is not None:
             await field_bus.close()
         fleet.stop()
+
+
+@pytest.mark.slow(20)
+async def test_a_standby_grounds_page_says_who_is_active_and_shows_the_takeover(
+        dashboard: Dashboard, tmp_path: Path) -> None:
+    """SPEC §14 on screen: bravo's page (standby) says commands go to alpha, the active
+    ground, with its epoch and address; once alpha dies, bravo's page shows bravo active
+    with the newer epoch, without a reload."""
+    for d in ("alpha", "bravo"):
+        (tmp_path / d).mkdir()
+    alpha = GroundProcess(tmp_path / "alpha", ground_id="alpha", priority=10)
+    bravo = GroundProcess(tmp_path / "bravo", ground_id="bravo", connect=[alpha.endpoint])
+    try:
+        await alpha.ready()
+        await bravo.ready()
+        page = dashboard.page
+        await dashboard.open(bravo.url)
+        notice, label = page.locator("#standby"), page.locator("#ground")
+        await expect(notice).to_be_visible(timeout=UI_S * 1000)
+        await expect(notice).to_contain_text("The active ground is alpha (epoch 1)")
+        await expect(notice.locator("a")).to_have_attribute("href", alpha.url + "/")
+        await expect(label).to_contain_text("ground bravo · standby · also alpha active, epoch 1")
+
+        await asyncio.to_thread(alpha.kill)
+        await expect(label).to_contain_text("ground bravo · active · epoch 2", timeout=UI_S * 1000)
+        await expect(notice).to_be_hidden()
+    finally:
+        alpha.stop()
+        bravo.stop()
