@@ -86,10 +86,14 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
 @click.option("--id", "ground_id", help="This ground's id among several on one mesh (config ground_id; default the host name).")
 @click.option("--priority", type=click.IntRange(-1000, 1000), help="Rank among the grounds: the highest is active (config priority; default 0).")
 @click.option("--connect", multiple=True, type=ENDPOINT, help="Zenoh endpoint of another ground's router to join (repeatable), e.g. tcp/192.168.1.10:7447.")
+@click.option("--observer", is_flag=True, default=None,
+              help="Watch only: see every drone, mission and log, never become active or command (config role: observer).")
 def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | None, data_dir: str | None,
-           pki_dir: str | None, ground_id: str | None, priority: int | None, connect: tuple[str, ...]) -> None:
+           pki_dir: str | None, ground_id: str | None, priority: int | None, connect: tuple[str, ...],
+           observer: bool | None) -> None:
     """Run the ground station: Zenoh router, fleet registry, event log, HTTP API. Several on
-    one mesh: the highest priority is active, the others standby (SPEC §14)."""
+    one mesh: the highest priority is active, the others standby; an observer only watches
+    (SPEC §14)."""
     from dronefleet.compose import run_ground
     from dronefleet.ground.config import GroundConfig
     from dronefleet.schemas.config import load_config
@@ -97,7 +101,8 @@ def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | N
     config = load_config(
         GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir,
                                     "security": security_with_pki(config_path, pki_dir), "ground_id": ground_id,
-                                    "priority": priority, "connect": list(connect) or None}
+                                    "priority": priority, "connect": list(connect) or None,
+                                    "role": "observer" if observer else None}
     )
     run_async(run_ground(config, lambda line: click.echo(line)))
 

@@ -187,7 +187,7 @@ def show_drone(
 
 @post(
     "/drone/{drone_id:str}/cmd", status_code=200, operation_class=_CommandOperation,
-    responses=_errors(400, 404, 409, 502, 503, 504), summary="Send a command; 200 when the agent accepted it",
+    responses=_errors(400, 403, 404, 409, 502, 503, 504), summary="Send a command; 200 when the agent accepted it",
 )
 async def send_command(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[CommandReply]:
     return await _to_drone(drone_id, station.command(drone_id, await request.body(), who=_who(request)))
@@ -219,7 +219,7 @@ _BundleOperation = body_operation("application/json", _BUNDLE_SCHEMA, "A task bu
 
 @post(
     "/drone/{drone_id:str}/bundle", status_code=200, operation_class=_BundleOperation,
-    responses=_errors(400, 404, 409, 502, 503, 504), summary="Send a task bundle; 200 when the agent accepted it",
+    responses=_errors(400, 403, 404, 409, 502, 503, 504), summary="Send a task bundle; 200 when the agent accepted it",
 )
 async def push_bundle(station: GroundStation, drone_id: str, request: Request[Any, Any, Any]) -> Response[BundleReply]:
     return await _to_drone(drone_id, station.push(drone_id, await request.body(), who=_who(request)))
@@ -249,7 +249,7 @@ async def _text(request: Request[Any, Any, Any], what: str, detail: dict[str, An
 
 @post(
     "/mission", status_code=201, operation_class=text_operation("The mission script (Python DSL, SPEC §5), as text."),
-    responses=_errors(400, 413, 422, 503),
+    responses=_errors(400, 403, 413, 422, 503),
     summary="Submit a mission script; 201 with its id and its preflight, 400 with line/column when its text is wrong, "
             "422 when its preflight (fast time against the live fleet) fails or cannot run",
 )
@@ -329,7 +329,7 @@ def show_mission(missions: MissionManager, mission_id: str) -> Response[MissionV
 
 
 @delete(
-    "/mission/{mission_id:str}", status_code=200, responses=_errors(404, 409, 503),
+    "/mission/{mission_id:str}", status_code=200, responses=_errors(403, 404, 409, 503),
     summary="Cancel a running mission (cause user)",
 )
 async def cancel_mission(missions: MissionManager, mission_id: str, request: Request[Any, Any, Any]) -> Response[MissionRecord]:
@@ -478,9 +478,10 @@ _COMMANDING = re.compile(r"POST /drone/[^/]+/(cmd|bundle)|POST /mission|DELETE /
 
 
 class StandbyError(msgspec.Struct, frozen=True, kw_only=True):
-    """SPEC §14: what a standby ground answers a command, a push or a mission submission."""
+    """SPEC §14: what a standby ground (503) or an observer (403, it never commands)
+    answers a command, a push or a mission submission."""
 
-    error: str = "standby"
+    error: Literal["standby", "observer"] = "standby"
     active: str  # the active ground's id ("" while none is)
     http: str  # where its API answers ("" unknown)
 
@@ -494,7 +495,8 @@ def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
             return refused
         refusal = station.standby() if _COMMANDING.fullmatch(f"{request.method} {request.url.path}") else None
         if refusal is not None:  # everything stays visible; only the active ground commands
-            return Response(StandbyError(active=refusal["active"], http=refusal["http"]), status_code=503)
+            return Response(StandbyError(error=refusal["error"], active=refusal["active"], http=refusal["http"]),
+                            status_code=403 if refusal["error"] == "observer" else 503)
         return None
 
     async def _check_token(request: Request[Any, Any, Any]) -> Response[ApiError] | None:

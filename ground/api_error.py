@@ -20,6 +20,8 @@ class ApiError(msgspec.Struct, frozen=True, kw_only=True):
 
 REASONS = {
     400: "malformed request (the field at fault is named; for a script: line and column)",
+    403: "an observer ground, which never commands (SPEC §14: the body names the active ground and its API), "
+         "or an API token whose role may not do this",
     404: "no such drone, field sensor, mission or route",
     409: "the drone cannot run this command now, or the mission already ended (reason given)",
     413: "the script is too large",

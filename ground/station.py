@@ -186,17 +186,22 @@ class GroundStation:
                                     f"is active): {change.why}")
 
     def standby(self) -> dict[str, str] | None:
-        """None while this ground is active; else who is (SPEC §14's 503 body)."""
+        """None while this ground is active; else who is (SPEC §14's refusal body:
+        `standby`, or `observer` for a ground that never commands)."""
         if self.peers.active:
             return None
         active = self.peers.active_ground()
-        return {"error": "standby", "active": active.ground_id if active else "", "http": active.http if active else ""}
+        return {"error": "observer" if self.config.role == "observer" else "standby",
+                "active": active.ground_id if active else "", "http": active.http if active else ""}
 
     def _check_active(self) -> None:
         refusal = self.standby()
         if refusal is not None:
-            raise CommandRejected(503, f"this ground is standby: {refusal['active'] or 'no ground'} is active"
-                                       + (f" ({refusal['http']})" if refusal["http"] else ""), code="standby")
+            observer = refusal["error"] == "observer"
+            raise CommandRejected(403 if observer else 503,
+                                  f"this ground is {'an observer' if observer else 'standby'}: "
+                                  f"{refusal['active'] or 'no ground'} is active"
+                                  + (f" ({refusal['http']})" if refusal["http"] else ""), code=refusal["error"])
 
     def log_ground(self, level: str, message: str) -> None:
         """A line about the ground itself (no drone)."""

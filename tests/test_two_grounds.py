@@ -150,3 +150,45 @@ async def test_a_ground_that_lost_its_epoch_learns_the_agents_and_commands_above
     finally:
         agent.stop()
         ground.stop()
+
+
+@pytest.mark.slow(15)
+async def test_an_observer_sees_the_fleet_and_never_commands_even_ranked_highest_and_alone(tmp_path: Path) -> None:
+    """`fleet ground --observer` (a command post): it sees the drones and the grounds,
+    every command, push and mission is refused 403 naming the active ground, and it is
+    never active — not with the highest priority, not once the only other ground died."""
+    for d in ("alpha", "post"):
+        (tmp_path / d).mkdir()
+    alpha = GroundProcess(tmp_path / "alpha", ground_id="alpha")
+    post = GroundProcess(tmp_path / "post", extra_args=["--observer"], ground_id="post", priority=100, connect=[alpha.endpoint])
+    agent = AgentProcess("drone01", alpha.endpoint, tmp_path)
+    try:
+        await alpha.ready()
+        await post.ready()
+        async with httpx.AsyncClient(base_url=post.url, timeout=10) as p:
+            await wait_state(p, "drone01", "ready", 30)
+
+            async def alpha_active() -> bool:
+                return (await grounds(p)).get("alpha", {}).get("active") is True
+            await until(alpha_active, 20, "the observer hearing alpha active")
+            me = (await grounds(p))["post"]
+            assert (me["role"], me["active"], me["this"]) == ("observer", False, True), me
+            for method, path, body in (("POST", "/drone/drone01/cmd", {"cmd": "arm"}),
+                                       ("POST", "/drone/drone01/bundle", {"steps": [{"cmd": "arm"}]})):
+                refused = await p.request(method, path, json=body)
+                assert refused.status_code == 403, refused.text
+                assert refused.json() == {"error": "observer", "active": "alpha", "http": alpha.url + "/"}
+            assert (await p.post("/mission", content=b"print('hi')\n")).status_code == 403
+
+            alpha.kill()
+
+            async def alpha_gone() -> bool:
+                return "alpha" not in await grounds(p)
+            await until(alpha_gone, 30, "the observer noticing alpha gone")
+            assert (await grounds(p))["post"]["active"] is False
+            refused = await p.post("/drone/drone01/cmd", json={"cmd": "arm"})
+            assert refused.status_code == 403 and refused.json()["active"] == "", refused.text
+    finally:
+        agent.stop()
+        post.stop()
+        alpha.stop()

@@ -41,15 +41,15 @@ function showGrounds(grounds) {
   const me = grounds.find((g) => g.this);
   if (!me) return;
   const active = grounds.find((g) => g.active);
-  const others = grounds.filter((g) => !g.this).map((g) => `${g.ground_id} ${g.active ? `active, epoch ${g.epoch}` : "standby"}`);
+  const role = (g) => (g.active ? `active · epoch ${g.epoch}` : g.role === "observer" ? "observer" : "standby");
+  const others = grounds.filter((g) => !g.this).map((g) => `${g.ground_id} ${role(g).replace(" ·", ",")}`);
   const label = $("ground");
-  label.textContent = `ground ${me.ground_id} · ${me.active ? `active · epoch ${me.epoch}` : "standby"}`
-    + (others.length ? ` · also ${others.join(", ")}` : "");
+  label.textContent = `ground ${me.ground_id} · ${role(me)}` + (others.length ? ` · also ${others.join(", ")}` : "");
   label.className = me.active ? "" : "standby";
   const notice = $("standby");
   notice.hidden = me.active;
   if (me.active) return;
-  notice.textContent = "Standby ground: everything is shown, commands are refused here. ";
+  notice.textContent = `${me.role === "observer" ? "Observer" : "Standby"} ground: everything is shown, commands are refused here. `;
   if (active) {
     notice.append(`The active ground is ${active.ground_id} (epoch ${active.epoch})`);
     if (active.http) {
