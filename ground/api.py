@@ -495,8 +495,9 @@ def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
             return refused
         refusal = station.standby() if _COMMANDING.fullmatch(f"{request.method} {request.url.path}") else None
         if refusal is not None:  # everything stays visible; only the active ground commands
-            return Response(StandbyError(error=refusal["error"], active=refusal["active"], http=refusal["http"]),
-                            status_code=403 if refusal["error"] == "observer" else 503)
+            observer = refusal["error"] == "observer"
+            return Response(StandbyError(error="observer" if observer else "standby", active=refusal["active"],
+                                         http=refusal["http"]), status_code=403 if observer else 503)
         return None
 
     async def _check_token(request: Request[Any, Any, Any]) -> Response[ApiError] | None:
