@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test pytest test-fast lint bench lock clean sysdeps
+.PHONY: demo test pytest test-fast lint bench lock clean sysdeps docs
 
 # The emulated radio (SPEC §8) needs iproute2 and nftables, the dashboard tests (SPEC §10)
 # Debian's chromium; as root on Debian the missing ones are installed here, in one
@@ -74,6 +74,10 @@ test: $(STAMP) sysdeps
 
 pytest: $(STAMP)
 	$(BIN)/python -m pytest -q -n 8 --dist loadgroup
+
+# The documentation site into site/ (mkdocs-material; the suite builds it with --strict).
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 # ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)

@@ -33,7 +33,7 @@ from dronefleet.schemas.errors import ConfigError
 
 
 @click.group(cls=FleetGroup, help="Fleets of connected drones: the on-board agent, the ground station, missions, "
-             "simulation. `fleet COMMAND --help` for each; README for the whole picture.")
+             "simulation. `fleet COMMAND --help` for each; the documentation (docs/, `make docs`) for the whole picture.")
 @click.option("-v", "--verbose", count=True,
               help="More log output: -v Fleet's next level (services: debug; clients: info), -vv debug for everything.")
 @click.pass_context

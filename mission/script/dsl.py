@@ -107,6 +107,7 @@ class Verbs:
         return drones[0] if len(drones) == 1 else tuple(drones)
 
     def revoke(self, d: Drone) -> None:
+        """Give `d` back: the mission no longer commands it and another mission may assign it."""
         self.m.revoke(self._drone_id(d))
         self.m.drop_wrapper(d)
 
@@ -159,27 +160,34 @@ class Verbs:
     # ---- commands ------------------------------------------------------------------
 
     def arm(self, d: Drone) -> None:
+        """Arm `d`; returns once its autopilot reports it armed (refused: the mission says why)."""
         self._send(d, {"cmd": "arm"})
 
     def disarm(self, d: Drone) -> None:
+        """Disarm `d` (on the ground)."""
         self._send(d, {"cmd": "disarm"})
 
     def takeoff(self, d: Drone, alt: Distance = None) -> None:
+        """Take off to `alt` above home (default: the agent's takeoff altitude); returns at that height."""
         self._send(d, altitude_body("takeoff", alt))
         handle(d).anchor = None
 
     def land(self, d: Drone) -> None:
+        """Land where `d` is; returns once it is on the ground."""
         self._send(d, {"cmd": "land"})
         handle(d).anchor = None
 
     def home(self, d: Drone, alt: Distance = None) -> None:
+        """Fly `d` home (at `alt` above home, default its return altitude) and land it there."""
         self._send(d, altitude_body("return", alt))
         handle(d).anchor = None
 
     def cancel(self, d: Drone) -> None:
+        """Stop what `d` is doing (a goto, a move, a return): it holds where it is."""
         self._send(d, {"cmd": "cancel"})
 
     def turn(self, d: Drone, by: Angle = None, to: Any = None) -> None:
+        """Turn `d` in place: `by` degrees clockwise, or `to` a heading, an angle or a position to face."""
         if (by is None) == (to is None):
             raise TypeError("turn: give exactly one of by= (degrees) or to= (a direction, angle or position)")
         base = handle(d).plan_base()
@@ -196,6 +204,11 @@ class Verbs:
     def move(self, d: Drone, *, forward: Distance = 0, backward: Distance = 0, right: Distance = 0, left: Distance = 0,
              up: Distance = 0, down: Distance = 0, to: Any = None, lat: Any = None, lon: Any = None,
              alt: Any = None, yaw: Angle = None, speed: Speed = None, wait_clear: bool = False) -> None:
+        """Fly `d` relative to where it faces (`forward`, `right`, `up`, …, combined) or
+        `to` a position (or `lat`/`lon`); `alt` sets the altitude AMSL, `yaw` the heading
+        (default: keep it), `speed` the speed. Returns on arrival. A target within
+        `min_separation_m` of another drone's is refused (`conflict`); with `wait_clear`
+        the move waits for that drone to move away instead."""
         goal = move_goal("move", forward, backward, right, left, up, down, to, lat, lon)
         # Where the drone is now matters only to a relative move or one that keeps its
         # heading; an absolute one with a yaw goes at once (no wait for telemetry).
@@ -245,15 +258,20 @@ class Verbs:
     # ---- time and concurrency ------------------------------------------------------
 
     def sleep(self, duration: Duration) -> None:
+        """Wait `duration` (seconds, or `3 * s`) on the mission's clock (simulated in fast time)."""
         call(self.m, self.m.clock.sleep(units.duration(duration, "sleep")))
 
     def run(self, fn: Callable[..., Any], *args: Any) -> Subroutine:
+        """Start `fn(*args)` as a subroutine running beside the script (any verb too:
+        `run(land, d)`); returns it at once, for `wait` and `stop`."""
         if not callable(fn):
             raise TypeError(f"run: expected a function, got {fn!r}")
         assert self.m.scheduler is not None
         return self.m.scheduler.spawn(fn, *args, name=getattr(fn, "__name__", None))
 
     def wait(self, *things: Any) -> None:
+        """Wait for each thing: a subroutine to end, a drone's next telemetry, a field
+        sensor's next reading (lists too)."""
         for thing in things:
             if isinstance(thing, Drone):
                 call(self.m, self.m.next_telemetry(self._drone_id(thing)))
@@ -272,6 +290,7 @@ class Verbs:
         return field_sensors_of(self.m.station.registry.field_readings(), type, near, within)
 
     def stop(self, *subs: Subroutine) -> None:
+        """Stop these subroutines (started with `run`) and the commands they were waiting on."""
         assert self.m.scheduler is not None
         for sub in subs:
             if not isinstance(sub, Subroutine):
@@ -285,6 +304,7 @@ class Verbs:
         self.m.plugins.enable(plugin_id, inputs, self.base, self.namespace)
 
     def disable(self, plugin_id: str) -> None:
+        """Disable a plugin enabled earlier in this mission."""
         self.m.plugins.disable(plugin_id, self.namespace)
 
 
