@@ -304,7 +304,9 @@ def _add_http_clients() -> None:
     from dronefleet.mission_cli import mission
     from dronefleet.pki import pki
     from dronefleet.recording_cli import plot, record, replay
+    from dronefleet.tiles_cli import tiles
 
+    main.add_command(tiles)
     main.add_command(drone)
     main.add_command(logs)
     main.add_command(mission)

@@ -44,6 +44,7 @@ from dronefleet.bus.port import Bus
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.ground.api import create_app
 from dronefleet.ground.config import DEFAULT_CEILING_M, GroundConfig
+from dronefleet.ground.dashboard_routes import open_tile_archive
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
@@ -122,6 +123,7 @@ def exposure_warnings(config: GroundConfig) -> list[str]:
 
 async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda line: None) -> None:
     data_dir = _prepare_data_dir(config)
+    tiles = open_tile_archive(config)
     sock = _bind(config.http_host, config.http_port)
     events = EventLog(data_dir / "events.db")
     store = MissionStore(data_dir / "missions.db")
@@ -141,7 +143,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
             station.record_missions(data_dir / "missions")
             missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True)
             server = _EmbeddedServer(uvicorn.Config(
-                create_app(station, missions), log_level="warning", lifespan="on",
+                create_app(station, missions, tiles), log_level="warning", lifespan="on",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,
             ))
             out(f"fleet ground: Zenoh router on {', '.join(config.listen)}; data in {data_dir}")

@@ -32,7 +32,14 @@ from dronefleet.ground.api_error import ApiError, body_operation, text_operation
 from dronefleet.ground.api_error import error_response as _error
 from dronefleet.ground.api_error import error_specs as _errors
 from dronefleet.ground.config import ROLE_RANK, ApiToken
-from dronefleet.ground.dashboard_routes import DashboardAssets, dashboard_config, dashboard_file, index
+from dronefleet.ground.dashboard_routes import (
+    DashboardAssets,
+    TileSource,
+    dashboard_config,
+    dashboard_file,
+    index,
+    map_tile,
+)
 from dronefleet.ground.describe import Level
 from dronefleet.ground.eventlog import format_line
 from dronefleet.ground.plan_routes import (
@@ -45,6 +52,7 @@ from dronefleet.ground.plan_routes import (
 from dronefleet.ground.preflight import Preflight, PreflightUnavailable, run_preflight
 from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation
+from dronefleet.ground.tile_archive import TileArchive
 from dronefleet.mission.hosting.manager import MissionEnded, MissionManager, UnknownMission
 from dronefleet.mission.lifecycle.record import Activity, MissionLogLine, MissionRecord
 from dronefleet.mission.script.checks import first_problem
@@ -523,20 +531,23 @@ def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
     return authorize
 
 
-def create_app(station: GroundStation, missions: MissionManager) -> Litestar:
+def create_app(station: GroundStation, missions: MissionManager, tiles: TileArchive | None = None) -> Litestar:
+    """The HTTP API and the dashboard; `tiles`: the archive `dashboard.tiles` names, opened."""
     assets = DashboardAssets.load()
+    tile_source = TileSource(tiles)
     planner = Planner()
     tokens = station.config.api.all_tokens()
     return Litestar(
         [
             list_drones, drone_logs, show_drone, send_command, push_bundle, show_bundle, submit_mission, list_missions, show_mission, list_plugins,
             import_mission_plan, list_field_sensors, show_field_sensor, check_mission_script, simulate_mission, export_mission_plan,
-            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, list_grounds, ground_log, ground_missions, ground_mission,
+            cancel_mission, events, index, openapi_json, dashboard_config, dashboard_file, map_tile, list_grounds, ground_log, ground_missions, ground_mission,
         ],
         dependencies={
             "station": Provide(lambda: station, sync_to_thread=False),
             "missions": Provide(lambda: missions, sync_to_thread=False),
             "assets": Provide(lambda: assets, sync_to_thread=False),
+            "tile_source": Provide(lambda: tile_source, sync_to_thread=False),
             "planner": Provide(lambda: planner, sync_to_thread=False),
         },
         exception_handlers={HTTPException: _http_error, Exception: _internal_error},

@@ -58,14 +58,28 @@ class HeatMark(MapSpot, frozen=True, kw_only=True, forbid_unknown_fields=True):
 class DashboardSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What the web dashboard (`GET /`) draws besides the drones; it only draws these."""
 
-    tiles: str | None = None  # raster tile URL template with {z}, {x}, {y} (web mercator); none: a local metres grid
+    # Raster map tiles (web mercator): a URL template with {z}, {x}, {y}, or a PMTiles
+    # archive (a file, e.g. from `fleet tiles fetch`) that the ground serves itself, for a
+    # field with no internet; none: a local metres grid.
+    tiles: str | None = None
+    attribution: str | None = None  # the map's credit shown on it (an archive's own by default)
     ground_station: MapSpot | None = None  # where the ground stands; none: the first drone's home
     heat_sources: list[HeatMark] = msgspec.field(default_factory=list)
 
     def __post_init__(self) -> None:
-        missing = [p for p in ("{z}", "{x}", "{y}") if self.tiles is not None and p not in self.tiles]
+        if self.tiles is None or self.tiles_archive is not None:
+            return
+        missing = [p for p in ("{z}", "{x}", "{y}") if p not in self.tiles]
         if missing:
-            raise ValueError(f"dashboard.tiles must contain {', '.join(missing)} (e.g. https://tiles.example/{{z}}/{{x}}/{{y}}.png)")
+            raise ValueError(f"dashboard.tiles is a URL template with {', '.join(missing)} missing (e.g. "
+                             "https://tiles.example/{z}/{x}/{y}.png), or a .pmtiles file (`fleet tiles fetch`)")
+
+    @property
+    def tiles_archive(self) -> str | None:
+        """The PMTiles file `tiles` names (None: a URL template, or no tiles)."""
+        if self.tiles is None or "{" in self.tiles or "://" in self.tiles:
+            return None
+        return self.tiles
 
 
 DEFAULT_CEILING_M = 120.0  # geofence.max_alt_m when the configuration gives none (m above home)

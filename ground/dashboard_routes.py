@@ -1,6 +1,7 @@
 """The web dashboard's routes (SPEC §10): the files of `ground/dashboard/`, read from
-the installed package, `GET /` (or the map of the API, for a client asking for JSON)
-and `/dashboard/config.json` with what the page draws besides the drones."""
+the installed package, `GET /` (or the map of the API, for a client asking for JSON),
+`/dashboard/config.json` with what the page draws besides the drones, and `/tiles/…`
+when `dashboard.tiles` names a PMTiles archive (a field with no internet)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,10 @@ import msgspec
 from litestar import Request, Response, get
 
 from dronefleet.ground.api_error import ApiError
-from dronefleet.ground.config import HeatMark, MapSpot
+from dronefleet.ground.config import GroundConfig, HeatMark, MapSpot
 from dronefleet.ground.station import GroundStation
+from dronefleet.ground.tile_archive import TileArchive, TileArchiveError
+from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.fence import Geofence
 
 log = logging.getLogger(__name__)
@@ -53,10 +56,35 @@ class DashboardAssets:
         return Response(content, media_type=media_type, headers=_ASSET_HEADERS)
 
 
+ARCHIVE_TILES = "/tiles/{z}/{x}/{y}"
+_TILE_HEADERS = {"Cache-Control": "max-age=86400", "X-Content-Type-Options": "nosniff"}
+
+
+def open_tile_archive(config: GroundConfig) -> TileArchive | None:
+    """The archive `dashboard.tiles` names, opened; a clear error naming the key if it
+    cannot be (checked at start, not when the first page asks)."""
+    path = config.dashboard.tiles_archive
+    if path is None:
+        return None
+    try:
+        return TileArchive(PurePath(path).as_posix())
+    except TileArchiveError as exc:
+        raise ConfigError(f"dashboard.tiles: {exc}") from None
+
+
+class TileSource:
+    """The archive the ground serves tiles from, if any (a dependency of the routes)."""
+
+    def __init__(self, archive: TileArchive | None) -> None:
+        self.archive = archive
+
+
 class DashboardConfig(msgspec.Struct, frozen=True, kw_only=True):
     """GET /dashboard/config.json: what the page draws besides the drones."""
 
     tiles: str | None
+    tiles_max_zoom: int | None  # the deepest zoom the tiles exist at (an archive's; None: the server's, unknown)
+    attribution: str
     event_telemetry_ms: int
     geofence: Geofence
     ground_station: MapSpot | None
@@ -78,12 +106,27 @@ def index(request: Request[Any, Any, Any], assets: DashboardAssets) -> Response[
 
 
 @get("/dashboard/config.json", sync_to_thread=False, include_in_schema=False)
-def dashboard_config(station: GroundStation) -> DashboardConfig:
+def dashboard_config(station: GroundStation, tile_source: TileSource) -> DashboardConfig:
     c = station.config
+    archive = tile_source.archive
+    attribution = c.dashboard.attribution if c.dashboard.attribution is not None else (archive.attribution if archive else "")
     return DashboardConfig(
-        tiles=c.dashboard.tiles, event_telemetry_ms=c.event_telemetry_ms, geofence=c.geofence,
+        tiles=ARCHIVE_TILES if archive else c.dashboard.tiles, tiles_max_zoom=archive.max_zoom if archive else None,
+        attribution=attribution, event_telemetry_ms=c.event_telemetry_ms, geofence=c.geofence,
         ground_station=c.dashboard.ground_station, heat_sources=c.dashboard.heat_sources,
     )
+
+
+@get("/tiles/{z:int}/{x:int}/{y:int}", sync_to_thread=False, include_in_schema=False)
+def map_tile(tile_source: TileSource, z: int, x: int, y: int) -> Response[Any]:
+    """A tile of the archive `dashboard.tiles` names; 404 where it holds none (the page
+    then scales the nearest one it has)."""
+    archive = tile_source.archive
+    data = archive.tile(z, x, y) if archive is not None else None
+    if data is None:
+        return Response(ApiError(error=f"no map tile {z}/{x}/{y}", detail={"z": z, "x": x, "y": y}), status_code=404)
+    assert archive is not None
+    return Response(data, media_type=archive.media_type, headers=_TILE_HEADERS)
 
 
 @get("/dashboard/{name:str}", sync_to_thread=False, include_in_schema=False)

@@ -15,7 +15,7 @@ const HIT_PX = 16;
 const DRAG_PX = 4;
 const TILE_CACHE = 400;
 const TRACK_PX = 2; // a track keeps a point per this many pixels of movement on screen
-const TILE_MAX_Z = 19; // what tile servers usually have; closer than that, the z19 tiles are scaled up
+const TILE_MAX_Z = 19; // what tile servers usually have (an archive says its own); closer, the deepest tiles are scaled up
 const FIT_MAX_Z = 18; // the first view (and every fit) is no closer: tile servers holding only 15-18 still draw it
 const ANCESTORS = 5; // a missing tile is drawn from its parent, or that one's, … this many levels up
 const MIN_FIT_M = 80;
@@ -44,6 +44,10 @@ export class MapView {
     this.drawn = -1;
     this.scaleLabel = document.getElementById("scale-label");
     this.scaleBar = document.getElementById("scale-bar");
+    this.tileMaxZ = config.tiles_max_zoom ?? TILE_MAX_Z;
+    const credit = document.getElementById("attribution");
+    credit.textContent = config.tiles ? config.attribution || "" : "";
+    credit.hidden = !credit.textContent;
     this.fence = (config.geofence.polygon || []).map(([lat, lon]) => ({ lat, lon }));
     const first = this.fence[0] || config.ground_station;
     if (first) view.ensureOrigin(first.lat, first.lon);
@@ -162,7 +166,7 @@ export class MapView {
 
   _drawTiles() {
     const { ctx, view: v } = this;
-    const z = Math.max(0, Math.min(TILE_MAX_Z, Math.round(v.zoom)));
+    const z = Math.max(0, Math.min(this.tileMaxZ, Math.round(v.zoom)));
     const n = 2 ** z;
     const [x0, y0] = v.screenToPlane(0, 0);
     const [x1, y1] = v.screenToPlane(v.width, v.height);

@@ -23,6 +23,7 @@ from bench.dashboard_frames import (
     measure_frames,
     wait_for_drones,
 )
+from dronefleet.ground.tile_fetch import Box, fetch
 from dronefleet.schemas.geo import destination, distance_m
 from tests.dashboard.page import (
     EXAMPLES,
@@ -231,6 +232,45 @@ async def test_a_tile_server_holding_only_zooms_15_to_18_draws_the_first_view_an
         agent.stop()
         ground.stop()
         tiles.close()
+    assert dashboard.errors == []
+
+
+@pytest.mark.slow(15)
+async def test_with_no_internet_the_map_draws_from_an_archive_at_every_zoom_with_its_credit(
+    tmp_path: Path, dashboard: Dashboard,
+) -> None:
+    """`dashboard.tiles` naming a PMTiles archive (`fleet tiles fetch`, zooms 14-16): the
+    ground serves it, the first view draws its tiles (scaled from z16, the deepest it
+    holds), so does a view zoomed in further, and the archive's credit is on the map."""
+    lat, lon = 47.3980, 8.5455
+    server = TileServer()
+    archive = tmp_path / "field.pmtiles"
+    try:
+        fetch(server.template, Box(lat - 0.002, lon - 0.003, lat + 0.002, lon + 0.003), range(14, 17), archive,
+              attribution="© test tiles", rate_per_s=50)
+    finally:
+        server.close()
+    ground = GroundProcess(tmp_path, dashboard={"tiles": str(archive)})
+    agent = AgentProcess("drone01", ground.endpoint, tmp_path, fc=f"sim://?lat={lat}&lon={lon}&alt=8.2")
+    try:
+        await ready_at(ground, "drone01")
+        page = dashboard.page
+        asked: list[str] = []
+        page.on("request", lambda r: asked.append(r.url) if "/tiles/" in r.url or ".png" in r.url else None)
+        await dashboard.open(ground.url)
+        await expect(page.locator("#map")).to_have_attribute("data-drones", "1", timeout=UI_S * 1000)
+        drawn = "() => Number(document.querySelector('#map').dataset.tiles) > 0"
+        await page.wait_for_function(drawn, timeout=UI_S * 1000)
+        await expect(page.locator("#attribution")).to_have_text("© test tiles")
+        for _ in range(2):
+            await page.locator("#zoom-in").click()
+        assert await page.evaluate("() => window.fleetDashboard.view.zoom") > 17
+        await page.wait_for_function(drawn, timeout=UI_S * 1000)
+        assert asked and all(url.startswith(ground.url + "/tiles/") for url in asked), asked
+        assert not any(url.split("/tiles/")[1].startswith(("17/", "18/", "19/")) for url in asked), asked  # it knows z16 is the deepest
+    finally:
+        agent.stop()
+        ground.stop()
     assert dashboard.errors == []
 
 

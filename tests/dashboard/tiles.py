@@ -27,8 +27,12 @@ class TileServer:
 
     def __init__(self, zooms: range = range(0, 20)) -> None:
         """Tiles at `zooms` only (public servers stop at 19; a field server may hold 15-18):
-        elsewhere 404."""
+        elsewhere 404. A faulty server: `answers[(z, x, y)]` lists the statuses that tile
+        gets first (then 200), and after `serve_at_most` tiles every answer is 503."""
         self.requested: list[tuple[int, int, int]] = []
+        self.answers: dict[tuple[int, int, int], list[int]] = {}
+        self.serve_at_most: int | None = None
+        self.served = 0
         tiles = {0: png((222, 226, 214)), 1: png((206, 214, 196))}
         server = self
 
@@ -43,6 +47,14 @@ class TileServer:
                 if z not in zooms:
                     self.send_error(404)
                     return
+                first = server.answers.get((z, x, y))
+                if first:
+                    self.send_error(first.pop(0))
+                    return
+                if server.serve_at_most is not None and server.served >= server.serve_at_most:
+                    self.send_error(503)
+                    return
+                server.served += 1
                 body = tiles[(x + y) % 2]
                 self.send_response(200)
                 self.send_header("Content-Type", "image/png")
