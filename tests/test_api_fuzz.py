@@ -57,7 +57,7 @@ async def _registered(ground: GroundProcess) -> None:
         await wait_state(http, "drone01", "ready", 30)
 
 
-@pytest.mark.slow(35)
+@pytest.mark.slow(50)
 @pytest.mark.timeout(600)
 def test_generated_requests_never_5xx_and_always_match_the_schema(ground: GroundProcess) -> None:
     loaded = schemathesis.openapi.from_url(f"{ground.url}/openapi.json", wait_for_schema=10)

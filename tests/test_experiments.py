@@ -206,6 +206,7 @@ async def test_replacement_plugin_swaps_at_the_first_sample_past_the_threshold()
 # ---- a field gas alarm (issue 35) ----------------------------------------------------
 
 
+@pytest.mark.slow(15)
 async def test_gas_alarm_sends_the_nearest_gas_survey_drone_and_an_auxiliary_relay(tmp_path: Path) -> None:
     """examples/gas_alarm.py: the field sensor's alarm picks drone02 (drone01 is nearer
     but has no gas sensor), the relay is an auxiliary drone, the ring's strongest

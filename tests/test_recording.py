@@ -185,6 +185,7 @@ def comparable(view: dict[str, Any]) -> dict[str, Any]:
 
 
 @pytest.mark.integration
+@pytest.mark.slow(12)
 async def test_record_a_sim_flight_then_replay_it_into_a_fresh_ground(tmp_path: Path) -> None:
     """`fleet record` beside a ground flying a mission; Ctrl-C leaves a valid file; the
     ground's own mission recording holds the commands; `fleet replay` gives a fresh

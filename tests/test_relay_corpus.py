@@ -83,7 +83,7 @@ def test_corpus_worlds_never_fail_through_a_relay(seed: int) -> None:
     assert not math.isnan(o.longest_gap_s), world.describe()
 
 
-@pytest.mark.slow(8)
+@pytest.mark.slow(15)
 @pytest.mark.parametrize("seed", [6, 12, 13, 25])
 def test_chain_mode_measures_the_radio_and_keeps_the_worker_heard(seed: int) -> None:
     """Issue 32 items 1 and 3 on four corpus worlds whose spares suffice (radios 69/95,
@@ -105,7 +105,7 @@ def test_chain_mode_measures_the_radio_and_keeps_the_worker_heard(seed: int) -> 
     assert learnt <= world.radio.good_m + 0.15 * (world.radio.lost_m - world.radio.good_m), (learnt, world.describe())
 
 
-@pytest.mark.slow(10)
+@pytest.mark.slow(45)  # of one core, ten drones: 23 CPU-seconds
 def test_chain_mode_proves_its_own_hop_past_a_ring_of_spares() -> None:
     """On a radio of 56/107 m with three workers and seven spares in a ring around the
     laptop, the probe's answers came over its own link, so a clean window proves its own
@@ -124,7 +124,7 @@ def test_chain_mode_proves_its_own_hop_past_a_ring_of_spares() -> None:
     assert o.separation_m >= rc.MIN_SEPARATION_M, f"{world.describe()}: {o.separation_m:.1f} m"
 
 
-@pytest.mark.slow(8)
+@pytest.mark.slow(12)
 def test_a_relay_that_cannot_arm_is_replaced_and_not_sent_again_and_again() -> None:
     """Issue 32 item 2: a relay's failure is the plugin's problem. World 6's first spare
     is denied arming by its autopilot (after the ground saw it healthy, so it is
@@ -171,6 +171,7 @@ def test_chain_mode_where_the_spares_do_not_suffice_holds_then_names_the_relays_
     assert o.longest_gap_s < 5.0, o  # held in reach: never the 30 s of link_lost
 
 
+@pytest.mark.slow(12)
 def test_a_goto_held_short_of_a_lower_goal_keeps_its_level_until_the_last_leg(monkeypatch: pytest.MonkeyPatch) -> None:
     """A worker's goto home (at field level) was held 65 m short; the leg
     to the edge went down to the ground, where the drone could go no further, and the
