@@ -135,6 +135,7 @@ class LingerOff:
         self.settle_s = settle_s
         self.turned = 0
         self._seen: dict[int, float] = {}
+        self._sweeping = threading.Lock()  # the thread's sweeps and a caller's own
         self._thread = threading.Thread(target=self._run, name="linger-off", daemon=True)
 
     @classmethod
@@ -147,13 +148,14 @@ class LingerOff:
             return cls._started
 
     def sweep(self) -> int:
-        turned = linger_off(self._seen, time.monotonic(), self.settle_s)
-        self.turned += turned
-        return turned
+        with self._sweeping:
+            turned = linger_off(self._seen, time.monotonic(), self.settle_s)
+            self.turned += turned
+            return turned
 
     def _run(self) -> None:
-        stop = threading.Event()
-        while not stop.wait(self.period_s):
+        while True:
+            time.sleep(self.period_s)
             try:
                 self.sweep()
             except OSError as exc:  # /proc unreadable: say so once and stop
