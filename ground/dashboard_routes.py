@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import logging
 from importlib import resources
-from pathlib import PurePath
+from pathlib import Path, PurePath
 from typing import Any
 
 import msgspec
@@ -67,7 +67,7 @@ def open_tile_archive(config: GroundConfig) -> TileArchive | None:
     if path is None:
         return None
     try:
-        return TileArchive(PurePath(path).as_posix())
+        return TileArchive(Path(path).expanduser())  # relative: to where the ground was started
     except TileArchiveError as exc:
         raise ConfigError(f"dashboard.tiles: {exc}") from None
 
