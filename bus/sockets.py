@@ -55,15 +55,11 @@ def shutdown_tcp_to(host: str, port: int) -> int:
     """Shut down (both ways) this process's TCP connections to host:port; how many."""
     wanted = connection_inodes(host, port)
     done = 0
-    for fd_path in Path("/proc/self/fd").iterdir():
-        try:
-            target = os.readlink(fd_path)
-        except OSError:
-            continue  # closed meanwhile
-        if not target.startswith("socket:[") or int(target[8:-1]) not in wanted:
+    for inode, fd in _socket_inodes().items():
+        if inode not in wanted:
             continue
         try:
-            dup = os.dup(int(fd_path.name))
+            dup = os.dup(fd)
         except OSError:
             continue
         with socket.socket(fileno=dup) as s:  # closes the duplicate only; the connection is shut down
@@ -73,10 +69,6 @@ def shutdown_tcp_to(host: str, port: int) -> int:
             except OSError:
                 pass
     return done
-
-
-_LINGER = struct.Struct("ii")  # struct linger {int l_onoff; int l_linger;}
-_LINGER_OFF = _LINGER.pack(0, 0)
 
 
 def _socket_inodes() -> dict[int, int]:
@@ -90,6 +82,10 @@ def _socket_inodes() -> dict[int, int]:
         if target.startswith("socket:["):
             found[int(target[8:-1])] = int(name)
     return found
+
+
+_LINGER = struct.Struct("ii")  # struct linger {int l_onoff; int l_linger;}
+_LINGER_OFF = _LINGER.pack(0, 0)
 
 
 def linger_off(seen: dict[int, float], now_s: float, settle_s: float) -> int:

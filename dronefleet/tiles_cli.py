@@ -34,10 +34,11 @@ def fetch_tiles(bbox: str, zoom: str, template: str, out: Path, attribution: str
     (Ctrl-C, a server error, the connection gone), it keeps what it has in OUT.part:
     the same command goes on from there.
     """
+    from dronefleet.ground.config import missing_placeholders
     from dronefleet.ground.tile_archive import TileArchiveError
     from dronefleet.ground.tile_fetch import TYPICAL_TILE_BYTES, Box, FetchError, fetch, parse_zooms, tiles_of
 
-    if not all(p in template for p in ("{z}", "{x}", "{y}")):
+    if missing_placeholders(template):
         fail(f"--url must contain {{z}}, {{x}} and {{y}}, e.g. https://tiles.example/{{z}}/{{x}}/{{y}}.png (got {template})", 2)
     try:
         box, zooms = Box.parse(bbox), parse_zooms(zoom)

@@ -485,15 +485,6 @@ def _who(request: Request[Any, Any, Any]) -> str | None:
 _COMMANDING = re.compile(r"POST /drone/[^/]+/(cmd|bundle)|POST /mission|DELETE /mission/[^/]+")
 
 
-class StandbyError(msgspec.Struct, frozen=True, kw_only=True):
-    """SPEC §14: what a standby ground (503) or an observer (403, it never commands)
-    answers a command, a push or a mission submission."""
-
-    error: Literal["standby", "observer"] = "standby"
-    active: str  # the active ground's id ("" while none is)
-    http: str  # where its API answers ("" unknown)
-
-
 def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
     by_token = {t.token: t for t in tokens}
 
@@ -503,9 +494,7 @@ def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
             return refused
         refusal = station.standby() if _COMMANDING.fullmatch(f"{request.method} {request.url.path}") else None
         if refusal is not None:  # everything stays visible; only the active ground commands
-            observer = refusal["error"] == "observer"
-            return Response(StandbyError(error="observer" if observer else "standby", active=refusal["active"],
-                                         http=refusal["http"]), status_code=403 if observer else 503)
+            return Response(refusal, status_code=refusal.status)
         return None
 
     async def _check_token(request: Request[Any, Any, Any]) -> Response[ApiError] | None:

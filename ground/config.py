@@ -55,6 +55,11 @@ class HeatMark(MapSpot, frozen=True, kw_only=True, forbid_unknown_fields=True):
     temp: float | None = None  # °C at the centre
 
 
+def missing_placeholders(template: str) -> list[str]:
+    """Which of {z}, {x}, {y} a tile URL template lacks."""
+    return [p for p in ("{z}", "{x}", "{y}") if p not in template]
+
+
 class DashboardSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """What the web dashboard (`GET /`) draws besides the drones; it only draws these."""
 
@@ -69,7 +74,7 @@ class DashboardSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknow
     def __post_init__(self) -> None:
         if self.tiles is None or self.tiles_archive is not None:
             return
-        missing = [p for p in ("{z}", "{x}", "{y}") if p not in self.tiles]
+        missing = missing_placeholders(self.tiles)
         if missing:
             raise ValueError(f"dashboard.tiles is a URL template with {', '.join(missing)} missing (e.g. "
                              "https://tiles.example/{z}/{x}/{y}.png), or a .pmtiles file (`fleet tiles fetch`)")

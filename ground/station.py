@@ -57,7 +57,7 @@ from dronefleet.schemas.commands import Command, CommandReply, decode_command, n
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
-from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround, GroundInfo
+from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround, GroundInfo, StandbyError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
@@ -185,23 +185,21 @@ class GroundStation:
             self.log_ground("warn", f"Ground {me} is standby ({active.ground_id if active else 'no ground'} "
                                     f"is active): {change.why}")
 
-    def standby(self) -> dict[str, str] | None:
-        """None while this ground is active; else who is (SPEC §14's refusal body:
-        `standby`, or `observer` for a ground that never commands)."""
+    def standby(self) -> StandbyError | None:
+        """None while this ground is active; else SPEC §14's refusal, naming who is."""
         if self.peers.active:
             return None
         active = self.peers.active_ground()
-        return {"error": "observer" if self.config.role == "observer" else "standby",
-                "active": active.ground_id if active else "", "http": active.http if active else ""}
+        return StandbyError(error="observer" if self.config.role == "observer" else "standby",
+                            active=active.ground_id if active else "", http=active.http if active else "")
 
     def _check_active(self) -> None:
         refusal = self.standby()
         if refusal is not None:
-            observer = refusal["error"] == "observer"
-            raise CommandRejected(403 if observer else 503,
-                                  f"this ground is {'an observer' if observer else 'standby'}: "
-                                  f"{refusal['active'] or 'no ground'} is active"
-                                  + (f" ({refusal['http']})" if refusal["http"] else ""), code=refusal["error"])
+            raise CommandRejected(refusal.status,
+                                  f"this ground is {'an observer' if refusal.error == 'observer' else 'standby'}: "
+                                  f"{refusal.active or 'no ground'} is active"
+                                  + (f" ({refusal.http})" if refusal.http else ""), code=refusal.error)
 
     def log_ground(self, level: str, message: str) -> None:
         """A line about the ground itself (no drone)."""

@@ -100,16 +100,17 @@ def write_archive(path: Path, tiles: Iterable[tuple[int, int, int, bytes]], boun
     """Write `tiles` (z, x, y, bytes; one image type) as a PMTiles archive at `path`,
     whole or not at all (written beside it, then renamed). `bounds` are S, W, N, E.
     Returns how many tiles it holds."""
-    entries = sorted(((zxy_to_tileid(z, x, y), data) for z, x, y, data in tiles), key=lambda e: e[0])
-    if not entries:
+    listed = list(tiles)
+    if not listed:
         raise TileArchiveError("no tiles to write")
+    entries = sorted(((zxy_to_tileid(z, x, y), data) for z, x, y, data in listed), key=lambda e: e[0])
+    zooms = [z for z, _, _, _ in listed]
     south, west, north, east = bounds
     scratch = path.with_name(path.name + ".writing")
     with open(scratch, "wb") as f:
         writer = Writer(f)
         for tile_id, data in entries:
             writer.write_tile(tile_id, data)
-        zooms = [_zoom(tile_id) for tile_id, _ in entries]
         writer.finalize({
             "tile_type": tile_type_of(entries[0][1]), "tile_compression": Compression.NONE,
             "min_lon_e7": round(west * 1e7), "min_lat_e7": round(south * 1e7),
@@ -120,7 +121,3 @@ def write_archive(path: Path, tiles: Iterable[tuple[int, int, int, bytes]], boun
     scratch.replace(path)
     return len(entries)
 
-
-def _zoom(tile_id: int) -> int:
-    from pmtiles.tile import tileid_to_zxy
-    return int(tileid_to_zxy(tile_id)[0])

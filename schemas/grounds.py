@@ -23,6 +23,20 @@ class GroundInfo(msgspec.Struct, frozen=True, kw_only=True):
     epoch_held: int = 0  # the highest epoch it held itself: one holding ours too makes ours ambiguous
 
 
+class StandbyError(msgspec.Struct, frozen=True, kw_only=True):
+    """What a ground that does not command answers a command, a push or a mission
+    submission: `standby` (503) or `observer` (403, it never commands), naming the
+    active ground and where its API answers ("" while none is or it is unknown)."""
+
+    error: Literal["standby", "observer"] = "standby"
+    active: str
+    http: str
+
+    @property
+    def status(self) -> int:
+        return 403 if self.error == "observer" else 503
+
+
 class GroundLogLine(msgspec.Struct, frozen=True, kw_only=True):
     """One line of a ground's event log on `ground/<id>/log`, numbered as in that log."""
 
