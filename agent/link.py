@@ -29,10 +29,12 @@ RTT_GOOD_MS = 50.0  # RTTs up to this cost nothing
 RTT_BAD_MS = 1000.0  # an RTT this long scores zero
 # A hop losing this share of its packets has no use left: quality 0, and 0.5 at half
 # of it. On a reliable transport a lost packet costs a retransmission (200 ms, then
-# doubling), and at 10 % loss telemetry already shows gaps over a second (ADR 0003);
-# from 20 % on, the link is lost within seconds.
-LOSS_UNUSABLE = 0.2
-TRAIN = 50  # datagrams per probe to the ground's echo (1 KB/s), spread over most of the period
+# doubling): at 10 % loss telemetry at 5 Hz already shows gaps over a second, and a
+# relay chain trusts a hop only up to 5 % (relay/chain.py PROVEN_LOSS), where the
+# ground starts to warn "link degraded" (ADR 0003).
+LOSS_UNUSABLE = 0.1
+TRAIN = 50  # datagrams per probe to the ground's echo (1 KB/s)
+TRAIN_SPREAD = 0.3  # the share of a period a train is spread over: the report is about its middle
 DELIVERY_TRAINS = 1  # trains that the loss to the ground covers: the last one (50 datagrams)
 
 LostLinkAction = Literal["hold", "return", "land", "continue"]

@@ -24,7 +24,7 @@ from collections.abc import Callable
 
 import msgspec
 
-from dronefleet.agent.link import DELIVERY_TRAINS, TRAIN, WINDOW, DeliveryWindow, LinkSummary, LinkWindow
+from dronefleet.agent.link import DELIVERY_TRAINS, TRAIN, TRAIN_SPREAD, WINDOW, DeliveryWindow, LinkSummary, LinkWindow
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.datagram_echo import EchoPort
 from dronefleet.bus.mesh_policy import RETRANSMITTED_MS
@@ -62,6 +62,7 @@ class LinkProber:
         self.neighbours: set[str] = set()
         self._seq = 0
         self._ground_sent: float | None = None  # when the probe to the ground now out went
+        self._ground_path: tuple[bool | None, int | None] = (None, None)  # last ground probe: over one link, hops
 
     def ground_overdue(self, now: float) -> bool:
         """The probe to the ground now out has waited longer than a clean round trip
@@ -93,14 +94,13 @@ class LinkProber:
 
     async def probe_all(self) -> None:
         peers = [GROUND_PEER, *sorted(self.neighbours)]
-        train = asyncio.ensure_future(self._train()) if self.echo is not None else None
+        ground = asyncio.ensure_future(self._report_ground()) if self.echo is not None else None
         try:
             outcomes = await asyncio.gather(*(self._probe(peer) for peer in peers))
         except BaseException:
-            if train is not None:
-                train.cancel()
+            if ground is not None:
+                ground.cancel()
             raise
-        ground: tuple[LinkWindow, bool | None, int | None] | None = None
         for peer, (rtt, direct) in zip(peers, outcomes, strict=True):
             window = self.windows[peer]
             window.add(rtt)
@@ -108,14 +108,24 @@ class LinkProber:
             linked.append((rtt is not None, direct))
             answers = [d for answered, d in linked if answered]
             hops = None if not answers or None in answers else (1 if all(answers) else 2)
-            if peer == GROUND_PEER and train is not None:
-                ground = (window, direct, hops)  # reported once its datagrams are back
-            else:
+            if peer == GROUND_PEER:
+                self._ground_path = (direct, hops)
+            if peer != GROUND_PEER or ground is None:
                 self._report(peer, window.summary(), hops)
-        if train is not None and ground is not None:
-            self.delivery.add(await train)
-            window, direct, hops = ground
-            self._report(GROUND_PEER, self._ground_summary(window, direct), hops)
+        if ground is not None:
+            await ground
+
+    async def _report_ground(self) -> None:
+        """The ground's report, as soon as its train is back: a Zenoh probe that a lossy
+        hop retransmits does not hold it back, since the report then says least late
+        what the hop does. Its path is the last probe answered (this one's, when it
+        came back first, as it does on a clean hop)."""
+        self.delivery.add(await self._train())
+        direct, hops = self._ground_path
+        window = self.windows[GROUND_PEER]
+        if not self.delivery.echoed and not window.outcomes():
+            return  # nothing known yet: the first probe is still out and no echo came back
+        self._report(GROUND_PEER, self._ground_summary(window, direct), hops)
 
     def _report(self, peer: str, s: LinkSummary, hops: int | None) -> None:
         quality = LinkQuality(
@@ -128,10 +138,11 @@ class LinkProber:
             log.debug("%s: link quality not published: %s", self.drone_id, exc)
 
     async def _train(self) -> list[float | None]:
-        """One train to the ground's echo, spread over 60 % of a period and answered
-        within 30 % more: what the report says is at most a period old."""
+        """One train to the ground's echo, spread over TRAIN_SPREAD of a period and
+        answered within a few round trips (at most 30 % of a period more): what the
+        report says is a few tenths of a second old (ADR 0003)."""
         assert self.echo is not None
-        spacing_s = self.period_s * 0.6 / TRAIN
+        spacing_s = self.period_s * TRAIN_SPREAD / TRAIN
         try:
             return await self.echo.train(TRAIN, spacing_s, timeout_s=self.period_s * 0.3)
         except OSError as exc:  # no route at all: every datagram lost

@@ -36,12 +36,26 @@ MAGIC = b"FLEET-ECHO\x01"
 MAX_DATAGRAM = 64
 _SEQ = struct.Struct("!Q")
 STOP_POLL_S = 0.2  # how soon an echo thread sees that it is to stop
+# After its last datagram a train waits for the echoes still out this many times the
+# slowest round trip it has seen, at least SETTLE_MIN_S: a lost datagram is not waited
+# for a whole period, which would make every report that much older (ADR 0003).
+SETTLE_RTTS = 4
+SETTLE_MIN_S = 0.05
+
+
+def settle_s(answered_s: Sequence[float], timeout_s: float) -> float:
+    """How long a train waits after its last datagram, given the round trips (s)
+    answered so far: `timeout_s` when none is, else a few of the slowest, bounded."""
+    if not answered_s:
+        return timeout_s
+    return min(timeout_s, max(SETTLE_MIN_S, SETTLE_RTTS * max(answered_s)))
 
 
 class EchoPort(Protocol):
     async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
         """Send `count` datagrams `spacing_s` apart; each one's round trip in ms, or None
-        if its echo did not come back within `timeout_s` of the last one sent."""
+        if its echo did not come back in time: within `settle_s` of the last one sent,
+        `timeout_s` at most."""
         ...
 
     def close(self) -> None: ...
@@ -124,8 +138,9 @@ class UdpEcho:
                 except OSError:  # no route right now: lost
                     pass
             sent.append((self._seq, at, future))
+        answered = [f.result() - at for _, at, f in sent if f.done()]
         try:
-            await asyncio.wait([f for _, _, f in sent], timeout=timeout_s)
+            await asyncio.wait([f for _, _, f in sent], timeout=settle_s(answered, timeout_s))
         finally:
             for seq, _, _ in sent:
                 self._protocol.waiting.pop(seq, None)

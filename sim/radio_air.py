@@ -28,6 +28,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from dronefleet.bus.clock import VirtualClock
+from dronefleet.bus.datagram_echo import settle_s
 from dronefleet.bus.mesh_policy import HELD_WINDOW, GroundView, NeedWatch, choose, futile
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
@@ -260,7 +261,7 @@ class AirEcho:
             back = None if out is None else self.air.datagram(GROUND, self.node)
             rtts.append(None if out is None or back is None else (out + back) * 1000.0)
         answered = [r / 1000.0 for r in rtts if r is not None]
-        await self.air.sleep(spread_s / 2 + (max(answered) if len(answered) == count else timeout_s))
+        await self.air.sleep(spread_s / 2 + (max(answered) if len(answered) == count else settle_s(answered, timeout_s)))
         return rtts
 
     def close(self) -> None:

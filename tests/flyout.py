@@ -76,8 +76,14 @@ class Flyout:
 
 
 def _distance(track: list[tuple[float, dict[str, Any]]], t: float) -> float:
-    p = min(track, key=lambda tp: abs(tp[0] - t))[1]
-    return distance_m(GROUND[0], GROUND[1], p["lat"], p["lon"])
+    """How far out the drone was at `t`: between the two samples of its track around
+    it, in proportion (fast time samples a drone at 5 m/s every 5 m)."""
+    out = [(at, distance_m(GROUND[0], GROUND[1], p["lat"], p["lon"])) for at, p in track]
+    after = next((i for i, (at, _) in enumerate(out) if at >= t), None)
+    if after is None or after == 0:
+        return out[-1 if after is None else 0][1]
+    (t0, d0), (t1, d1) = out[after - 1], out[after]
+    return d0 + (d1 - d0) * (t - t0) / (t1 - t0) if t1 > t0 else d1
 
 
 def _flyout(said: list[tuple[float, str, dict[str, Any]]], lost_at: float | None) -> Flyout:

@@ -13,6 +13,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from dronefleet.agent.link import LOSS_UNUSABLE
 from dronefleet.sim.radio import RadioModel
 from dronefleet.sim.radio_net import has_net_admin
 from tests.flyout import ALT_M, fast_flyout, real_flyout
@@ -22,8 +23,8 @@ WARNED_S = 3.0  # quality under 0.5 at least this long before the ground loses t
 # world: within a fifth of the radio's unstable band of the fast-time seeds' range.
 AGREE_SHARE = 0.2
 CROSSING_S = 6.0
-WARN_LOSS = 0.15  # the hop loses this share: quality 0.5 is at half of it ...
-WARN_WITHIN_S = 2.0  # ... and the warning may come this long after
+WARN_LOSS = LOSS_UNUSABLE  # the hop loses twice the loss that scores 0.5 ...
+WARN_WITHIN_S = 1.5  # ... and the warning may come this long after
 
 
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -32,8 +33,7 @@ async def test_quality_warns_while_the_hop_still_carries_and_never_on_a_clean_ho
     good_m: float, band: float, speed_mps: float, seed: int,
 ) -> None:
     """In fast time, over random radios, speeds and seeds: the first report under 0.5
-    comes within WARN_WITHIN_S (two probe periods: one the window's, one the
-    report's) of the hop's loss passing WARN_LOSS, and none while it loses nothing.
+    comes within WARN_WITHIN_S (a probe period, and the age of its train) of the hop's loss passing WARN_LOSS, and none while it loses nothing.
     (When the ground loses the drone is the fast-time radio's model of Zenoh's lease,
     harsher than real packets: on the emulated radio the link held to 90 % loss and
     more. The 3 s warning is judged there, below and in bench/link_flyout.py.)"""
