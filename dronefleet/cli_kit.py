@@ -22,7 +22,7 @@ SERVICES = frozenset({"agent", "ground", "sim", "demo", "sensor"})
 # The extra (pyproject.toml) that brings each optional library.
 EXTRA_OF = {"zenoh": "agent", "mavsdk": "agent", "litestar": "ground", "uvicorn": "ground", "httpx": "ground",
             "greenlet": "ground", "mcap": "ground", "pmtiles": "ground", "mercantile": "ground", "pymavlink": "sim",
-            "matplotlib": "plots"}
+            "matplotlib": "plots", "numpy": "plots"}
 LIBRARIES = ("zenoh", "httpx", "httpcore", "matplotlib", "asyncio", "mavsdk", "grpc", "uvicorn")
 
 

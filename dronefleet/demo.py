@@ -40,7 +40,7 @@ from dronefleet import examples
 from dronefleet.bus.port import Bus, Sample
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.compose import run_ground
-from dronefleet.ground.config import GroundConfig
+from dronefleet.ground.config import DashboardSettings, GroundConfig
 from dronefleet.mission.hosting.simulate import add_field_reading, telemetry_sample
 from dronefleet.mission_cli import PREFLIGHT_WAIT_S, outcome, preflight_summary
 from dronefleet.schemas.codec import decode_sensor, decode_telemetry
@@ -57,6 +57,7 @@ from dronefleet.sim.world import DroneSpec, World, load_world
 DEFAULT_WORLD = examples.WORLDS / "fire.yml"
 SCRIPT = examples.DIR / "fire_tracing.py"
 
+MAP_ZOOMS = range(15, 20)  # the demo's map: the field in one tile at 15, 0.3 m a pixel at 19
 TELEMETRY_RATE_MS = 200  # the agents' telemetry period, also the recorder's sampling period
 POLL_S = 0.5  # mission record and drone states
 STATUS_EVERY_S = 5.0
@@ -127,6 +128,16 @@ class Demo:
         self._broken: asyncio.Future[tuple[str, BaseException | None]] | None = None
         self._stopping = False
 
+    def _draw_map(self) -> Path:
+        """The world's field as map tiles in OUT/map.pmtiles (`fleet tiles render`), so the
+        dashboard and the planner draw the field under the drones with no tile server."""
+        from dronefleet.tiles_cli import write_world_map
+
+        out = self.options.out_dir / "map.pmtiles"
+        count = write_world_map(self.options.world, out, MAP_ZOOMS)
+        self.out(f"map: {out}, {count} tiles drawn from the world (zooms {MAP_ZOOMS.start}-{MAP_ZOOMS.stop - 1})")
+        return out
+
     # ---- the run ----------------------------------------------------------------------
 
     async def run(self) -> int:
@@ -149,8 +160,10 @@ class Demo:
         with tempfile.TemporaryDirectory(prefix="fleet-demo-") as data_dir:
             # The demo's missions last minutes; its world's heat and gas are not in the copy
             # a preflight flies (the live fleet), so one that searches for them runs to the bound.
+            map_file = await asyncio.to_thread(self._draw_map)
             config = GroundConfig(listen=[self.listen], http_port=self.options.http_port, data_dir=data_dir,
-                                  mission=MissionSettings(preflight_max_s=DEMO_PREFLIGHT_S))
+                                  mission=MissionSettings(preflight_max_s=DEMO_PREFLIGHT_S),
+                                  dashboard=DashboardSettings(tiles=str(map_file)))
             self._background(run_ground(config, self.out), "the ground")
             body: asyncio.Task[int] | None = None
             try:

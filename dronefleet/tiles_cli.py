@@ -36,7 +36,8 @@ def fetch_tiles(bbox: str, zoom: str, template: str, out: Path, attribution: str
     """
     from dronefleet.ground.config import missing_placeholders
     from dronefleet.ground.tile_archive import TileArchiveError
-    from dronefleet.ground.tile_fetch import TYPICAL_TILE_BYTES, Box, FetchError, fetch, parse_zooms, tiles_of
+    from dronefleet.ground.tile_fetch import TYPICAL_TILE_BYTES, FetchError, fetch, parse_zooms, tiles_of
+    from dronefleet.schemas.geo import Box
 
     if missing_placeholders(template):
         fail(f"--url must contain {{z}}, {{x}} and {{y}}, e.g. https://tiles.example/{{z}}/{{x}}/{{y}}.png (got {template})", 2)
@@ -55,6 +56,45 @@ def fetch_tiles(bbox: str, zoom: str, template: str, out: Path, attribution: str
         fail(str(exc))
     click.echo(f"wrote {out}: {done.tiles} tiles ({out.stat().st_size / 1e6:.1f} MB), {done.missing} the server "
                f"does not have; {done.requested} requested in this run")
+
+
+@tiles.command("render")
+@click.argument("world_file", metavar="WORLD", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="The archive to write (.pmtiles).")
+@click.option("--zoom", "zoom", default="15-19", show_default=True, help="Zooms to draw, FIRST-LAST.")
+@click.option("--margin", "margin_m", type=click.FloatRange(min=0, max=5000), default=150.0, show_default=True,
+              help="Metres of map beyond the world's drones, sources and laptop.")
+def render_tiles(world_file: Path, out: Path, zoom: str, margin_m: float) -> None:
+    """Draw a world's field as a map archive, with no internet and no tile server.
+
+    The map shows what the world file knows (its heat sources and the 40 °C ring, its
+    other fields' areas, a line every 50 m from the laptop) on a plain ground colour:
+    `fleet demo` draws one for its world, and `dashboard.tiles: OUT` shows it.
+    """
+    from dronefleet.ground.tile_fetch import parse_zooms
+
+    try:
+        zooms = parse_zooms(zoom)
+    except ValueError as exc:
+        fail(str(exc), 2)
+    count = write_world_map(world_file, out, zooms, margin_m)
+    click.echo(f"wrote {out}: {count} tiles at zooms {zooms.start}-{zooms.stop - 1} ({out.stat().st_size / 1e6:.2f} MB)")
+
+
+def write_world_map(world_file: Path, out: Path, zooms: range, margin_m: float = 150.0) -> int:
+    """`fleet tiles render`: the world's map as a PMTiles archive at `out`; how many tiles."""
+    from dronefleet.ground.tile_archive import TileArchiveError, write_archive
+    from dronefleet.schemas.errors import FleetError
+    from dronefleet.sim.map_tiles import render, world_box
+    from dronefleet.sim.world import load_world
+
+    world = load_world(world_file)  # a ConfigError names the key
+    box = world_box(world, margin_m)
+    try:
+        return write_archive(out, render(world, zooms, box), (box.south, box.west, box.north, box.east),
+                             {"attribution": f"Fleet: drawn from {world_file.name} (no imagery)", "source": str(world_file)})
+    except TileArchiveError as exc:
+        raise FleetError(f"{out}: {exc}") from None
 
 
 @tiles.command("info")

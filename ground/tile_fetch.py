@@ -21,6 +21,7 @@ import httpx
 import mercantile
 
 from dronefleet.ground.tile_archive import write_archive
+from dronefleet.schemas.geo import Box
 
 USER_AGENT = "Fleet tile fetch (offline maps for a drone field; https://pypi.org/project/dronefleet/)"
 TYPICAL_TILE_BYTES = 20_000  # a raster map tile, for the estimate before a fetch starts
@@ -30,25 +31,6 @@ RETRY_PAUSE_S = 1.0  # the first pause before asking again; doubled each time
 class FetchError(Exception):
     """The fetch stopped (the message names the tile, its URL and what the server said);
     what it had is kept for the next run."""
-
-
-@dataclass(frozen=True)
-class Box:
-    south: float
-    west: float
-    north: float
-    east: float
-
-    @classmethod
-    def parse(cls, text: str) -> Box:
-        """`S,W,N,E` in degrees."""
-        try:
-            s, w, n, e = (float(v) for v in text.split(","))
-        except ValueError:
-            raise ValueError(f"--bbox takes S,W,N,E in degrees (e.g. 40.63,-8.67,40.65,-8.65), not {text!r}") from None
-        if not (-85.06 <= s < n <= 85.06 and -180 <= w < e <= 180):
-            raise ValueError(f"--bbox {text}: south below north, west below east, within ±85° and ±180°")
-        return cls(s, w, n, e)
 
 
 def parse_zooms(text: str) -> range:

@@ -8,6 +8,7 @@ share. Pure functions; distances in metres, angles in degrees, 0 = north, clockw
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 EARTH_RADIUS_M = 6_371_000.0
 
@@ -62,3 +63,24 @@ def offset_body(
     if dist == 0:
         return lat, lon
     return destination(lat, lon, dist, heading + math.degrees(math.atan2(right_m, forward_m)))
+
+
+@dataclass(frozen=True)
+class Box:
+    """A box of the map: S, W, N, E in degrees."""
+
+    south: float
+    west: float
+    north: float
+    east: float
+
+    @classmethod
+    def parse(cls, text: str) -> Box:
+        """`S,W,N,E` in degrees."""
+        try:
+            s, w, n, e = (float(v) for v in text.split(","))
+        except ValueError:
+            raise ValueError(f"--bbox takes S,W,N,E in degrees (e.g. 40.63,-8.67,40.65,-8.65), not {text!r}") from None
+        if not (-85.06 <= s < n <= 85.06 and -180 <= w < e <= 180):
+            raise ValueError(f"--bbox {text}: south below north, west below east, within ±85° and ±180°")
+        return cls(s, w, n, e)

@@ -20,8 +20,10 @@ import sys
 import time
 from pathlib import Path
 
+import mercantile
 import pytest
 
+from dronefleet.ground.tile_archive import TileArchive
 from tests.ports import free_port
 
 pytestmark = pytest.mark.integration
@@ -85,6 +87,16 @@ def check_demo(stdout: str, out: Path, zenoh_port: int, http_port: int) -> None:
     assert "tracing the 40 °C perimeter" in stdout
     assert "mission m1 finished: success" in stdout
     assert "drone01 active |" in stdout  # the periodic status line
+    # The dashboard's map: the world drawn as tiles in OUT (no tile server, no internet).
+    assert f"map: {out / 'map.pmtiles'}" in stdout
+    archive = TileArchive(out / "map.pmtiles")
+    try:
+        south, west, north, east = archive.summary()["bounds"]
+        assert (archive.min_zoom, archive.max_zoom) == (15, 19)
+        spawn = mercantile.tile(-8.660815, 40.633490, 19)  # the fire world's drone01
+        assert south < 40.633490 < north and west < -8.660815 < east and archive.tile(19, spawn.x, spawn.y)
+    finally:
+        archive.close()
     for name in (*PLOTS, "result.json", "ground.log", "logs/drone01.log"):
         assert (out / name).stat().st_size > 0, name
 

@@ -6,6 +6,7 @@ again and then named; the ground serves the archive's tiles and refuses a bad
 
 from __future__ import annotations
 
+import io
 import json
 import subprocess
 import sys
@@ -15,13 +16,15 @@ from pathlib import Path
 import httpx
 import mercantile
 import pytest
+from matplotlib import image
 
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.dashboard_routes import open_tile_archive
 from dronefleet.ground.tile_archive import TileArchive
-from dronefleet.ground.tile_fetch import Box, FetchError, fetch, parse_zooms, tiles_of
+from dronefleet.ground.tile_fetch import FetchError, fetch, parse_zooms, tiles_of
 from dronefleet.schemas.config import load_config
 from dronefleet.schemas.errors import ConfigError
+from dronefleet.schemas.geo import Box
 from tests.dashboard.tiles import TileServer
 from tests.harness import GroundProcess
 
@@ -134,3 +137,58 @@ async def test_the_ground_serves_an_archives_tiles_and_refuses_a_bad_one_at_star
         config = load_config(GroundConfig, None, {"dashboard": {"tiles": tiles}})
         with pytest.raises(ConfigError, match=f"dashboard.tiles: .*{why}"):
             open_tile_archive(config)
+
+
+def _rgb(png: bytes, row: int, col: int) -> tuple[float, float, float]:
+    pixel = image.imread(io.BytesIO(png), format="png")[row, col]
+    return float(pixel[0]), float(pixel[1]), float(pixel[2])
+
+
+def test_a_world_is_drawn_as_a_map_with_its_fire_and_its_ring_at_every_zoom(tmp_path: Path) -> None:
+    """`fleet tiles render WORLD`: the map `fleet demo` shows, with no tile server. Every
+    tile of the world's box at every zoom; the tile over the heat source's centre is
+    warm there, the ring where the field crosses 40 °C is drawn, and the field far from
+    the source is plain ground."""
+    fire = (40.6340, -8.6600)
+    world = tmp_path / "w.yml"
+    world.write_text(json.dumps({
+        "origin": {"lat": 40.6335, "lon": -8.6608, "alt": 8.2},
+        "drones": [{"id": "drone01", "lat": 40.6335, "lon": -8.6608}],
+        "heat_sources": [{"lat": fire[0], "lon": fire[1], "radius": 40, "temp": 60}],
+    }))
+    out = tmp_path / "map.pmtiles"
+    made = subprocess.run([sys.executable, "-m", "dronefleet", "tiles", "render", str(world), "--out", str(out),
+                           "--zoom", "16-19"], capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    assert made.returncode == 0, made.stderr
+    archive = TileArchive(out)
+    try:
+        assert (archive.min_zoom, archive.max_zoom) == (16, 19)
+        assert "drawn from w.yml" in archive.attribution
+        s, w, n, e = archive.summary()["bounds"]
+        assert s < min(40.6335, fire[0]) and n > max(40.6335, fire[0]) and w < -8.6608 and e > -8.6600
+        box = Box(s, w, n, e)
+        assert archive.summary()["tiles"] == len(tiles_of(box, range(16, 20)))
+        for z in range(16, 20):
+            centre = mercantile.tile(fire[1], fire[0], z)
+            png = archive.tile(z, centre.x, centre.y)
+            assert png is not None and png.startswith(b"\x89PNG")
+            left, bottom, right, top = mercantile.bounds(centre)
+            col = int((fire[1] - left) / (right - left) * 256)
+            row = int((top - fire[0]) / (top - bottom) * 256)  # near enough in a tile this small
+            r, g, b = _rgb(png, row, col)
+            assert r > 0.85 and b < 0.4, (z, r, g, b)  # warm at the centre
+        corner = mercantile.tile(w + 1e-5, s + 1e-5, 19)
+        png = archive.tile(19, corner.x, corner.y)
+        assert png is not None
+        r, g, b = _rgb(png, 128, 128)
+        assert g >= r and b > 0.7, (r, g, b)  # plain ground, far from the fire
+        ring = archive.tile(17, *mercantile.tile(fire[1], fire[0], 17)[:2])
+        assert ring is not None
+        pixels = image.imread(io.BytesIO(ring), format="png")
+        dark_red = (pixels[..., 0] > 0.5) & (pixels[..., 1] < 0.2)
+        assert dark_red.sum() > 20  # the 40 °C ring: 20 m out at this source, a circle of pixels
+    finally:
+        archive.close()
+    bad = subprocess.run([sys.executable, "-m", "dronefleet", "tiles", "render", str(world), "--out", str(out),
+                          "--zoom", "19-16"], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert bad.returncode == 2 and "--zoom 19-16" in bad.stderr, bad.stderr

@@ -23,8 +23,8 @@ from bench.dashboard_frames import (
     measure_frames,
     wait_for_drones,
 )
-from dronefleet.ground.tile_fetch import Box, fetch
-from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.ground.tile_fetch import fetch
+from dronefleet.schemas.geo import Box, destination, distance_m
 from tests.dashboard.page import (
     EXAMPLES,
     FENCE,

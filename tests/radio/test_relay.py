@@ -172,23 +172,24 @@ async def test_on_the_secured_mesh_only_a_relay_certificate_carries_a_neighbour(
 
 
 RELAYED = """
-enable("relay", mode="measured", ground=[GROUND_LAT, GROUND_LON])  # the model-first planner; the default (chain) on real packets: bench/relay_real_packets.py
+enable("relay", mode="measured", good_m=35*m, lost_m=60*m, ground=[GROUND_LAT, GROUND_LON])  # the model-first planner; the default (chain) on real packets: bench/relay_real_packets.py
 d = assign("drone01")
 arm(d)
 takeoff(d, 10*m)
-move(d, forward=125*m, speed=5*m/s)  # past the radio's 100 m: only a relay reaches it there
-sleep(15*s)
+move(d, forward=75*m, speed=5*m/s)  # past the radio's 60 m: only a relay reaches it there
+sleep(10*s)
 print(f"out at {distance(d.position, position(GROUND_LAT, GROUND_LON)):.0f} m")
-move(d, backward=125*m, speed=5*m/s)  # sent while it is out: it must get there through the relay
+move(d, backward=75*m, speed=5*m/s)  # sent while it is out: it must get there through the relay
 land(d)
 """
+RELAY_RADIO = {"good_m": 35, "lost_m": 60}  # a short radio: the same code as the default 60/100 m, in less flight
 
 
 @RADIO_A
-@pytest.mark.slow(90)
+@pytest.mark.slow(65)
 async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_commanded(
         tmp_path: Path, processes: list[ChildProcess]) -> None:
-    """Issue 15 on real packets: drone01 flies 125 m north, past the radio's 100 m; the
+    """Issue 15 on real packets: drone01 flies 75 m north, past the radio's 60 m; the
     relay plugin sends drone02 or drone03 between it and the laptop. The ground keeps
     hearing drone01's telemetry out there (the mesh routes through the relay) and the
     command that brings it back reaches it."""
@@ -198,7 +199,8 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
     sim = RadioSim(tmp_path, ground, [{"id": "drone01", "lat": north(-4)[0], "lon": north(-4)[1]},
                                       {"id": "drone02", "lat": north(-12)[0], "lon": north(-12)[1]},
                                       {"id": "drone03", "lat": north(-20)[0], "lon": north(-20)[1]}],
-                   lost_link={"timeout_s": 5, "action": "hold", "return_after_s": 60}, return_altitude=10)
+                   {"radio": RELAY_RADIO}, lost_link={"timeout_s": 5, "action": "hold", "return_after_s": 60},
+                   return_altitude=10)
     processes.append(sim)
     await sim.up()
     script = RELAYED.replace("GROUND_LAT", str(GROUND[0])).replace("GROUND_LON", str(GROUND[1]))
@@ -218,7 +220,7 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
             if far is not None and far["telem"].get("position"):
                 p = far["telem"]["position"]
                 out = distance_m(GROUND[0], GROUND[1], p["lat"], p["lon"])
-                if out > 105 and far["info"]["state"] != "unknown":
+                if out > RELAY_RADIO["lost_m"] + 5 and far["info"]["state"] != "unknown":
                     heard_far.append(out)
             record = (await http.get(f"/mission/{mission_id}")).json()
             return record if record["end"] is not None else None
@@ -227,7 +229,7 @@ async def test_the_relay_plugin_keeps_a_drone_beyond_radio_range_heard_and_comma
         lines = await log_lines(http, "drone01")
     log = "\n".join(line["message"] for line in record["log"])
     assert record["status"] == "finished", f"{record['status']} {record['cause']}: {record['message']}\n{log}"
-    assert "relay duty" in log and re.search(r"out at 1[12]\d m", log), log
-    assert len(heard_far) >= 5, (heard_far, "\n".join(lines[-30:]))  # heard, and not marked unknown, beyond 105 m
+    assert "relay duty" in log and re.search(r"out at [67]\d m", log), log
+    assert len(heard_far) >= 5, (heard_far, "\n".join(lines[-30:]))  # heard, and not marked unknown, beyond 65 m
     separation = rx.least_separation({"drones": resampled(tracks)}, ("drone01",))
     assert 5.0 <= separation < float("inf"), separation  # a relay flew, never within min_separation (5 m)
