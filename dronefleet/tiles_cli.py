@@ -62,7 +62,7 @@ def fetch_tiles(bbox: str, zoom: str, template: str, out: Path, attribution: str
 @click.argument("world_file", metavar="WORLD", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True, help="The archive to write (.pmtiles).")
 @click.option("--zoom", "zoom", default="15-19", show_default=True, help="Zooms to draw, FIRST-LAST.")
-@click.option("--margin", "margin_m", type=click.FloatRange(min=0, max=5000), default=150.0, show_default=True,
+@click.option("--margin", "margin_m", type=click.FloatRange(min=0, max=5000), default=250.0, show_default=True,
               help="Metres of map beyond the world's drones, sources and laptop.")
 def render_tiles(world_file: Path, out: Path, zoom: str, margin_m: float) -> None:
     """Draw a world's field as a map archive, with no internet and no tile server.
@@ -81,7 +81,7 @@ def render_tiles(world_file: Path, out: Path, zoom: str, margin_m: float) -> Non
     click.echo(f"wrote {out}: {count} tiles at zooms {zooms.start}-{zooms.stop - 1} ({out.stat().st_size / 1e6:.2f} MB)")
 
 
-def write_world_map(world_file: Path, out: Path, zooms: range, margin_m: float = 150.0) -> int:
+def write_world_map(world_file: Path, out: Path, zooms: range, margin_m: float = 250.0) -> int:
     """`fleet tiles render`: the world's map as a PMTiles archive at `out`; how many tiles."""
     from dronefleet.ground.tile_archive import TileArchiveError, write_archive
     from dronefleet.schemas.errors import FleetError

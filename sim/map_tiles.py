@@ -25,7 +25,7 @@ from dronefleet.sim.world import World
 
 TILE_PX = 256
 GRID_M = 50.0  # a faint line every this many metres north and east of the laptop
-MARGIN_M = 150.0  # the map reaches this far beyond every drone, source and the laptop
+MARGIN_M = 250.0  # the map reaches this far beyond every drone, source and the laptop (a first view)
 DEFAULT_ZOOMS = range(15, 20)  # 15: the whole field in a tile or two; 19: ~0.3 m a pixel
 GROUND_RGB = (0.87, 0.90, 0.82)
 HEAT_RGB = (0.96, 0.52, 0.16)
