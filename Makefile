@@ -73,7 +73,7 @@ test: $(STAMP) sysdeps
 	@$(MAKE) --no-print-directory -j2 lint pytest
 
 pytest: $(STAMP)
-	$(BIN)/python -m pytest -q -n 9 --dist loadgroup
+	$(BIN)/python -m pytest -q -n 8 --dist loadgroup
 
 # The documentation site into site/ (mkdocs-material; the suite builds it with --strict).
 docs: $(STAMP)

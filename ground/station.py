@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -24,6 +25,7 @@ from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_security import relays_of
 from dronefleet.bus.port import Bus, Declaration, NoRoute, QueryRefused, Sample, Unreachable, echo
 from dronefleet.bus.recording import now_ns_of
+from dronefleet.bus.redeclarable import Redeclarable
 from dronefleet.bus.stream_copy import Stream, StreamCopy
 from dronefleet.ground.active_ground import Change
 from dronefleet.ground.airspace import Airspace
@@ -65,6 +67,10 @@ from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 log = logging.getLogger(__name__)
 TICK_S = 0.2  # how often timeouts are checked: a drone goes unknown ≤ 200 ms late
 WATCH_QUEUE = 2048
+# A drone whose token comes back after it was lost has been routed anew: the ground's
+# `ground/ping` queryable is declared afresh (at most this often), since the drone's
+# router may hold no route to it while telemetry flows (ADR 0003, "ground/ping afresh").
+PING_REFRESH_MIN_S = 2.0
 ROUTE_RETRY_FIRST_S = 0.05  # a command to a heard drone with no route yet is asked again after this, doubling …
 ROUTE_RETRY_MAX_S = 0.5  # … up to this, until the command deadline
 _reply_decoder = msgspec.json.Decoder(CommandReply)
@@ -99,6 +105,9 @@ class GroundStation:
         self._watches_ended = False
         self._listeners: list[Callable[[WatchEvent], None]] = []
         self._last_telem_event: dict[str, float] = {}
+        self.ping: Redeclarable | None = None  # `ground/ping`, the agents' probes: declared while running
+        self._tokens_lost: set[str] = set()  # drones whose liveliness token went (refreshed when back)
+        self._ping_refreshed_at = -math.inf
         self.airspace = Airspace(config, self.registry)  # SPEC §11: the fence and the other drones' targets
         self.recordings: MissionRecordings | None = None
         self.signer = signer_of(config.security.pki_dir)  # SPEC §9: every command and bundle signed
@@ -135,11 +144,11 @@ class GroundStation:
             self.bus.subscribe(k.link(), self._on_link, latest_only=True, maxsize=8192),
             *self.feeds.declare(),
             self.bus.watch_liveliness(k.alive(), self._on_liveliness),
-            self.bus.serve(k.ground_ping(), echo),
             self.bus.announce(k.ground_alive()),
             *self.peers.declare(),
             *(d for copy, _ in self.copies.values() for d in copy.declare()),
         ]
+        self.ping = Redeclarable(self.bus, k.ground_ping(), echo, self.clock)
         self.log_ground("info", "Ground station started")
         peers = asyncio.get_running_loop().create_task(self.peers.run(listen_first=bool(self.config.connect)),
                                                        name="ground peers")
@@ -153,6 +162,7 @@ class GroundStation:
         finally:
             peers.cancel()
             self.peers.close()
+            self.ping.close()
             for copy, _ in self.copies.values():
                 copy.close()
             self.log_ground("info", "Ground station stopped")
@@ -493,8 +503,29 @@ class GroundStation:
 
     def _on_liveliness(self, key: str, alive: bool) -> None:
         parsed = self.keys.parse(key)
-        if parsed is not None:
-            self.emit(self.registry.on_liveliness(parsed.drone_id, alive, self.clock.time_ms()))
+        if parsed is None:
+            return
+        if not alive:
+            self._tokens_lost.add(parsed.drone_id)
+        elif parsed.drone_id in self._tokens_lost:
+            self._tokens_lost.discard(parsed.drone_id)
+            self._refresh_ping(parsed.drone_id)
+        self.emit(self.registry.on_liveliness(parsed.drone_id, alive, self.clock.time_ms()))
+
+    def _refresh_ping(self, drone_id: str) -> None:
+        """A drone routed anew may not reach `ground/ping` again: routers carry a
+        declaration along the declarer's tree when it changes, and after a link closed
+        and came back a drone's router was seen with no route to it for minutes while
+        its telemetry flowed (upstream #2767's kind). Its probes then went unanswered, so
+        it took the ground for lost: a failsafe, and the statuses it holds for the ground
+        never repeated (a mission waited for a landing that had happened). Declared afresh
+        in the other form (bus/redeclarable.py), the declaration travels the mesh again."""
+        now = self.clock.monotonic()
+        if now - self._ping_refreshed_at < PING_REFRESH_MIN_S or self.ping is None:
+            return
+        self._ping_refreshed_at = now
+        self.ping.refresh()
+        log.info("%s is back on the mesh: ground/ping declared afresh (%s)", drone_id, self.ping.form)
 
     def from_drone(self, decoder: Any, sample: Sample) -> Any:
         """A drone's message, its drone_id taken from the key (the key is the authority
