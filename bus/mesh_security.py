@@ -13,7 +13,11 @@ directory (`<name>.pem`, role in the OU):
 - a relay (a drone issued `--role relay`) may also carry every other drone's traffic:
   all messages under `drone/**`, both ways, commands and bundles included;
 - the ground may do everything; an operator (`fleet sub`, `fleet record`) may only
-  subscribe.
+  subscribe;
+- an observer (a ground run `--observer`, SPEC §14: a command post) reads everything,
+  asks the grounds for what it missed (queries under `ground/**`), and declares and
+  publishes only under `ground/<its name>`: it can neither command a drone, push it a
+  bundle, nor speak for another ground (`ground/<id>/active` included).
 
 Zenoh applies these rules per link, to the node at its other end, not to whoever
 first sent a message: a router forwarding for others is seen by the next router under
@@ -62,6 +66,14 @@ def _identities(pki_dir: Path) -> dict[str, str]:
     return found
 
 
+def certificate_role(security: Security, name: str) -> str | None:
+    """The role (OU) of the certificate this node shows (`security.name`, else `name`) on
+    a secured mesh; None when the mesh is not secured or no such certificate is issued."""
+    if not security.tls or security.pki_dir is None:
+        return None
+    return _identities(Path(security.pki_dir).expanduser()).get(security.name or name)
+
+
 def relays_of(security: Security) -> frozenset[str] | None:
     """The drones whose certificates in the PKI directory make them relays; None when
     the mesh is not secured (no access rules: every drone may carry others' traffic)."""
@@ -95,6 +107,8 @@ def access_control(pki_dir: Path, namespace: str = "", bridges: tuple[str, froze
          "key_exprs": [f"{prefix}drone/**", f"{prefix}sensor/**"]},
         {"id": "no-commands", "permission": "deny", "flows": ["ingress"], "messages": ["query"],
          "key_exprs": [f"{prefix}drone/*/cmd", f"{prefix}drone/*/bundle"]},
+        {"id": "catch-up", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
+         "key_exprs": [f"{prefix}ground/**"]},
     ]
     subjects: list[dict[str, Any]] = []
     policies: list[dict[str, Any]] = []
@@ -109,6 +123,11 @@ def access_control(pki_dir: Path, namespace: str = "", bridges: tuple[str, froze
             policies.append({"rules": ["forward", "probes", "learn", "ground-state"], "subjects": [cn]})
         elif role == "operator":
             policies.append({"rules": ["read", "read-out"], "subjects": [cn]})
+        elif role == "observer":
+            rules.append({"id": f"observer-{cn}", "permission": "allow", "flows": ["ingress"],
+                          "messages": ["put", "delete", "liveliness_token", "declare_queryable", "reply"],
+                          "key_exprs": [f"{prefix}ground/{cn}", f"{prefix}ground/{cn}/**"]})
+            policies.append({"rules": ["read", "read-out", "learn", "catch-up", f"observer-{cn}"], "subjects": [cn]})
         elif role == "sensor":  # a field sensor (SPEC §2): its readings and its token, nothing else
             rules.append({"id": f"field-{cn}", "permission": "allow", "flows": ["ingress"],
                           "messages": ["put", "liveliness_token"], "key_exprs": [f"{prefix}sensor/{cn}/**"]})

@@ -39,7 +39,7 @@ from dronefleet.agent.runtime import Agent
 from dronefleet.bus.clock import VirtualClock
 from dronefleet.bus.datagram_echo import EchoServer
 from dronefleet.bus.memory import MemoryBus, MemoryNetwork
-from dronefleet.bus.mesh_security import mesh_security
+from dronefleet.bus.mesh_security import certificate_role, mesh_security
 from dronefleet.bus.port import Bus
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.ground.api import create_app
@@ -122,6 +122,14 @@ def exposure_warnings(config: GroundConfig) -> list[str]:
 
 
 async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda line: None) -> None:
+    shown = config.security.name or "ground"
+    if certificate_role(config.security, "ground") == "observer":
+        if config.role != "observer":
+            raise ConfigError(f"security: this ground's certificate ({shown}) is issued --role observer, so it may "
+                              "only watch: run it with --observer (config role: observer)")
+        if config.ground_id != shown:  # the mesh lets an observer speak under ground/<its certificate's name> only
+            raise ConfigError(f"ground_id {config.ground_id!r}: an observer's ground_id is its certificate's name "
+                              f"({shown!r}), the only ground/<id> the mesh lets it announce")
     data_dir = _prepare_data_dir(config)
     tiles = open_tile_archive(config)
     sock = _bind(config.http_host, config.http_port)

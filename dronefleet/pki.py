@@ -19,7 +19,9 @@ import click
 
 from dronefleet.schemas.keys import check_id
 
-ROLES = ("drone", "relay", "ground", "operator", "sensor")  # relay: a drone that may carry its neighbours' traffic; sensor: a field sensor
+# relay: a drone that may carry its neighbours' traffic; sensor: a field sensor;
+# observer: a ground that watches and never commands (`fleet ground --observer`, SPEC §14)
+ROLES = ("drone", "relay", "ground", "operator", "sensor", "observer")
 CA_YEARS, NODE_YEARS = 10, 2
 
 

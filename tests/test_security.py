@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import stat
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -263,6 +264,68 @@ async def test_on_a_tls_mesh_only_fleet_certificates_join_and_a_drone_speaks_onl
         assert "refused disarm" not in log  # it never even reached the agent
     finally:
         fleet.stop()
+
+
+@pytest.mark.integration
+async def test_on_a_tls_mesh_an_observer_certificate_watches_and_never_commands(tmp_path: Path) -> None:
+    """SPEC §14 on a secured mesh: a certificate issued `--role observer` (a command
+    post's ground) reads every drone's traffic and may ask the grounds for what it
+    missed, publishes under `ground/<its name>` only, and can neither query a drone's
+    `cmd` nor speak for another ground; a ground shown that certificate but started to
+    command stops at once, saying why."""
+    from dronefleet.bus.port import Unreachable
+    from dronefleet.bus.zenoh_bus import ZenohBus
+    from dronefleet.cli import secured_client
+    from tests.harness import fleet_command
+
+    directory = make_pki(tmp_path / "pki", {"ground": "ground", "drone01": "drone", "post": "observer",
+                                            "operator": "operator"})
+    security = {"pki_dir": str(directory), "tls": True}
+    fleet = GroundFleet(tmp_path, {"drone01": "sim://?lat=40.6334&lon=-8.660815&alt=8.2"},
+                        {"security": security, "telemetry_rate_ms": 200}, security=security, scheme="tls")
+    endpoint = [fleet.ground.endpoint]
+    try:
+        async with fleet.client() as http:
+            assert (await http.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+            post = await ZenohBus.open("client", endpoint, extra=secured_client(directory, "post", endpoint))
+            operator = await ZenohBus.open("client", endpoint, extra=secured_client(directory, "operator", endpoint))
+            try:
+                seen: list[str] = []
+                post.subscribe("drone/drone01/telem", lambda s: seen.append(s.key))
+                await until(lambda: seen, 10, "the observer reading drone01's telemetry")
+                assert await post.query("ground/ping", b"catching up", timeout_s=5) == b"catching up"
+                with pytest.raises(Unreachable):
+                    await post.query("drone/drone01/cmd", b'{"cmd": "disarm", "drone_id": "drone01"}', timeout_s=2)
+                heard: list[str] = []
+                operator.subscribe("ground/**", lambda s: heard.append(s.key))
+
+                async def own_heard() -> bool:  # each time: another ground's announcement, and its own
+                    post.publish("ground/someone/active", b'{"ground_id": "someone", "epoch": 99, "timestamp": 0}')
+                    post.publish("ground/post/log", b"{}")
+                    return "ground/post/log" in heard
+
+                await until(own_heard, 10, "the observer's own publication at an operator")
+                assert "ground/post/log" in heard and "ground/someone/active" not in heard, heard
+                view = (await http.get("/drone/drone01")).json()
+                assert view["telem"]["armed"], view["telem"]  # never disarmed by the observer
+            finally:
+                await post.close()
+                await operator.close()
+    finally:
+        fleet.stop()
+    config = tmp_path / "post.yml"
+    config.write_text(json.dumps({"security": {**security, "name": "post"}, "listen": ["tls/127.0.0.1:0"],
+                                  "http_port": 0, "data_dir": str(tmp_path / "post-data")}))
+    started = subprocess.run(fleet_command("ground", "--config", str(config)), capture_output=True, text=True,
+                             timeout=60, stdin=subprocess.DEVNULL)
+    assert started.returncode != 0 and "is issued --role observer" in started.stderr, started.stderr[-2000:]
+    assert "Traceback" not in started.stderr
+    config.write_text(json.dumps({"security": {**security, "name": "post"}, "listen": ["tls/127.0.0.1:0"], "role": "observer",
+                                  "ground_id": "hq", "http_port": 0, "data_dir": str(tmp_path / "post-data")}))
+    started = subprocess.run(fleet_command("ground", "--config", str(config)), capture_output=True, text=True,
+                             timeout=60, stdin=subprocess.DEVNULL)
+    assert started.returncode != 0 and "an observer's ground_id is its certificate's name ('post')" in started.stderr, \
+        started.stderr[-2000:]
 
 
 @pytest.mark.integration
