@@ -28,17 +28,13 @@ import httpx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.harness import AgentProcess, GroundProcess, wait_state  # noqa: E402
+from tests.harness import two_grounds, wait_state  # noqa: E402
 from tests.waiting import until  # noqa: E402
 
 
 async def one_takeover(tmp: Path) -> float:
     """Seconds from SIGKILL of the active ground to the standby accepting a command."""
-    for d in ("alpha", "bravo"):
-        (tmp / d).mkdir()
-    alpha = GroundProcess(tmp / "alpha", ground_id="alpha", priority=10)
-    bravo = GroundProcess(tmp / "bravo", ground_id="bravo", connect=[alpha.endpoint])
-    agent = AgentProcess("drone01", alpha.endpoint, tmp, extra_args=["--connect", bravo.endpoint])
+    alpha, bravo, agent = two_grounds(tmp)
     try:
         await alpha.ready()
         await bravo.ready()

@@ -333,3 +333,13 @@ async def telemetry_seq(http: httpx.AsyncClient, drone_id: str) -> int:
 
 async def seq_above(http: httpx.AsyncClient, drone_id: str, seq: int) -> bool:
     return await telemetry_seq(http, drone_id) > seq
+
+
+def two_grounds(tmp: Path) -> tuple[GroundProcess, GroundProcess, AgentProcess]:
+    """SPEC §14's smallest mesh, not started: alpha (priority 10: active), bravo joining
+    alpha's router (standby), and drone01's agent connected to both."""
+    for d in ("alpha", "bravo"):
+        (tmp / d).mkdir()
+    alpha = GroundProcess(tmp / "alpha", ground_id="alpha", priority=10)
+    bravo = GroundProcess(tmp / "bravo", ground_id="bravo", connect=[alpha.endpoint])
+    return alpha, bravo, AgentProcess("drone01", alpha.endpoint, tmp, extra_args=["--connect", bravo.endpoint])

@@ -12,11 +12,8 @@ from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import GROUND_PEER
 
 
-async def test_a_ground_probe_out_longer_than_a_clean_round_trip_is_overdue_before_its_outcome() -> None:
-    """A worker's link counted clean while its loss climbed
-    to 80 %, its probes neither answered nor timed out yet. A probe out longer than a
-    clean round trip takes counts at once (the drone bridges: ADR 0003)."""
-    clock, keys = VirtualClock(), Keys()
+def slow_ground(keys: Keys) -> tuple[MemoryBus, MemoryBus, asyncio.Event]:
+    """A ground whose ping answers only once the event is set, and a drone's bus."""
     network = MemoryNetwork()
     ground, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")
     answer = asyncio.Event()
@@ -26,6 +23,15 @@ async def test_a_ground_probe_out_longer_than_a_clean_round_trip_is_overdue_befo
         return payload
 
     ground.serve(keys.ground_ping(), slow_echo)
+    return ground, drone, answer
+
+
+async def test_a_ground_probe_out_longer_than_a_clean_round_trip_is_overdue_before_its_outcome() -> None:
+    """A worker's link counted clean while its loss climbed
+    to 80 %, its probes neither answered nor timed out yet. A probe out longer than a
+    clean round trip takes counts at once (the drone bridges: ADR 0003)."""
+    clock, keys = VirtualClock(), Keys()
+    ground, drone, answer = slow_ground(keys)
     contacts: list[float] = []
     prober = LinkProber("drone01", drone, keys, clock, 1.0, on_ground_contact=contacts.append)
     probe = asyncio.ensure_future(prober.probe_all())
@@ -60,15 +66,7 @@ async def test_the_ground_report_goes_out_when_its_train_is_back_not_after_a_ret
     report the ground reads is the datagrams', so it goes out when they are back
     (ADR 0003): held for the query, it was up to a period older."""
     clock, keys = VirtualClock(), Keys()
-    network = MemoryNetwork()
-    ground, drone = MemoryBus(network, "ground"), MemoryBus(network, "drone01")
-    answer = asyncio.Event()
-
-    async def slow_echo(key: str, payload: bytes) -> bytes:
-        await answer.wait()
-        return payload
-
-    ground.serve(keys.ground_ping(), slow_echo)
+    ground, drone, answer = slow_ground(keys)
     reports: list[float] = []
     ground.subscribe(keys.link("drone01"), lambda s: reports.append(clock.monotonic()))
     prober = LinkProber("drone01", drone, keys, clock, 1.0, on_ground_contact=lambda _: None, echo=QuickEcho(clock))

@@ -16,7 +16,7 @@ import pytest
 
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.commands import CommandReply
-from tests.harness import AgentProcess, GroundProcess, ended, submit, wait_state
+from tests.harness import AgentProcess, GroundProcess, ended, submit, two_grounds, wait_state
 from tests.waiting import until
 
 pytestmark = pytest.mark.integration
@@ -33,11 +33,7 @@ async def log_lines(http: httpx.AsyncClient) -> list[str]:
 @pytest.mark.slow(30)
 async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_epoch_when_the_active_one_dies(
         tmp_path: Path) -> None:
-    for d in ("alpha", "bravo"):
-        (tmp_path / d).mkdir()
-    alpha = GroundProcess(tmp_path / "alpha", ground_id="alpha", priority=10)
-    bravo = GroundProcess(tmp_path / "bravo", ground_id="bravo", connect=[alpha.endpoint])
-    agent = AgentProcess("drone01", alpha.endpoint, tmp_path, extra_args=["--connect", bravo.endpoint])
+    alpha, bravo, agent = two_grounds(tmp_path)
     try:
         await alpha.ready()
         await bravo.ready()
