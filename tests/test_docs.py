@@ -18,7 +18,6 @@ pytestmark = pytest.mark.integration
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
-TUTORIAL = REPO / "docs" / "tutorials" / "first-mission.md"
 
 
 @pytest.mark.slow(8)
@@ -37,14 +36,18 @@ def test_the_site_builds_strict_with_its_reference_generated_from_the_source(tmp
     wire = (site / "reference" / "wire" / "index.html").read_text()
     for field in ("flight_mode", "rel_alt", "command_id", "on_link_loss", "quality"):
         assert field in wire, field
-    assert (site / "tutorials" / "first-mission" / "index.html").exists()
+    for tutorial in ("first-mission", "team-mission"):
+        assert (site / "tutorials" / tutorial / "index.html").exists(), tutorial
 
 
-def test_the_tutorials_script_and_commands_run_as_written(tmp_path: Path) -> None:
-    text = TUTORIAL.read_text()
-    scripts = re.findall(r'```python title="([^"]+)"\n(.*?)```', text, re.S)
-    assert scripts
-    for name, body in scripts:
+@pytest.mark.parametrize("tutorial", sorted((REPO / "docs" / "tutorials").glob("*.md")), ids=lambda p: p.stem)
+def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_path: Path) -> None:
+    """Every file a tutorial has the reader save (a block with a title) is saved, then
+    every `$ fleet …` of its console blocks runs there and prints the lines under it."""
+    text = tutorial.read_text()
+    files = re.findall(r'```(?:python|yaml) title="([^"]+)"\n(.*?)```', text, re.S)
+    assert files
+    for name, body in files:
         (tmp_path / name).write_text(body)
     sessions = re.findall(r"```console\n(.*?)```", text, re.S)
     assert sessions
@@ -67,5 +70,7 @@ def test_the_tutorials_script_and_commands_run_as_written(tmp_path: Path) -> Non
             for out in expected:
                 assert out in done.stdout, (line, out, done.stdout[-2000:])
             ran += 1
+        out_dirs = re.findall(r"--out (\S+)", session)
+        for out_dir in out_dirs:
+            assert (tmp_path / out_dir / "result.json").exists() and (tmp_path / out_dir / "paths.png").exists()
     assert ran >= 2
-    assert (tmp_path / "out" / "result.json").exists() and (tmp_path / "out" / "paths.png").exists()
