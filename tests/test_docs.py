@@ -5,6 +5,7 @@ run as written."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -36,6 +37,9 @@ def test_the_site_builds_strict_with_its_reference_generated_from_the_source(tmp
     wire = (site / "reference" / "wire" / "index.html").read_text()
     for field in ("flight_mode", "rel_alt", "command_id", "on_link_loss", "quality"):
         assert field in wire, field
+    api = (site / "reference" / "http-api" / "index.html").read_text()
+    for endpoint in ("#post-dronedrone_idcmd", "#get-missionmission_id", "#get-ground", "Input parameters"):
+        assert endpoint in api, endpoint
     for tutorial in ("first-mission", "team-mission"):
         assert (site / "tutorials" / tutorial / "index.html").exists(), tutorial
 
@@ -74,3 +78,21 @@ def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_pat
         for out_dir in out_dirs:
             assert (tmp_path / out_dir / "result.json").exists() and (tmp_path / out_dir / "paths.png").exists()
     assert ran >= 2
+
+
+async def test_the_api_page_is_drawn_from_what_a_live_ground_serves(tmp_path: Path) -> None:
+    """docs/reference/openapi.json is the ground's `GET /openapi.json` as it is now: a
+    route, parameter or schema changed without it fails here (refresh it as the page says)."""
+    import httpx
+
+    from tests.harness import GroundProcess
+
+    ground = GroundProcess(tmp_path)
+    try:
+        await ground.ready()
+        async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
+            live = (await http.get("/openapi.json")).json()
+    finally:
+        ground.stop()
+    documented = json.loads((REPO / "docs" / "reference" / "openapi.json").read_text())
+    assert live == documented, "docs/reference/openapi.json is stale: refresh it (docs/reference/http-api.md)"
