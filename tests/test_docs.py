@@ -40,6 +40,9 @@ def test_the_site_builds_strict_with_its_reference_generated_from_the_source(tmp
     api = (site / "reference" / "http-api" / "index.html").read_text()
     for endpoint in ("#post-dronedrone_idcmd", "#get-missionmission_id", "#get-ground", "Input parameters"):
         assert endpoint in api, endpoint
+    config = (site / "reference" / "config" / "index.html").read_text()
+    for key in ("lost_link.action", "dashboard.tiles", "link_degraded_below", "heat_sources[].radius", "radio.good_m"):
+        assert f"<code>{key}</code>" in config, key
     for tutorial in ("first-mission", "team-mission"):
         assert (site / "tutorials" / tutorial / "index.html").exists(), tutorial
 
