@@ -108,6 +108,38 @@ def list_drones(url: str, state: str | None, sensors: tuple[str, ...], as_json: 
             click.echo(line)
 
 
+@drone.command("wait")
+@url_option
+@click.argument("drone_ids", metavar="DRONE_ID...", nargs=-1, required=True)
+@click.option("--state", type=click.Choice(DRONE_STATES), default="ready", show_default=True,
+              help="The state every drone must reach.")
+@click.option("--timeout", "timeout_s", type=click.FloatRange(min=0.1, max=86_400), default=60.0, show_default=True,
+              help="Seconds to wait at most.")
+def wait_drones(url: str, drone_ids: tuple[str, ...], state: str, timeout_s: float) -> None:
+    """Wait until every DRONE_ID is in STATE at the ground (a ground still starting is
+    waited for too); prints each as it gets there, exits 1 at the timeout naming the rest."""
+    import httpx
+
+    deadline = time.monotonic() + timeout_s
+    left = dict.fromkeys(drone_ids, "not registered")
+    while True:
+        try:
+            views = httpx.get(url.rstrip("/") + "/drone", headers=auth_headers(), timeout=5.0).json()
+            seen = {v["info"]["drone_id"]: v["info"]["state"] for v in views}
+        except (httpx.TransportError, ValueError):
+            seen = {}  # the ground is not answering yet
+        for drone_id in list(left):
+            left[drone_id] = seen.get(drone_id, left[drone_id])
+            if left[drone_id] == state:
+                click.echo(f"{drone_id} {state}")
+                del left[drone_id]
+        if not left:
+            return
+        if time.monotonic() >= deadline:
+            _fail(f"after {timeout_s:g} s not {state}: " + ", ".join(f"{d} ({s})" for d, s in left.items()))
+        time.sleep(0.5)
+
+
 @drone.command("show")
 @url_option
 @click.argument("drone_id")

@@ -5,8 +5,11 @@ run as written."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -47,10 +50,17 @@ def test_the_site_builds_strict_with_its_reference_generated_from_the_source(tmp
         assert (site / "tutorials" / tutorial / "index.html").exists(), tutorial
 
 
-@pytest.mark.parametrize("tutorial", sorted((REPO / "docs" / "tutorials").glob("*.md")), ids=lambda p: p.stem)
+TUTORIALS = sorted((REPO / "docs" / "tutorials").glob("*.md"))
+LIVE = {"live-fleet": 60}  # tutorials that fly real processes in real time: their `slow` estimate
+
+
+@pytest.mark.parametrize("tutorial", [pytest.param(t, id=t.stem, marks=[pytest.mark.slow(LIVE[t.stem])] if t.stem in LIVE else [])
+                                      for t in TUTORIALS])
 def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_path: Path) -> None:
     """Every file a tutorial has the reader save (a block with a title) is saved, then
-    every `$ fleet …` of its console blocks runs there and prints the lines under it."""
+    every `$ fleet …` of its console blocks runs there and prints the lines under it; a
+    command ending in `&` keeps running in the background (a ground, simulated drones)
+    until the tutorial's commands are done, then is stopped."""
     text = tutorial.read_text()
     files = re.findall(r'```(?:python|yaml) title="([^"]+)"\n(.*?)```', text, re.S)
     assert files
@@ -58,6 +68,23 @@ def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_pat
         (tmp_path / name).write_text(body)
     sessions = re.findall(r"```console\n(.*?)```", text, re.S)
     assert sessions
+    background: list[subprocess.Popen[bytes]] = []
+    try:
+        ran = _run_sessions(sessions, tmp_path, background)
+    finally:
+        for proc in background:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(proc.pid, signal.SIGTERM)
+        for proc in background:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    assert ran >= 2
+
+
+def _run_sessions(sessions: list[str], tmp_path: Path, background: list[subprocess.Popen[bytes]]) -> int:
     ran = 0
     for session in sessions:
         lines = session.splitlines()
@@ -71,6 +98,11 @@ def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_pat
                 expected.append(out)
             command = line[2:].split()
             assert command[0] == "fleet", line
+            if command[-1] == "&":
+                log = open(tmp_path / f"background-{len(background)}.log", "wb")  # noqa: SIM115 - the process keeps it
+                background.append(subprocess.Popen([str(BIN / "fleet"), *command[1:-1]], cwd=tmp_path, stdout=log,
+                                                   stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True))
+                continue
             done = subprocess.run([str(BIN / "fleet"), *command[1:]], cwd=tmp_path, capture_output=True, text=True,
                                   timeout=120, stdin=subprocess.DEVNULL)
             assert done.returncode == 0, (line, done.stdout[-2000:], done.stderr[-2000:])
@@ -80,7 +112,7 @@ def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_pat
         out_dirs = re.findall(r"--out (\S+)", session)
         for out_dir in out_dirs:
             assert (tmp_path / out_dir / "result.json").exists() and (tmp_path / out_dir / "paths.png").exists()
-    assert ran >= 2
+    return ran
 
 
 async def test_the_api_page_is_drawn_from_what_a_live_ground_serves(tmp_path: Path) -> None:
