@@ -84,7 +84,21 @@ def test_the_tutorials_files_and_commands_run_as_written(tutorial: Path, tmp_pat
     assert ran >= 2
 
 
+def _ports() -> tuple[list[str], list[str], dict[str, str]]:
+    """What the tutorials' commands get on top of what they say, so that the suite's
+    parallel tests never meet on the default ports (7447, 8001, MAVLink from 14540):
+    `fleet ground`'s router and API, `fleet sim`'s vehicles and agents, and every other
+    command's ground (FLEET_URL)."""
+    from tests.ports import free_port, free_udp_base
+
+    zenoh, http, mavlink = free_port(), free_port(), free_udp_base(4)
+    return ([f"--listen=tcp/127.0.0.1:{zenoh}", f"--http-port={http}"],
+            [f"--connect=tcp/127.0.0.1:{zenoh}", f"--base-port={mavlink}"],
+            {**os.environ, "FLEET_URL": f"http://127.0.0.1:{http}"})
+
+
 def _run_sessions(sessions: list[str], tmp_path: Path, background: list[subprocess.Popen[bytes]]) -> int:
+    ground_ports, sim_ports, env = _ports()
     ran = 0
     for session in sessions:
         lines = session.splitlines()
@@ -98,13 +112,18 @@ def _run_sessions(sessions: list[str], tmp_path: Path, background: list[subproce
                 expected.append(out)
             command = line[2:].split()
             assert command[0] == "fleet", line
-            if command[-1] == "&":
+            args = [*command[1:]]
+            in_background = args[-1] == "&"
+            if in_background:
+                args.pop()
+            args += ground_ports if args[0] == "ground" else sim_ports if args[0] == "sim" else []
+            if in_background:
                 log = open(tmp_path / f"background-{len(background)}.log", "wb")  # noqa: SIM115 - the process keeps it
-                background.append(subprocess.Popen([str(BIN / "fleet"), *command[1:-1]], cwd=tmp_path, stdout=log,
+                background.append(subprocess.Popen([str(BIN / "fleet"), *args], cwd=tmp_path, stdout=log, env=env,
                                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True))
                 continue
-            done = subprocess.run([str(BIN / "fleet"), *command[1:]], cwd=tmp_path, capture_output=True, text=True,
-                                  timeout=120, stdin=subprocess.DEVNULL)
+            done = subprocess.run([str(BIN / "fleet"), *args], cwd=tmp_path, capture_output=True, text=True,
+                                  timeout=120, stdin=subprocess.DEVNULL, env=env)
             assert done.returncode == 0, (line, done.stdout[-2000:], done.stderr[-2000:])
             for out in expected:
                 assert out in done.stdout, (line, out, done.stdout[-2000:])
