@@ -20,7 +20,7 @@ import math
 from collections.abc import Iterator, Sequence
 from typing import Any
 
-from dronefleet.schemas.geo import Box
+from dronefleet.schemas.geo import EARTH_RADIUS_M, Box
 from dronefleet.sim.world import World
 
 TILE_PX = 256
@@ -32,7 +32,7 @@ HEAT_RGB = (0.96, 0.52, 0.16)
 RING_RGB = (0.62, 0.10, 0.05)
 FIELD_RGB = (0.55, 0.45, 0.80)
 GRID_RGB = (0.62, 0.66, 0.58)
-EARTH_M_PER_DEG = 111_320.0
+EARTH_M_PER_DEG = math.radians(1.0) * EARTH_RADIUS_M  # the sphere schemas/geo.py measures on (the heat field's)
 
 
 def world_box(world: World, margin_m: float = MARGIN_M) -> Box:
