@@ -216,6 +216,7 @@ async def _first_commands(http: httpx.AsyncClient, ids: list[str], first: dict[s
                     first[d] = took
                 elif r.status_code == 504:
                     first[d] = None
+                    print(f"  {d}'s first command: {r.status_code} after {took:.1f} s: {r.text}", flush=True)
         await asyncio.sleep(0.1)
     for d in ids:
         first.setdefault(d, None)
@@ -310,9 +311,11 @@ async def main() -> int:
         worst_gap = max([worst_gap, *out.gaps.values()])
         gaps = ", ".join(f"{d} {g:.2f} s (at {out.gap_at[d]:.0f} s, the next {out.gap_transit[d]:.2f} s on its way)"
                          for d, g in out.gaps.items())
+        slow_text = ", ".join(f"{d} ({'no answer' if out.first_command_s[d] is None else f'{out.first_command_s[d]:.1f} s'})"
+                              for d in slow)
         print(f"seed {seed}: {sc.describe()}; healthy gaps {gaps}; "
               f"{'ok' if not bad else 'FAILED ' + ', '.join(bad)}; first commands "
-              f"{'ok' if not slow else 'SLOW ' + ', '.join(slow)}", flush=True)
+              f"{'ok' if not slow else 'SLOW ' + slow_text}", flush=True)
     print(f"healthy drones kept heard (gap < {GAP_S:g} s, no token lost, no Link lost, never unknown): "
           f"{healthy_ok} of {healthy_all}; longest gap {worst_gap:.2f} s; first commands answered within "
           f"{COMMAND_S:g} s: {commands_ok} of {commands_all}", flush=True)

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 from dronefleet.relay.hop import Reach, bottleneck
 from dronefleet.relay.planner import Point, dist, toward
 from dronefleet.relay.ways import segment_distance
+from dronefleet.sim.radio import HOLDING_LOSS
 
 ORIGIN: Point = (0.0, 0.0)
 PROBE = "probe"
@@ -128,6 +129,7 @@ class Chains:
         self.base_rtt: float | None = None
         self.leaving: dict[str, int] = {}
         self.stuck: dict[str, str] = {}
+        self.stretched: set[str] = set()  # workers out of relays whose last hop stretches to what holds
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
         self.flying: dict[str, Point] = {}  # the served drones in the air, where they are (last plan)
@@ -205,7 +207,7 @@ class Chains:
             # than PARKED_CLEAR_M (a row at the spawn gap) held every launch for ever.
             return self._clear_ahead(worker, at, goal)
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
-        reach = self.reach.lo * MARGIN
+        reach = self._last_hop(worker)
 
         def inside(p: Point) -> bool:
             return covers(nodes, p, alt, reach)
@@ -244,6 +246,13 @@ class Chains:
             del self.leaving[relay]
             return True
         return False
+
+    def _last_hop(self, worker: str) -> float:
+        """How far `worker` may be from the node that covers it: the chains' hop, or,
+        when its chain lacks relays and no drone is free, the longest hop measured to
+        hold a 3-s gap (a worker one relay short is a hop a little longer, not held)."""
+        hop = self.reach.lo * MARGIN
+        return max(hop, self.reach.holds * MARGIN) if worker in self.stretched else hop
 
     def _enough_for(self, workers: Sequence[Worker]) -> bool:
         """Whether the hop proven so far reaches every worker's goal: measuring further
@@ -294,6 +303,7 @@ class Chains:
                 self.base_rtt = s.rtt_ms
         self._expire(now)
         self.stuck.clear()
+        self.stretched.clear()
         if not self.reach.known:
             nodes = [(w.at, w.alt) for w in workers] + list(others)
             self._learn(now, nodes, seen, out)
@@ -369,19 +379,24 @@ class Chains:
             return
         own = math.hypot(dist(slot.spot, ORIGIN), self.duty_alt)
         loss = sum(slot.losses) / len(slot.losses) if slot.losses else None
-        clean = (not lost and loss is not None and loss <= PROVEN_LOSS and s.rtt_ms is not None
-                 and s.rtt_ms <= (self.base_rtt or 0.0) + SPIKE_MS)
-        if clean:
+        # heard on its spot with no retransmission in its round trips: its loss is the path's
+        steady = not lost and loss is not None and s.rtt_ms is not None and s.rtt_ms <= (self.base_rtt or 0.0) + SPIKE_MS
+        clean = steady and loss is not None and loss <= PROVEN_LOSS
+        measured = own
+        if steady:
             if s.hops == 1:  # every answer over its own link: that hop, whatever stands nearer
-                proven = math.hypot(dist(s.at, ORIGIN), s.alt)
+                measured = math.hypot(dist(s.at, ORIGIN), s.alt)
             else:  # its traffic may have taken a shorter hop through another node
                 others = list(nodes) + [(o.at, o.alt) for rid, o in seen.items() if rid != slot.relay]
-                proven = bottleneck((s.at, s.alt), others)
-            self.reach.held(proven)
+                measured = bottleneck((s.at, s.alt), others)
+        if clean:
+            self.reach.held(measured)
             self.safe = slot.spot
-            out.notes.append(f"probe {slot.relay}: a hop of {proven:.0f} m held")
+            out.notes.append(f"probe {slot.relay}: a hop of {measured:.0f} m held")
         else:
             self.reach.failed(own)
+            if steady and loss is not None and loss <= HOLDING_LOSS:
+                self.reach.holding(measured)
             out.notes.append(f"probe {slot.relay}: a hop of {own:.0f} m did not hold "
                              f"({'not heard' if lost else f'loss {loss if loss is None else round(loss, 3)}, rtt {s.rtt_ms} ms'})")
         slot.on_spot_since, slot.losses = None, []
@@ -483,6 +498,9 @@ class Chains:
             relay = self.idle.pop(0)
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
+            return free
+        if free <= 0 and covers(planned, goal, w.alt, self.reach.holds * MARGIN):
+            self.stretched.add(w.id)  # no drone is free, and a hop measured to hold reaches it
             return free
         if not self._launch_clear(seen, out):
             return free  # the last relay sent is still climbing out over the others' takeoff spots

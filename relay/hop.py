@@ -20,10 +20,11 @@ MAX_TRIALS = 8  # … or after this many trials
 
 @dataclass
 class Reach:
-    lo: float = FLOOR_M
-    hi: float | None = None
+    lo: float = FLOOR_M  # the longest hop proven (a window at most PROVEN_LOSS)
+    hi: float | None = None  # the shortest that failed to
     first_tried: bool = False
     trials: int = 0
+    holds: float = FLOOR_M  # the longest a window measured to lose at most HOLDING_LOSS (proven ones too)
 
     @property
     def known(self) -> bool:
@@ -44,6 +45,7 @@ class Reach:
     def held(self, hop: float) -> None:
         self.trials += 1
         self.lo = max(self.lo, hop)
+        self.holding(hop)
         if self.hi is not None and self.hi <= self.lo:
             self.hi = self.lo * CONVERGED
 
@@ -51,6 +53,10 @@ class Reach:
         self.trials += 1
         if hop > self.lo:
             self.hi = hop if self.hi is None else min(self.hi, hop)
+
+    def holding(self, hop: float) -> None:
+        """A window at `hop` lost no more than a 3-s gap allows, proven or not."""
+        self.holds = max(self.holds, hop)
 
 
 def bottleneck(start: tuple[Point, float], others: Sequence[tuple[Point, float]]) -> float:

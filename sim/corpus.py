@@ -30,12 +30,11 @@ import random
 from dataclasses import dataclass
 
 from dronefleet.schemas.geo import destination, distance_m
-from dronefleet.sim.radio import RadioModel
+from dronefleet.sim.radio import HOLDING_LOSS, RadioModel
 from dronefleet.sim.world import ROW_SPACING_M, BatteryModel, DroneSpec, Spot, World
 
 ORIGIN = Spot(lat=40.634125, lon=-8.660336, alt=8.2)
 MIN_QUALITY = 0.6  # the plugin's default bar (the corpus's first bound measured hops there)
-HOLDING_LOSS = 0.1  # the longest hop that keeps a 3-s gap loses this share (bench/relay_hop.py)
 SPAWN_GAP_M = 7.0  # drones spawn at least this far apart (flying drones keep 5 m)
 MIN_BEARING_GAP = 45.0  # degrees between two workers' directions
 LAYOUTS = ("row", "grid", "ring", "scatter", "offset")

@@ -21,6 +21,7 @@ from dronefleet.relay.chain import (
     flat,
 )
 from dronefleet.relay.hop import CONVERGED, FLOOR_M, GROWTH, Reach, bottleneck
+from dronefleet.sim.radio import HOLDING_LOSS
 
 DUTY = 21.0  # relays' altitude above the laptop; the worker flies at 15 m
 
@@ -128,6 +129,16 @@ def test_a_probe_proves_its_hop_on_the_loss_it_measured_over_its_dwell(losses: t
         c.plan(5.0 + k * DWELL_S / len(losses) + 0.1, [w], {"r1": seen(spot, loss=loss)}, spare=3)
     assert (sum(losses) / len(losses) <= PROVEN_LOSS) is held
     assert (c.reach.lo == pytest.approx(60.0)) is held and (c.reach.hi == pytest.approx(60.0)) is not held
+    assert c.reach.holds == pytest.approx(60.0)  # every one of these windows lost less than a 3-s gap allows
+
+
+def test_a_window_losing_more_than_a_3s_gap_allows_proves_no_holding_hop() -> None:
+    c = Chains(DUTY, first_trial=60.0)
+    w = Worker("d1", at(10), 15.0, at(200))
+    c.plan(0.0, [w], {}, spare=3)
+    c.joined(PROBE, "r1")
+    probe_round(c, 5.0, w, loss=HOLDING_LOSS * 1.5)
+    assert c.reach.hi == pytest.approx(60.0) and c.reach.holds == FLOOR_M
 
 
 def test_no_free_drone_for_the_chain_is_named_with_the_relays_missing() -> None:
@@ -138,6 +149,29 @@ def test_no_free_drone_for_the_chain_is_named_with_the_relays_missing() -> None:
     assert out.dispatch == [] and "d1 needs" in c.stuck["d1"] and "no drone is free" in c.stuck["d1"]
     needed = int(c.stuck["d1"].split("needs ")[1].split()[0])
     assert needed == math.ceil((300 - 0) / (50 * MARGIN)) - 1 or needed == math.ceil(300 / (50 * MARGIN))
+
+
+@pytest.mark.parametrize("beyond_m", [-2.0, 2.0])
+def test_a_worker_out_of_relays_stretches_its_last_hop_to_what_held_and_no_further(beyond_m: float) -> None:
+    """No drone is free and the goal lies past the chain's hop but within one a window
+    measured to hold a 3-s gap: the worker goes there instead of being held; a step
+    further, it is held and named with the relay it lacks."""
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0, holds=56.0)
+    w = Worker("d1", at(5), 15.0, at(5))
+    c.plan(0.0, [w], {}, spare=1)  # one relay asked for, out toward where the worker is sent next
+    (key, spot, _, _), = c.plan(0.0, [Worker("d1", at(5), 15.0, at(60))], {}, spare=1).dispatch
+    c.joined(key, "r1")
+    stretched = flat(56.0 * MARGIN, DUTY - 15.0)
+    goal = at(dist(spot, (0, 0)) + stretched + beyond_m)
+    w = Worker("d1", at(5), 15.0, goal)
+    c.plan(60.0, [w], {"r1": seen(spot)}, spare=0)
+    c.plan(61.0, [w], {"r1": seen(spot)}, spare=0)
+    if beyond_m < 0:
+        assert c.stuck == {} and c.allowed("d1", w.at, w.alt, goal) == goal
+    else:
+        assert "d1 needs 1 more relay" in c.stuck["d1"]
+        assert dist(c.allowed("d1", w.at, w.alt, goal), goal) > 1.0
 
 
 def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() -> None:
