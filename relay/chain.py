@@ -129,7 +129,7 @@ class Chains:
         self.base_rtt: float | None = None
         self.leaving: dict[str, int] = {}
         self.stuck: dict[str, str] = {}
-        self.stretched: set[str] = set()  # workers out of relays whose last hop stretches to what holds
+        self.stretched: set[str] = set()  # workers whose chains stretched to what holds (`_hop`)
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
         self.flying: dict[str, Point] = {}  # the served drones in the air, where they are (last plan)
@@ -207,7 +207,7 @@ class Chains:
             # than PARKED_CLEAR_M (a row at the spawn gap) held every launch for ever.
             return self._clear_ahead(worker, at, goal)
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
-        reach = self._last_hop(worker)
+        reach = self._hop(worker)
 
         def inside(p: Point) -> bool:
             return covers(nodes, p, alt, reach)
@@ -247,10 +247,11 @@ class Chains:
             return True
         return False
 
-    def _last_hop(self, worker: str) -> float:
-        """How far `worker` may be from the node that covers it: the chains' hop, or,
-        when its chain lacks relays and no drone is free, the longest hop measured to
-        hold a 3-s gap (a worker one relay short is a hop a little longer, not held)."""
+    def _hop(self, worker: str) -> float:
+        """The hop `worker`'s chain is laid on and the worker kept within: the proven hop
+        at MARGIN, or, once its chain lacked relays with no drone free, the longest hop a
+        window measured to keep a 3-s gap (a worker a relay short flies a little longer
+        hops instead of being held)."""
         hop = self.reach.lo * MARGIN
         return max(hop, self.reach.holds * MARGIN) if worker in self.stretched else hop
 
@@ -303,7 +304,6 @@ class Chains:
                 self.base_rtt = s.rtt_ms
         self._expire(now)
         self.stuck.clear()
-        self.stretched.clear()
         if not self.reach.known:
             nodes = [(w.at, w.alt) for w in workers] + list(others)
             self._learn(now, nodes, seen, out)
@@ -485,7 +485,7 @@ class Chains:
             out.dispatch.append((f"{w.id}#{again}", chain[again].spot, 0.0, self.site))
             return free - 1
         goal = w.goal or w.at
-        hop = self.reach.lo * MARGIN
+        hop = self._hop(w.id)
         planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
         if covers(planned, goal, w.alt, hop):
             return free  # the chain (once its relays are there) reaches the goal
@@ -499,8 +499,7 @@ class Chains:
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
             return free
-        if free <= 0 and covers(planned, goal, w.alt, self.reach.holds * MARGIN):
-            self.stretched.add(w.id)  # no drone is free, and a hop measured to hold reaches it
+        if free <= 0 and self._stretch(now, w, goal, out):
             return free
         if not self._launch_clear(seen, out):
             return free  # the last relay sent is still climbing out over the others' takeoff spots
@@ -515,6 +514,37 @@ class Chains:
         chain.append(Slot(spot, None, now))
         out.dispatch.append((key, spot, 0.0, self.site))
         return free - 1
+
+    def _stretch(self, now: float, w: Worker, goal: Point, out: ChainPlan) -> bool:
+        """No drone is free for `w`'s chain: if hops as long as a window measured to
+        keep a 3-s gap reach its goal with the relays it has, its chain is laid on them
+        from now on — each relay moved out along its chain's way, where it keeps clear of
+        other chains' spots and of the drones on the ground. False: it stays as it is."""
+        stretch = self.reach.holds * MARGIN
+        chain = self.chains[w.id]
+        if w.id in self.stretched or stretch <= self.reach.lo * MARGIN or any(s.relay is None for s in chain):
+            return False
+        spots: list[Point] = []
+        back_old, back_new, z = ORIGIN, ORIGIN, 0.0
+        for slot in chain:  # each relay as far out along its leg of the way as the stretched hop
+            length = dist(back_old, slot.spot)
+            d = flat(stretch, self.duty_alt - z)
+            ux, uy = ((slot.spot[0] - back_old[0]) / length, (slot.spot[1] - back_old[1]) / length) if length else (0.0, 0.0)
+            spots.append((back_new[0] + ux * d, back_new[1] + uy * d))
+            back_old, back_new, z = slot.spot, spots[-1], self.duty_alt
+        if not covers([(ORIGIN, 0.0)] + [(p, self.duty_alt) for p in spots], goal, w.alt, stretch):
+            return False
+        others = [sl.spot for c, ch in self.chains.items() if c != w.id for sl in ch]
+        if not all(self._clear(p) and all(dist(p, q) >= RELAYS_APART_M for q in others) for p in spots):
+            return False
+        self.stretched.add(w.id)
+        for slot, p in zip(chain, spots, strict=True):
+            if dist(p, slot.spot) > 0.5 and slot.relay is not None:
+                slot.spot, slot.asked_at, slot.on_spot_since = p, now, None
+                out.moves.append((slot.relay, p, 0.0))
+        out.notes.append(f"{w.id}: no drone is free for its chain; hops of {stretch:.0f} m from now on "
+                         f"(a window there kept a 3-s gap)")
+        return True
 
     def _off_parked(self, back: Point, spot: Point, seen: Mapping[str, Seen]) -> Point:
         """`spot`, or nearer `back`, or aside, until it is not over a drone on the ground

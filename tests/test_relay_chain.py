@@ -152,25 +152,27 @@ def test_no_free_drone_for_the_chain_is_named_with_the_relays_missing() -> None:
 
 
 @pytest.mark.parametrize("beyond_m", [-2.0, 2.0])
-def test_a_worker_out_of_relays_stretches_its_last_hop_to_what_held_and_no_further(beyond_m: float) -> None:
-    """No drone is free and the goal lies past the chain's hop but within one a window
-    measured to hold a 3-s gap: the worker goes there instead of being held; a step
-    further, it is held and named with the relay it lacks."""
+def test_a_chain_out_of_relays_stretches_to_the_hop_that_held_and_no_further(beyond_m: float) -> None:
+    """No drone is free and the goal lies past the chain's hop but within hops a window
+    measured to keep a 3-s gap: the chain's relay moves out to such a hop and the worker
+    goes on instead of being held; a step further, it is held and named with the relay
+    it lacks, and no relay moves."""
     c = Chains(DUTY)
     c.reach = Reach(lo=50.0, hi=51.0, holds=56.0)
-    w = Worker("d1", at(5), 15.0, at(5))
-    c.plan(0.0, [w], {}, spare=1)  # one relay asked for, out toward where the worker is sent next
     (key, spot, _, _), = c.plan(0.0, [Worker("d1", at(5), 15.0, at(60))], {}, spare=1).dispatch
     c.joined(key, "r1")
-    stretched = flat(56.0 * MARGIN, DUTY - 15.0)
-    goal = at(dist(spot, (0, 0)) + stretched + beyond_m)
+    stretch = 56.0 * MARGIN
+    goal = at(flat(stretch, DUTY) + flat(stretch, DUTY - 15.0) + beyond_m)
     w = Worker("d1", at(5), 15.0, goal)
-    c.plan(60.0, [w], {"r1": seen(spot)}, spare=0)
-    c.plan(61.0, [w], {"r1": seen(spot)}, spare=0)
+    out = c.plan(60.0, [w], {"r1": seen(spot)}, spare=0)
     if beyond_m < 0:
+        (relay, moved, _), = out.moves
+        assert relay == "r1" and c.stuck == {}
+        assert math.hypot(dist(moved, (0, 0)), DUTY) == pytest.approx(stretch, abs=0.5)
+        c.plan(70.0, [w], {"r1": seen(moved)}, spare=0)
         assert c.stuck == {} and c.allowed("d1", w.at, w.alt, goal) == goal
     else:
-        assert "d1 needs 1 more relay" in c.stuck["d1"]
+        assert out.moves == [] and "d1 needs 1 more relay" in c.stuck["d1"]
         assert dist(c.allowed("d1", w.at, w.alt, goal), goal) > 1.0
 
 
