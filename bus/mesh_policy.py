@@ -69,7 +69,7 @@ def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str], futile: set
     good: the open bridges answering at least `KEEP_RATE` over the last rounds or
     `HELD_KEEP_RATE` over `HELD_WINDOW` stay (a drone's only way, 14 % loss, missed
     three scouts of five and was closed: unheard 6 s, relay mode measured in
-    tests/test_relay_experiments.py), or else the best ones
+    tests/relay/test_relay_experiments.py), or else the best ones
     answering that often are tried (a drone in a chain of relays hears the next one up
     and the one it carries about equally, and cannot tell which leads to the ground).
     A fair bridge gives way as soon as a good neighbour is heard: routing takes the

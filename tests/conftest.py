@@ -16,7 +16,7 @@ import httpx
 import pytest
 
 from dronefleet.bus.zenoh_bus import ZenohBus
-from tests.harness import AgentProcess, GroundFleet, Operator, SimProcess, open_ground_router, stop_all
+from tests.harness import AgentProcess, GroundFleet, Operator, open_ground_router, stop_all
 from tests.ports import free_port
 
 # Radio tests at once on this host (`radio_slot` below), each a
@@ -164,21 +164,6 @@ def agents(endpoint: str, tmp_path: Path) -> Iterator[Callable[..., AgentProcess
 @pytest.fixture
 def operator(client: ZenohBus) -> Callable[[str], Operator]:
     return lambda drone_id: Operator(client, drone_id)
-
-
-@pytest.fixture(params=["sim", "mavsdk", "mavsdk-ardupilot"])
-def flight_controller(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
-    """The `--fc` URL of each adapter under test: the built-in simulated vehicle, and
-    real libmavsdk talking UDP to `fleet sim` as a PX4-like and as an ArduCopter-like
-    MAVLink vehicle (`--autopilot ardupilot`)."""
-    if request.param == "sim":
-        yield "sim"
-        return
-    sim = SimProcess(tmp_path, extra_args=["--autopilot", "ardupilot"] if request.param.endswith("ardupilot") else [])
-    try:
-        yield sim.fc_url()
-    finally:
-        sim.stop()
 
 
 @pytest.fixture

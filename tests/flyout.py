@@ -1,6 +1,6 @@
 """A drone flown straight out of the laptop's range, on real packets and in fast time:
 what it reported of its link to the ground on the way, and when the ground lost it
-(issue 57). The test (tests/test_link_quality.py) and the bench (bench/link_flyout.py)
+(issue 57). The test (tests/agent/test_link_quality.py) and the bench (bench/link_flyout.py)
 share it, so both judge the same scenario.
 
 On real packets: the real `fleet ground` in this namespace, `fleet sim WORLD --agents

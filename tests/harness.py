@@ -232,7 +232,7 @@ class GroundProcess(ChildProcess):
         self.data_dir = data_dir or tmp / "ground-data"
         cfg = tmp / f"ground-{self.http_port}.yml"
         # Missions here are tested for how they fly; each submission's preflight (fast time
-        # against the live fleet first, on by default) is tested in test_preflight.py.
+        # against the live fleet first, on by default) is tested in tests/mission/test_preflight.py.
         config = {**config, "mission": {"preflight": False, **config.get("mission", {})}}
         cfg.write_text(yaml.safe_dump(config))
         super().__init__(

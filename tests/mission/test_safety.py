@@ -148,7 +148,7 @@ async def test_simulate_gives_the_worlds_fence_to_ground_and_agents_and_draws_it
     from dronefleet.compose import simulate
     from dronefleet.sim.world import load_world
 
-    examples = Path(__file__).parent.parent / "examples"
+    examples = Path(__file__).parents[2] / "examples"
     world = load_world(examples / "worlds" / "fenced.yml")
     assert world.geofence is not None and world.geofence.max_alt_m == 50
     result = await simulate((examples / "two_drones.py").read_text(), world, out_dir=tmp_path, name="two_drones.py",
@@ -165,7 +165,7 @@ async def test_a_world_fence_reaches_the_agents_too(tmp_path: Path) -> None:
     fence from the world still refuses a flight out (reason geofence)."""
     from dronefleet.sim.world import load_world
 
-    world = load_world(Path(__file__).parent.parent / "examples" / "worlds" / "fenced.yml")
+    world = load_world(Path(__file__).parents[2] / "examples" / "worlds" / "fenced.yml")
     sim = SimField(world, ground_config=GroundConfig(data_dir=str(tmp_path), geofence=Geofence(min_separation_m=1)),
                    data_dir=tmp_path)
     assert sim.agent_config.geofence == world.geofence and sim.config.geofence.polygon == []

@@ -28,7 +28,7 @@ from dronefleet.schemas.about import About, FieldSpec, SensorDeclaration, may_re
 from dronefleet.schemas.codec import decode_about, decode_sensor, encode
 from dronefleet.schemas.config import ConfigError, load_config
 from dronefleet.schemas.telemetry import SensorReading
-from tests.test_registry import lines, telem
+from tests.ground.test_registry import lines, telem
 
 GAS = SensorDeclaration(type="gas", fields={"co_ppm": FieldSpec(unit="ppm", min=0, max=1000),
                                             "no2_ppb": FieldSpec(unit="ppb", min=0, max=500)})
@@ -186,7 +186,7 @@ def test_a_world_drones_agent_config_carries_its_sensor_declarations(tmp_path: P
     from dronefleet.sim.agent_command import drone_agent_config
     from dronefleet.sim.world import load_world
 
-    world = load_world(Path(__file__).parent.parent / "examples" / "worlds" / "gas_alarm.yml")
+    world = load_world(Path(__file__).parents[2] / "examples" / "worlds" / "gas_alarm.yml")
     base = tmp_path / "agent.yml"
     base.write_text("telemetry_rate_ms: 250\n")
     by_id = {spec.id: spec for spec in world.spawn()}

@@ -30,7 +30,7 @@ from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundFleet, make_pki
 from tests.waiting import advance_until, until
 
-EXAMPLES = Path(__file__).parent.parent / "examples"
+EXAMPLES = Path(__file__).parents[2] / "examples"
 NOW = 1_700_000_000_000
 
 
@@ -365,12 +365,12 @@ async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path,
         await ground.close()
 
 
-@pytest.mark.parametrize("name", sorted(p.name for p in (Path(__file__).parent.parent / "deploy").glob("*.yml")))
+@pytest.mark.parametrize("name", sorted(p.name for p in (Path(__file__).parents[2] / "deploy").glob("*.yml")))
 def test_every_deploy_config_loads(name: str) -> None:
     from dronefleet.schemas.config import load_config
 
     kind = GroundConfig if name.startswith("ground") else AgentConfig
-    config = load_config(kind, Path(__file__).parent.parent / "deploy" / name, {})
+    config = load_config(kind, Path(__file__).parents[2] / "deploy" / name, {})
     if "secure" in name:
         assert config.security.tls and config.security.pki_dir
         assert all(e.startswith("tls/") for e in config.listen)

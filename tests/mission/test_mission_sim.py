@@ -32,7 +32,7 @@ from dronefleet.sim.projection import LocalFrame
 from dronefleet.sim.world import Fault, World
 from tests.waiting import advance_until
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 FLY = "d = assign()\narm(d)\ntakeoff(d, 10*m)\n"
 

@@ -27,7 +27,7 @@ from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import fleet_command
 
-PLANS = Path(__file__).parent / "plans"
+PLANS = Path(__file__).parents[1] / "plans"
 QGC_PLAN = PLANS / "PX4SITL-PX4-MultiRotor.plan"
 ORIGIN = World().origin
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from dronefleet import relay_experiments as rx
 from tests.harness import fleet_command
 
-REPRO = Path(__file__).resolve().parents[2] / "shared" / "repro"
+REPRO = Path(__file__).resolve().parents[3] / "shared" / "repro"
 
 
 def test_the_repro_world_finishes_with_the_surveyor_heard_and_drones_apart(tmp_path: Path) -> None:
@@ -37,7 +37,7 @@ def test_on_links_that_never_fail_both_modes_finish_and_every_relay_lands(tmp_pa
     simulated): the probe's hops all hold, so none brackets the hop. The worker goes once
     the proven hop reaches its goal, and a probe no chain took goes home (the worker
     waited 600 s at the laptop, then the probe hovered to the time limit)."""
-    examples = Path(__file__).resolve().parents[1] / "examples"
+    examples = Path(__file__).resolve().parents[2] / "examples"
     for script in ("relay_mapping.py", "relay_two_ways.py"):
         world = examples / "worlds" / ("relay.yml" if script == "relay_mapping.py" else "relay_two_ways.yml")
         out = tmp_path / script

@@ -1,7 +1,7 @@
 """The agent contract (SPEC §2–§3) over real Zenoh: a router in this process,
 `fleet agent` as a subprocess, commands as real queries.
 
-`flight_controller` (tests/conftest.py) is parametrized per adapter; every test here
+`flight_controller` (tests/agent/conftest.py) is parametrized per adapter; every test here
 runs unchanged against each of them.
 """
 

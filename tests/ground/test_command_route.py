@@ -16,7 +16,7 @@ from dronefleet.bus.port import NoRoute
 from dronefleet.compose import SimField
 from dronefleet.schemas.codec import encode
 from dronefleet.schemas.commands import CommandReply
-from tests.test_ground_input import field  # noqa: F401 (the fast-time field: the real station, two drones)
+from tests.ground.test_ground_input import field  # noqa: F401 (the fast-time field: the real station, two drones)
 
 
 def _heard_as(sim: SimField, drone_id: str) -> None:

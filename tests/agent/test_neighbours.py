@@ -87,7 +87,7 @@ def test_an_open_clean_bridge_outlasts_two_unlucky_rounds() -> None:
 
 
 def test_an_open_fair_bridge_outlasts_unlucky_rounds_when_no_good_one_is_heard() -> None:
-    """Relay mode measured (tests/test_relay_experiments.py): a drone's only way, 14 %
+    """Relay mode measured (tests/relay/test_relay_experiments.py): a drone's only way, 14 %
     loss, missed three scouts of five and was closed; unheard 6 s."""
     unlucky = [True] * 5 + [False, False, True, False, False]  # 1 of the last 5, 6 of 10
     assert rate(unlucky) < KEEP_RATE

@@ -30,7 +30,7 @@ from dronefleet.sim.world import load_world
 from tests.harness import ChildProcess, GroundFleet, GroundProcess, fleet_command
 from tests.waiting import until
 
-EXAMPLES = Path(__file__).parent.parent / "examples"
+EXAMPLES = Path(__file__).parents[2] / "examples"
 
 
 def checked_messages(path: Path) -> Counter[str]:

@@ -20,7 +20,7 @@ from dronefleet.compose import SimField, simulate
 from dronefleet.schemas.geo import bearing_deg, distance_m
 from dronefleet.sim.world import World, load_world
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 WORLDS = EXAMPLES / "worlds"
 

@@ -1,7 +1,7 @@
 """A mission's text checked before anything flies (issue 59, mission/script/checks.py):
 names defined nowhere with the nearest known one, verbs called with arguments they do
 not take, a drone's attributes, and units where literals show them. What only running
-shows is the preflight's (tests/test_preflight.py)."""
+shows is the preflight's (tests/mission/test_preflight.py)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from dronefleet.mission.script.dsl import verb_signatures
 from dronefleet.mission.script.names import VERBS
 from dronefleet.mission.script.plugins import PluginLibrary
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REPRO = ROOT.parent / "shared" / "repro"
 MISSIONS = sorted(p for p in (ROOT / "examples").glob("*.py") if p.name != "__init__.py") + sorted(REPRO.glob("*.py"))
 

@@ -31,7 +31,7 @@ from tests.waiting import until
 
 pytestmark = pytest.mark.integration
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 DRONES = ("drone01", "drone02", "drone03", "drone04")
 
