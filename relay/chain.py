@@ -54,6 +54,7 @@ DISPATCH_TIMEOUT_S = 30.0  # a relay asked for and not assigned by then is asked
 RESEND_S = 45.0  # a probe heard but not on its trial spot by then is sent there again …
 MAX_RESENDS = 2  # … this many times; then the trial counts as failed
 SLOT_RESEND_S = 90.0  # … a chain relay, by then
+STRETCH_AFTER_S = 30.0  # a chain lacking a relay with none free this long stretches its hops (`_stretch`)
 
 
 def _done(w: Worker) -> bool:
@@ -129,7 +130,8 @@ class Chains:
         self.base_rtt: float | None = None
         self.leaving: dict[str, int] = {}
         self.stuck: dict[str, str] = {}
-        self.stretched: set[str] = set()  # workers whose chains stretched to what holds (`_hop`)
+        self.stretched: dict[str, float] = {}  # worker → the hop its chain stretched to (`_stretch`)
+        self.short_since: dict[str, float] = {}  # worker → since when its chain lacks a relay and none is free
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
         self.flying: dict[str, Point] = {}  # the served drones in the air, where they are (last plan)
@@ -249,11 +251,8 @@ class Chains:
 
     def _hop(self, worker: str) -> float:
         """The hop `worker`'s chain is laid on and the worker kept within: the proven hop
-        at MARGIN, or, once its chain lacked relays with no drone free, the longest hop a
-        window measured to keep a 3-s gap (a worker a relay short flies a little longer
-        hops instead of being held)."""
-        hop = self.reach.lo * MARGIN
-        return max(hop, self.reach.holds * MARGIN) if worker in self.stretched else hop
+        at MARGIN, or the longer one its chain stretched to (`_stretch`)."""
+        return self.stretched.get(worker, self.reach.lo * MARGIN)
 
     def _enough_for(self, workers: Sequence[Worker]) -> bool:
         """Whether the hop proven so far reaches every worker's goal: measuring further
@@ -488,6 +487,7 @@ class Chains:
         hop = self._hop(w.id)
         planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
         if covers(planned, goal, w.alt, hop):
+            self.short_since.pop(w.id, None)
             return free  # the chain (once its relays are there) reaches the goal
         if chain and chain[-1].relay is None:
             return free  # one asked for, not assigned yet
@@ -499,7 +499,9 @@ class Chains:
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
             return free
-        if free <= 0 and self._stretch(now, w, goal, out):
+        if free > 0:
+            self.short_since.pop(w.id, None)
+        elif now - self.short_since.setdefault(w.id, now) >= STRETCH_AFTER_S and self._stretch(now, w, goal, out):
             return free
         if not self._launch_clear(seen, out):
             return free  # the last relay sent is still climbing out over the others' takeoff spots
@@ -516,35 +518,49 @@ class Chains:
         return free - 1
 
     def _stretch(self, now: float, w: Worker, goal: Point, out: ChainPlan) -> bool:
-        """No drone is free for `w`'s chain: if hops as long as a window measured to
-        keep a 3-s gap reach its goal with the relays it has, its chain is laid on them
-        from now on — each relay moved out along its chain's way, where it keeps clear of
-        other chains' spots and of the drones on the ground. False: it stays as it is."""
-        stretch = self.reach.holds * MARGIN
+        """`w`'s chain has lacked a relay with no drone free for STRETCH_AFTER_S: if hops
+        no longer than a window measured to keep a 3-s gap reach its goal with the relays
+        it has, its chain is laid on the shortest such hop from now on — each relay moved
+        out along its leg, where it keeps clear of other chains and of the drones on the
+        ground. False: it stays as it is (held, and named with the relays it lacks)."""
         chain = self.chains[w.id]
-        if w.id in self.stretched or stretch <= self.reach.lo * MARGIN or any(s.relay is None for s in chain):
+        longest = self.reach.holds * MARGIN
+        if w.id in self.stretched or longest <= self.reach.lo * MARGIN or any(s.relay is None for s in chain):
             return False
-        spots: list[Point] = []
-        back_old, back_new, z = ORIGIN, ORIGIN, 0.0
-        for slot in chain:  # each relay as far out along its leg of the way as the stretched hop
-            length = dist(back_old, slot.spot)
-            d = flat(stretch, self.duty_alt - z)
-            ux, uy = ((slot.spot[0] - back_old[0]) / length, (slot.spot[1] - back_old[1]) / length) if length else (0.0, 0.0)
-            spots.append((back_new[0] + ux * d, back_new[1] + uy * d))
-            back_old, back_new, z = slot.spot, spots[-1], self.duty_alt
-        if not covers([(ORIGIN, 0.0)] + [(p, self.duty_alt) for p in spots], goal, w.alt, stretch):
+        if self._relaid(chain, goal, w.alt, longest) is None:
             return False
+        lo, hi = self.reach.lo * MARGIN, longest  # the shortest hop that reaches it, within 0.5 m
+        while hi - lo > 0.5:
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if self._relaid(chain, goal, w.alt, mid) is not None else (mid, hi)
+        spots = self._relaid(chain, goal, w.alt, hi)
+        assert spots is not None
         others = [sl.spot for c, ch in self.chains.items() if c != w.id for sl in ch]
         if not all(self._clear(p) and all(dist(p, q) >= RELAYS_APART_M for q in others) for p in spots):
             return False
-        self.stretched.add(w.id)
+        self.stretched[w.id] = hi
+        self.short_since.pop(w.id, None)
         for slot, p in zip(chain, spots, strict=True):
             if dist(p, slot.spot) > 0.5 and slot.relay is not None:
                 slot.spot, slot.asked_at, slot.on_spot_since = p, now, None
                 out.moves.append((slot.relay, p, 0.0))
-        out.notes.append(f"{w.id}: no drone is free for its chain; hops of {stretch:.0f} m from now on "
-                         f"(a window there kept a 3-s gap)")
+        out.notes.append(f"{w.id}: no drone is free for its chain; hops of {hi:.0f} m from now on "
+                         f"(a window at {self.reach.holds:.0f} m kept a 3-s gap)")
         return True
+
+    def _relaid(self, chain: Sequence[Slot], goal: Point, alt: float, hop: float) -> list[Point] | None:
+        """The chain's relays each as far out along its leg as `hop` (3-D), if they then
+        cover `goal` (a worker `alt` up); else None."""
+        spots: list[Point] = []
+        back_old, back_new, z = ORIGIN, ORIGIN, 0.0
+        for slot in chain:
+            length = dist(back_old, slot.spot)
+            d = flat(hop, self.duty_alt - z)
+            ux, uy = ((slot.spot[0] - back_old[0]) / length, (slot.spot[1] - back_old[1]) / length) if length else (0.0, 0.0)
+            spots.append((back_new[0] + ux * d, back_new[1] + uy * d))
+            back_old, back_new, z = slot.spot, spots[-1], self.duty_alt
+        nodes = [(ORIGIN, 0.0)] + [(p, self.duty_alt) for p in spots]
+        return spots if covers(nodes, goal, alt, hop) else None
 
     def _off_parked(self, back: Point, spot: Point, seen: Mapping[str, Seen]) -> Point:
         """`spot`, or nearer `back`, or aside, until it is not over a drone on the ground

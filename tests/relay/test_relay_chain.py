@@ -13,6 +13,7 @@ from dronefleet.relay.chain import (
     MARGIN,
     PROBE,
     PROVEN_LOSS,
+    STRETCH_AFTER_S,
     ChainPlan,
     Chains,
     Seen,
@@ -164,12 +165,14 @@ def test_a_chain_out_of_relays_stretches_to_the_hop_that_held_and_no_further(bey
     stretch = 56.0 * MARGIN
     goal = at(flat(stretch, DUTY) + flat(stretch, DUTY - 15.0) + beyond_m)
     w = Worker("d1", at(5), 15.0, goal)
-    out = c.plan(60.0, [w], {"r1": seen(spot)}, spare=0)
+    assert c.plan(60.0, [w], {"r1": seen(spot)}, spare=0).moves == [] and "d1" in c.stuck  # a drone may come free
+    out = c.plan(60.0 + STRETCH_AFTER_S, [w], {"r1": seen(spot)}, spare=0)
     if beyond_m < 0:
         (relay, moved, _), = out.moves
         assert relay == "r1" and c.stuck == {}
-        assert math.hypot(dist(moved, (0, 0)), DUTY) == pytest.approx(stretch, abs=0.5)
-        c.plan(70.0, [w], {"r1": seen(moved)}, spare=0)
+        # the shortest hop that reaches the goal: 2 m short of the longest, about 1 m on each of the two hops
+        assert stretch - 2.0 < math.hypot(dist(moved, (0, 0)), DUTY) < stretch - 0.5
+        c.plan(100.0, [w], {"r1": seen(moved)}, spare=0)
         assert c.stuck == {} and c.allowed("d1", w.at, w.alt, goal) == goal
     else:
         assert out.moves == [] and "d1 needs 1 more relay" in c.stuck["d1"]
