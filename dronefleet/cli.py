@@ -150,7 +150,7 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
 
 @main.command()
 @click.argument("drone")
-@click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "gust", "status"]))
+@click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "gust", "arm_denied", "arm_ok", "status"]))
 @click.argument("value", required=False)
 @click.option("--control", type=HOST_PORT, default="127.0.0.1:14539", show_default=True, help="Control channel: `fleet sim` (base port - 1) or an agent on `--fc sim://?control=PORT`.")
 def fault(drone: str, kind: str, value: str | None, control: tuple[str, int]) -> None:

@@ -34,6 +34,10 @@ def apply_fault(vehicle: Vehicle, fault: FaultKind | str, value: float | str | N
         vehicle.inject_health_failure(str(value or "accelerometer"))
     elif fault == "health_ok":
         vehicle.inject_health_failure()
+    elif fault == "arm_denied":
+        vehicle.inject_arm_denied(str(value or "preflight check failed"))
+    elif fault == "arm_ok":
+        vehicle.inject_arm_denied(None)
     elif fault == "gust":
         vehicle.inject_gust(float(value) if value is not None else 30.0)
     elif fault == "gps_loss":

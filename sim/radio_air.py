@@ -69,6 +69,9 @@ class RadioAir:
         self._needs: dict[str, NeedWatch] = {}
         self._answers: dict[tuple[str, str], deque[bool]] = {}  # per drone and neighbour: its scouts answered
         self._next_round = 0.0
+        # Interference a test or a bench adds on the air: (src, dst, stream) -> True loses
+        # that message, whatever the links say (a shadow, a burst of loss on one stream).
+        self.interference: Callable[[str, str, str], bool] | None = None
         self.tick()
 
     # Medium ------------------------------------------------------------------
@@ -84,7 +87,7 @@ class RadioAir:
 
     def transit(self, src: str, dst: str, stream: str = "") -> float | None:
         path = self.path(src, dst)
-        if path is None:
+        if path is None or self.interference is not None and self.interference(src, dst, stream):
             return None
         now = self.clock.monotonic()
         at = now

@@ -77,6 +77,7 @@ class Vehicle:
         self.battery = 1.0
         self.fix_type = "fix_3d"
         self.health_failures: set[str] = set()
+        self.arm_denied: str | None = None  # a refusal no health flag reports (inject_arm_denied)
         self.connected = True
         self.cruise_speed = self.params.cruise_speed_mps
         self.events: list[str] = []  # status texts for whoever listens (STATUSTEXT)
@@ -135,6 +136,8 @@ class Vehicle:
             return f"arming denied: health check failed ({', '.join(sorted(self.health_failures))})"
         if self.fix_type in ("no_gps", "no_fix", "fix_2d"):
             return "arming denied: no 3D GPS fix"
+        if self.arm_denied is not None:
+            return f"arming denied: {self.arm_denied}"
         if self.mode in ("return_to_launch", "land", "mission"):
             return f"arming denied in mode {self.mode}"
         self.armed = True
@@ -262,6 +265,11 @@ class Vehicle:
 
     def inject_health_failure(self, *checks: str) -> None:
         self.health_failures = set(checks)
+
+    def inject_arm_denied(self, reason: str | None) -> None:
+        """The autopilot refuses to arm with `reason` though its health flags read fine
+        (a preflight check no flag reports, as PX4's and ArduPilot's have); None arms again."""
+        self.arm_denied = reason
 
     def inject_gps(self, fix_type: str) -> None:
         self.fix_type = fix_type

@@ -20,7 +20,7 @@ from dronefleet.sim.world_fields import FieldModel, sample
 
 FaultKind = Literal[
     "rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore",
-    "health_failure", "health_ok", "gps_loss", "gps_ok", "gust",
+    "health_failure", "health_ok", "gps_loss", "gps_ok", "gust", "arm_denied", "arm_ok",
 ]
 ROW_SPACING_M = 5.0
 

@@ -5,9 +5,12 @@ concepts separate, not at a line count (issue 56). The layers themselves are imp
 
 from __future__ import annotations
 
+import ast
 import importlib
+import io
 import subprocess
 import sys
+import tokenize
 from pathlib import Path
 
 import grimp
@@ -102,3 +105,44 @@ def _ruff(source: str, filename: str) -> str:
     )
     assert done.returncode in (0, 1), done.stderr
     return done.stdout
+
+
+def our_classes_patched(source: str) -> list[str]:
+    """`monkeypatch.setattr(X, ...)` where X (or its root name) is imported from dronefleet
+    (tests add a seam instead: a fault, a lossy link, a plugin's public hook)."""
+    tree = ast.parse(source)
+    ours: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("dronefleet"):
+            ours.update(alias.asname or alias.name for alias in node.names)
+        elif isinstance(node, ast.Import):
+            ours.update((alias.asname or alias.name).split(".")[0] for alias in node.names if alias.name.startswith("dronefleet"))
+    found = []
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in ("setattr", "delattr")
+                and isinstance(node.func.value, ast.Name) and node.func.value.id == "monkeypatch" and node.args):
+            target = node.args[0]
+            while isinstance(target, ast.Attribute):
+                target = target.value
+            if isinstance(target, ast.Name) and target.id in ours or isinstance(target, ast.Constant) and str(target.value).startswith("dronefleet"):
+                found.append(f"line {node.lineno}: {ast.unparse(node)[:80]}")
+    # A method replaced on an object by assignment (mypy's method-assign, silenced).
+    lines = source.splitlines()
+    found += [f"line {tok.start[0]}: {lines[tok.start[0] - 1].strip()[:80]}"
+              for tok in tokenize.generate_tokens(io.StringIO(source).readline)
+              if tok.type == tokenize.COMMENT and "ignore[method-assign]" in tok.string]
+    return found
+
+
+def test_no_test_patches_our_own_classes() -> None:
+    patched = {str(path.relative_to(ROOT)): hits for path in sorted((ROOT / "tests").rglob("*.py"))
+               if (hits := our_classes_patched(path.read_text()))}
+    assert not patched, patched
+
+
+def test_the_patch_finder_finds_a_patch_of_our_class() -> None:
+    source = "from dronefleet.mission.script import relaying\ndef test(monkeypatch):\n    monkeypatch.setattr(relaying.Relays, 'leash', None)\n"
+    assert our_classes_patched(source) == ["line 3: monkeypatch.setattr(relaying.Relays, 'leash', None)"]
+    assert our_classes_patched("def test(sim):\n    sim.air.transit = f  # type: ignore[method-assign]\n") == [
+        "line 2: sim.air.transit = f  # type: ignore[method-assign]"]
+    assert our_classes_patched("import zenoh\ndef test(monkeypatch):\n    monkeypatch.setattr(zenoh, 'scout', None)\n") == []

@@ -28,11 +28,10 @@ mission's failure (the mission's `setback`).
 duty = {}  # relay id -> {"target": position, "alt": metres above home, "serving": bool, "ready": bool}
 crew = {}  # relay id -> its drone wrapper
 served = {}  # mission drone id -> wrapper (every mission drone that is not a relay)
-state = {"scale": 1.0, "steady": 0, "ground": None, "round": [], "planned": None, "dispatching": 0, "followed": [],
+state = {"scale": 1.0, "steady": 0, "ground": None, "dispatching": 0, "followed": [],
          "leaving": {}, "duty": None, "until": {}, "lanes": {}, "gone": set(), "failures": {}}
 MODES = ("chain", "measured", "distance")
 RELEASE_AFTER = 5  # plans in a row that find a relay not needed before it is sent home
-PLAN_EVERY_S = 0.9  # plans at most this often: a drone in doubt of the ground speaks every 250 ms
 steps = step  # the bundle steps' builder: the input `step` (a length) takes its name once enabled
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
 RENEW_S = 60  # ... and is renewed when less than this is left
@@ -113,17 +112,8 @@ def come_back(relay):
 
 
 def new_round(drone):
-    """One plan per telemetry period: when a drone is heard a second time since the last
-    plan (a drone out of reach does not stop it), and not within PLAN_EVERY_S of it (a
-    drone in doubt of the ground speaks four times as often: counted in plans, relays
-    were sent home four times as fast)."""
-    if drone.id not in state["round"]:
-        state["round"].append(drone.id)
-        return False
-    if state["planned"] is not None and relays.now() - state["planned"] < PLAN_EVERY_S:
-        return False
-    state["round"], state["planned"] = [drone.id], relays.now()
-    return True
+    """One plan per round of the drones heard, at most every 0.9 s (relay/rounds.py)."""
+    return relays.new_round(drone.id)
 
 
 def measured(drone):

@@ -22,7 +22,7 @@ from dronefleet.mission.script.drone import handle
 from dronefleet.mission.script.position import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
-from dronefleet.relay import planner, ways
+from dronefleet.relay import planner, rounds, ways
 from dronefleet.schemas.commands import DEFAULT_RETURN_ALT_M
 from dronefleet.sim.projection import LocalFrame
 
@@ -103,10 +103,15 @@ class Relays:
         self._frame: Frame | None = None
         self._served: dict[str, Any] = {}
         self._ways = ways.Ways()
+        self._rounds = rounds.PlanRounds()
 
     def now(self) -> float:
         """Seconds on the mission's clock (monotonic; virtual in fast time)."""
         return self._mission.clock.monotonic() if self._mission is not None else 0.0
+
+    def new_round(self, drone_id: str) -> bool:
+        """`drone_id` was heard: whether a plan is due now (relay/rounds.py)."""
+        return self._rounds.due(drone_id, self.now())
 
     def metres(self, value: Any, what: str = "distance") -> float:
         """A length input (`5*m` or a plain number of metres) as metres."""

@@ -23,7 +23,7 @@ from tests.dashboard.page import PLANS, UI_S, chromium
 from tests.harness import GroundFleet, ended
 from tests.waiting import until
 
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium-planner")]
 HOME = (40.633400, -8.660810)
 SPAWNS = {"drone01": HOME, "drone02": destination(*HOME, 12, 90)}
 

@@ -328,19 +328,16 @@ def radio_shadow(sim: SimField, begins: Callable[[Spot3], bool], lasts_s: float,
     is)` first holds; the returned dict gets "from", the shadow's start."""
     assert sim.air is not None
     shadow: dict[str, float] = {}
-    through = sim.air.transit
 
-    def transit(src: str, dst: str, stream: str = "") -> float | None:
+    def lost(src: str, dst: str, stream: str) -> bool:
         if "drone01" not in (src, dst):
-            return through(src, dst, stream)
+            return False
         now = sim.clock.monotonic()
         if "from" not in shadow and begins(sim._where()["drone01"]):
             shadow["from"] = now + after_s
-        if 0 <= now - shadow.get("from", now + 1) < lasts_s:
-            return None
-        return through(src, dst, stream)
+        return 0 <= now - shadow.get("from", now + 1) < lasts_s
 
-    sim.air.transit = transit  # type: ignore[method-assign]
+    sim.air.interference = lost
     return shadow
 
 
@@ -385,20 +382,18 @@ async def test_a_repeat_lost_as_the_link_relapses_is_repeated_at_the_next_contac
 
     def relapsing(sim: SimField) -> None:
         assert sim.air is not None
-        home, through = first_home(sim), sim.air.transit
+        home = first_home(sim)
 
-        def transit(src: str, dst: str, stream: str = "") -> float | None:
+        def lost(src: str, dst: str, stream: str) -> bool:
             if "drone01" not in (src, dst):
-                return through(src, dst, stream)
+                return False
             now = sim.clock.monotonic()
             if "from" not in windows and distance_m(*home, sim._where()["drone01"].lat, sim._where()["drone01"].lon) > 16:
                 windows["from"] = now
             t = now - windows.get("from", now + 1)
-            if 0 <= t < 3 or (3 <= t < 5 and stream.endswith("/status")) or 5 <= t < 7.5:
-                return None
-            return through(src, dst, stream)
+            return 0 <= t < 3 or (3 <= t < 5 and stream.endswith("/status")) or 5 <= t < 7.5
 
-        sim.air.transit = transit  # type: ignore[method-assign]
+        sim.air.interference = lost
 
     caplog.set_level(logging.INFO, logger="dronefleet.agent.runtime")
     _, (record, log), _ = await fly(SEVENTEEN_M_OUT, fire_world(RadioModel()), max_s=120, prepare=relapsing)
@@ -562,14 +557,11 @@ print(f"first: {first.result.state}")
 def lossy_up_high(sim: SimField) -> None:
     """drone01's statuses are lost while it is above 12 m (queries still cross)."""
     assert sim.air is not None
-    through = sim.air.transit
 
-    def transit(src: str, dst: str, stream: str = "") -> float | None:
-        if src == "drone01" and stream.endswith("/status") and sim.vehicles["drone01"].rel_alt > 12:
-            return None
-        return through(src, dst, stream)
+    def lost(src: str, dst: str, stream: str) -> bool:
+        return src == "drone01" and stream.endswith("/status") and sim.vehicles["drone01"].rel_alt > 12
 
-    sim.air.transit = transit  # type: ignore[method-assign]
+    sim.air.interference = lost
 
 
 async def test_a_bundle_whose_end_was_lost_returns_once_past_its_timeout() -> None:

@@ -1,5 +1,5 @@
 """Links lost and found on real packets: a drone flown out of range and brought home by
-its lost-link policy, and a healthy drone beside a lossy or frozen neighbour."""
+its lost-link policy, and a healthy drone beside a frozen neighbour."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.radio]
 
 
 @RADIO_B
-@pytest.mark.slow(70)
+@pytest.mark.slow(55)
 async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProcess]) -> None:
     """A drone flies from 20 m towards 150 m and is brought home by its lost-link policy;
     its sensors keep feeding its agent while the ground is out of reach. Its gas sensor
@@ -67,7 +67,7 @@ async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProces
         await command(http, "drone01", cmd="takeoff", alt=10)
         await until(lambda: state_is(http, "drone01", "hold"), 60, "drone01 hovering")
         far = north(150)
-        await command(http, "drone01", cmd="goto", lat=far[0], lon=far[1], speed=4)
+        await command(http, "drone01", cmd="goto", lat=far[0], lon=far[1], speed=8)
 
         await until(lambda: drone01_logged(http, "Link lost"), 90, "the ground's 'Link lost'")
         await until(lambda: drone01_logged(http, "Link restored"), 120, "the ground's 'Link restored'")
@@ -112,21 +112,22 @@ async def test_out_of_range_and_back(tmp_path: Path, processes: list[ChildProces
 
 
 @RADIO_B
-@pytest.mark.slow(60)
-async def test_a_healthy_drone_stays_heard_beside_a_lossy_or_frozen_neighbour(tmp_path: Path, radio_slot: None) -> None:
-    """Issue 30's reproduction (bench/mesh_stall.py, one run of each scenario): H 20 m
-    from the laptop, R 55 m out carrying F (105 m). While R flies out to 92 m and back,
-    and while R's agent is frozen for 20 s, the ground hears H at 5 Hz with no gap of
-    1.5 s, never loses its token and never sees its link close.
+@pytest.mark.slow(35)
+async def test_a_healthy_drone_stays_heard_beside_a_frozen_neighbour(tmp_path: Path, radio_slot: None) -> None:
+    """Issue 30's reproduction (bench/mesh_stall.py, one run of its frozen scenario):
+    H 20 m from the laptop, R 55 m out carrying F (105 m). While R's agent is frozen
+    (SIGSTOP) for 20 s, the ground hears H at 5 Hz with no gap of 1.5 s, never loses its
+    token and never sees its link close. The bench's other scenario, R flying out and
+    back, is in the suite as tests/radio/test_mesh_neighbour.py, where the neighbour's
+    link to H turns lossy too and the ground is the real `fleet ground`.
 
     The bench runs as its own process, as `fleet ground` does: its ground router must
     not share this test process's Zenoh runtime with sessions earlier tests opened
     (after the secured-mesh test, in-process runs showed 3.5-4.5 s gaps that the same
     code never showed on its own)."""
-    bench = subprocess.run([sys.executable, "bench/mesh_stall.py", "--runs", "1", "--scenario", "both",
+    bench = subprocess.run([sys.executable, "bench/mesh_stall.py", "--runs", "1", "--scenario", "frozen",
                             "--keep", str(tmp_path)], capture_output=True, text=True, timeout=400,
                            stdin=subprocess.DEVNULL, cwd=REPO)
     lines = bench.stdout.splitlines()
     assert bench.returncode == 0, bench.stdout[-3000:] + bench.stderr[-3000:]
-    assert [line.split(":")[0] for line in lines[-2:]] == ["lossy", "frozen"], lines
-    assert all(line.split(": ", 1)[1].startswith("1/1 runs kept H heard") for line in lines[-2:]), lines
+    assert lines[-1].startswith("frozen: 1/1 runs kept H heard"), lines

@@ -12,10 +12,12 @@ import pytest
 
 from dronefleet import relay_corpus as rc
 from dronefleet import relay_experiments as rx
-from dronefleet.compose import SimField
-from dronefleet.schemas.geo import distance_m
+from dronefleet.compose import SimField, simulate
+from dronefleet.schemas.config import load_config
+from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, USER_LAYOUTS, generate, hop_m
-from dronefleet.sim.world import ROW_SPACING_M
+from dronefleet.sim.faults import apply_fault
+from dronefleet.sim.world import ROW_SPACING_M, World
 
 SEEDS = range(200)
 
@@ -141,7 +143,7 @@ def test_a_relay_that_cannot_arm_is_replaced_and_not_sent_again_and_again() -> N
         try:
             await sim.start()
             # its autopilot refuses to arm from now on; the ground saw it healthy
-            sim.vehicles[broken].arm = lambda: "arming denied: preflight check failed"  # type: ignore[method-assign]
+            apply_fault(sim.vehicles[broken], "arm_denied", "preflight check failed")
             record = await sim.run_mission(world.script(line.format(lat=gs.lat, lon=gs.lon)), max_s=rc.MAX_S)
             return sim.result(record)
         finally:
@@ -171,33 +173,31 @@ def test_chain_mode_where_the_spares_do_not_suffice_holds_then_names_the_relays_
     assert o.longest_gap_s < 5.0, o  # held in reach: never the 30 s of link_lost
 
 
+HELD_LOW = """
+enable("relay")
+d = assign("drone01")
+arm(d)
+takeoff(d, 12*m)
+move(d, to=position(GOAL_LAT, GOAL_LON, FIELD_ALT))
+"""
+
+
 @pytest.mark.slow(12)
-def test_a_goto_held_short_of_a_lower_goal_keeps_its_level_until_the_last_leg(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A worker's goto home (at field level) was held 65 m short; the leg
-    to the edge went down to the ground, where the drone could go no further, and the
-    mission ran to its time limit. Here every goto of world 6's worker toward field level
-    is held 30 m short for a while: the leg keeps the worker's level, the last leg lands it
-    at home, and the mission finishes."""
-    from dronefleet.mission.script import relaying
-    from dronefleet.schemas.geo import destination
-
-    world = generate(6)
-    worker = world.workers[0]
-    real = relaying.Relays.leash
-    held: dict[str, int] = {}
-    edge: list[tuple[float, float]] = []
-
-    def leash(self: relaying.Relays, drone_id: str, lat: float, lon: float, alt: float | None) -> Any:
-        if drone_id == worker and alt is not None and alt < world.world.origin.alt + 1 and held.get("n", 0) < 400:  # about 80 s of its reports
-            held["n"] = held.get("n", 0) + 1
-            edge.append(destination(lat, lon, 30.0, 0.0))
-            return (*edge[-1], None, "for the test")
-        return real(self, drone_id, lat, lon, alt)
-
-    monkeypatch.setattr(relaying.Relays, "leash", leash)
-    result = asyncio.run(rc.fly(world, "chain"))
-    o = rc.judge(world, "chain", result)
-    assert o.finished, o
-    assert held.get("n", 0) >= 1
-    at_edge = [q["rel_alt"] for q in rx.track(result, worker) if distance_m(q["lat"], q["lon"], *edge[-1]) < 3.0]
-    assert at_edge and min(at_edge) > 10, at_edge[:20]  # held at its level there, not down on the field
+def test_a_goto_held_short_of_a_lower_goal_keeps_its_level() -> None:
+    """A worker's goto to a goal at field level (its way home, say), held at the edge
+    of its chain: the leg to the edge went down to the field, where the drone could go
+    no further, and the mission ran to its time limit. Here the goal is 117 m out on a
+    40/70 m radio with one spare, so the worker is held short for good: it waits at
+    its level, never down on the field, and the mission ends naming the relays missing."""
+    world = load_config(World, None, {
+        "origin": {"lat": 40.634125, "lon": -8.660336, "alt": 8.2},
+        "ground_station": {"lat": 40.634125, "lon": -8.660336},
+        "radio": {"good_m": 40, "lost_m": 70}, "count": 2})
+    goal = destination(40.634125, -8.660336, 117.0, 60.0)
+    source = HELD_LOW.replace("GOAL_LAT", str(goal[0])).replace("GOAL_LON", str(goal[1])).replace("FIELD_ALT", "8.2")
+    result = asyncio.run(simulate(source, world, seed=5, max_s=900, plots=False))
+    record = result["mission"]
+    assert (record["status"], record["cause"]) == ("failed", "requirements"), record
+    away = [q for q in rx.track(result, "drone01") if distance_m(q["lat"], q["lon"], 40.634125, -8.660336) > 15]
+    assert away, "drone01 never left the laptop"
+    assert min(q["rel_alt"] for q in away) > 10, [round(q["rel_alt"], 1) for q in away][-20:]
