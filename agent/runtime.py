@@ -23,6 +23,7 @@ from dronefleet.agent.bundle import BundleRunner, BundleStore
 from dronefleet.agent.config import AgentConfig, own_endpoint
 from dronefleet.agent.fc_port import FcError, FcState, FcUnavailable, FlightController
 from dronefleet.agent.fc_sim import SimFlightController, parse_sim_url
+from dronefleet.agent.ground_fence import GroundFence
 from dronefleet.agent.handler import CommandHandler, FlightSettings
 from dronefleet.agent.link import LostLink, LostLinkAction
 from dronefleet.agent.neighbours import Neighbours, new_bridge_zids
@@ -93,7 +94,7 @@ class Agent:
         self.bundles = BundleRunner(self.drone_id, self.handler, clock, self._publish_status, self._telemetry_now, store)
         self.resend = StatusResend(config.probe_period_ms)  # what to send again after a gap
         self._served: list[Redeclarable] = []  # the command and bundle queryables, while running
-        self.ground_epoch = 0  # SPEC §14: the highest ground epoch heard; older commands and bundles are refused
+        self.fence = GroundFence()  # SPEC §14: the newest ground epoch heard and its ground; others are refused
         self.lost_link = LostLink(config.lost_link, clock.monotonic(), steady_gap_s=2 * config.probe_period_ms / 1000)
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
@@ -235,18 +236,16 @@ class Agent:
         """Why a request naming another drone is refused (no name: it is for us)."""
         return f"drone_id: this is {self.drone_id}, not {drone_id}" if drone_id and drone_id != self.drone_id else None
 
-    def _stale(self, epoch: int, what: str, message_id: str) -> str | None:
-        """SPEC §14 fencing: a command or bundle from a ground older than the newest heard
-        is refused `stale_ground`; a newer one raises what is heard. 0: no ground epoch
-        (a direct client on the mesh), never fenced."""
-        if epoch == 0:
+    def _stale(self, epoch: int, ground_id: str, what: str, message_id: str) -> str | None:
+        """SPEC §14 fencing (agent/ground_fence.py): a command or bundle from a ground
+        older than the newest heard, or of the same epoch from another ground, is refused
+        `stale_ground`; a newer one raises what is heard."""
+        if self.fence.admits(epoch, ground_id):
             return None
-        if epoch < self.ground_epoch:
-            log.warning("%s: refused %s %s from a ground of epoch %d: epoch %d is active (stale_ground)",
-                        self.drone_id, what, message_id or "?", epoch, self.ground_epoch)
-            return STALE_GROUND
-        self.ground_epoch = epoch
-        return None
+        log.warning("%s: refused %s %s from ground %s of epoch %d: epoch %d of %s is active (stale_ground)",
+                    self.drone_id, what, message_id or "?", ground_id or "?", epoch, self.fence.epoch,
+                    self.fence.holder or "?")
+        return STALE_GROUND
 
     def _on_active_ground(self, sample: Sample) -> None:
         """A ground says it is active: its epoch is the newest heard if it is higher."""
@@ -254,9 +253,8 @@ class Agent:
             said = msgspec.json.decode(sample.payload, type=ActiveGround)
         except msgspec.MsgspecError:
             return
-        if said.epoch > self.ground_epoch:
+        if self.fence.heard(said.epoch, said.ground_id):
             log.info("%s: ground %s is active (epoch %d)", self.drone_id, said.ground_id, said.epoch)
-            self.ground_epoch = said.epoch
 
     def _unauthenticated(self, message: Any, message_id: str) -> str | None:
         """SPEC §9: with the ground's key configured, why a command or bundle is refused."""
@@ -282,10 +280,10 @@ class Agent:
             log.warning("%s: refused a bundle: %s", self.drone_id, exc)
             return encode(BundleReply(bundle_id=_peek(payload, "bundle_id"), accepted=False, reason=str(exc)))
         wrong = (self._not_mine(bundle.wire.drone_id) or self._unauthenticated(bundle.wire, bundle.bundle_id)
-                 or self._stale(bundle.wire.ground_epoch, "bundle", bundle.bundle_id))
+                 or self._stale(bundle.wire.ground_epoch, bundle.wire.ground_id, "bundle", bundle.bundle_id))
         if wrong is not None:
             return encode(BundleReply(bundle_id=bundle.bundle_id, accepted=False, reason=wrong,
-                                      ground_epoch=self.ground_epoch if wrong == STALE_GROUND else None))
+                                      ground_epoch=self.fence.epoch if wrong == STALE_GROUND else None))
         self._signed_by_the_ground()
         return encode(self.bundles.submit(bundle))
 
@@ -296,10 +294,10 @@ class Agent:
             log.warning("%s: refused a malformed command: %s", self.drone_id, exc)
             return encode(CommandReply(command_id=_peek(payload, "command_id"), accepted=False, reason=str(exc)))
         wrong = (self._not_mine(cmd.drone_id) or self._unauthenticated(cmd, cmd.command_id)
-                 or self._stale(cmd.ground_epoch, cmd.name, cmd.command_id))
+                 or self._stale(cmd.ground_epoch, cmd.ground_id, cmd.name, cmd.command_id))
         if wrong is not None:
             return encode(CommandReply(command_id=cmd.command_id, accepted=False, reason=wrong,
-                                       ground_epoch=self.ground_epoch if wrong == STALE_GROUND else None))
+                                       ground_epoch=self.fence.epoch if wrong == STALE_GROUND else None))
         self._signed_by_the_ground()
         if not cmd.command_id:
             cmd = msgspec.structs.replace(cmd, command_id=str(uuid.uuid4()))

@@ -283,7 +283,7 @@ class GroundStation:
         self._check_active()
         self._registered(drone_id)
         obj = self._body(drone_id, body)
-        obj["ground_epoch"] = self.peers.epoch
+        obj.update(ground_epoch=self.peers.epoch, ground_id=self.config.ground_id)
         obj.setdefault("bundle_id", "")
         if not obj["bundle_id"]:
             obj["bundle_id"] = self.new_bundle_id()
@@ -427,7 +427,8 @@ class GroundStation:
         obj = self._body(drone_id, body)
         if not obj.get("command_id"):
             obj["command_id"] = self.new_command_id()
-        obj["ground_epoch"] = self.peers.epoch  # SPEC §14: agents refuse an epoch older than they heard
+        # SPEC §14: agents refuse an epoch older than they heard, or one another ground holds
+        obj.update(ground_epoch=self.peers.epoch, ground_id=self.config.ground_id)
         return decode_command(json.dumps(obj))
 
     # ---- events in -----------------------------------------------------------------

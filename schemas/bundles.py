@@ -63,6 +63,7 @@ class TaskBundle(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     until: dict[str, Any] | None = None
     auth: Auth | None = None  # the ground's signature (SPEC §9)
     ground_epoch: Annotated[int, Meta(ge=0)] = 0  # SPEC §14: the sending ground's epoch (0: none)
+    ground_id: str = ""  # the sending ground: an epoch is held by the first ground an agent heard with it
 
 
 class BundleReply(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):

@@ -53,6 +53,7 @@ class _Command(msgspec.Struct, frozen=True, kw_only=True, tag_field="cmd", omit_
     mode: CommandMode | None = None
     auth: Auth | None = None  # the ground's signature (SPEC §9); absent on an unsecured fleet
     ground_epoch: Annotated[int, Meta(ge=0)] = 0  # SPEC §14: the sending ground's epoch (0: none, a direct client)
+    ground_id: str = ""  # the sending ground: an epoch is held by the first ground an agent heard with it
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode != self.MODE:
