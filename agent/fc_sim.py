@@ -151,7 +151,9 @@ class SimFlightController:
     async def set_setpoint(self, kind: str, values: dict[str, float | None]) -> None:
         if not self.vehicle.connected:
             raise FcRejected("flight controller not responding")
-        self._setpoint = (kind, dict(values))
+        # Numbers only, as MAVSDK's setpoint structs take them (fc_mavsdk.py): a field that
+        # is no setpoint value fails here as it fails there.
+        self._setpoint = (kind, {k: 0.0 if v is None else float(v) for k, v in values.items()})
         self._send_setpoint(self._clock.monotonic())
 
     async def start_offboard(self) -> None:

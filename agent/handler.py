@@ -220,7 +220,7 @@ class CommandHandler:
             case c.StopOffboard():
                 await fc.stop_offboard()
             case c.PositionNed() | c.VelocityNed() | c.VelocityBody() | c.Attitude() | c.AttitudeRate():
-                values = {k: v for k, v in msgspec.structs.asdict(cmd).items() if k not in _COMMON_FIELDS}
+                values = {k: v for k, v in msgspec.structs.asdict(cmd).items() if k not in c.COMMON_FIELDS}
                 if cmd.name in ("position_ned", "velocity_ned") and values.get("yaw") is None:
                     values["yaw"] = s.heading
                 if isinstance(cmd, c.PositionNed):
@@ -332,4 +332,3 @@ class CommandHandler:
         )
 
 
-_COMMON_FIELDS = frozenset({"drone_id", "command_id", "timestamp", "mode"})

@@ -66,6 +66,11 @@ class _Command(msgspec.Struct, frozen=True, kw_only=True, tag_field="cmd", omit_
         return self.__struct_config__.tag  # type: ignore[return-value]
 
 
+# What every command carries besides its own fields (who, which, when, whose ground):
+# a setpoint's values are the rest.
+COMMON_FIELDS = frozenset(_Command.__struct_fields__)
+
+
 class Arm(_Command, tag="arm", frozen=True):
     MODE = "action"
 

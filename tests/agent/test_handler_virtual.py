@@ -129,6 +129,15 @@ async def test_position_ned_finishes_at_the_setpoint(rig: Rig) -> None:
     assert (rig.vehicle.north, rig.vehicle.east) == pytest.approx((10.0, -5.0), abs=0.5)
 
 
+async def test_a_setpoint_from_a_ground_flies_on_its_own_fields_only(rig: Rig) -> None:
+    """What every command carries (its ground's epoch and id, its signature) is no
+    setpoint value: a velocity from the active ground flies as one from anyone."""
+    await airborne(rig)
+    vel = rig.send(c.VelocityNed(north=2.0, ground_epoch=3, ground_id="alpha"))
+    await rig.run_until(lambda: rig.vehicle.north > 5)
+    assert rig.states(vel) == ["start"]
+
+
 async def test_offboard_lost_by_the_autopilot_is_reported(rig: Rig) -> None:
     await airborne(rig)
     vel = rig.send(c.VelocityBody(forward=1.0))
