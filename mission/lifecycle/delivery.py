@@ -11,12 +11,12 @@ import json
 import logging
 from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal, TypeVar
+from typing import Any, Literal, Protocol, TypeVar
 
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
-from dronefleet.mission.lifecycle.record import CommandResult, MissionOver, MissionRecord
+from dronefleet.mission.lifecycle.record import CommandResult, MissionOver
 from dronefleet.mission.lifecycle.send_again import TakenBack, deliver, steps_for
 from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
@@ -59,36 +59,57 @@ HOLD_LIMIT_S = 600.0  # a goto held this long without its edge moving ends the m
 LEASH_STEP_M = 2.0  # a held goto is sent on when the edge moves this far
 
 
-class CommandDelivery:
-    """Mission's sending half (a base class of lifecycle.mission.Mission, whose state
-    and verbs it uses: declared here for the type checker)."""
+class MissionSide(Protocol):
+    """What delivery needs of the mission it sends for (mission/lifecycle/mission.py)."""
 
     station: FleetPort
     config: MissionConfig
     clock: Clock
-    record: MissionRecord
     deterministic: bool
     commands: list[CommandResult]
-    _sent: dict[str, SentCommand]
-    _bundles: dict[str, PendingBundle]
-    _pushed: int
-    _link_back_at: dict[str, asyncio.Future[None]]
     plugin_drones: dict[str, str]
     given_up: dict[str, float]
-    leash: Callable[[str, float, float, float | None], Leash | None] | None
-    leashed: dict[str, tuple[float, float, float | None]]
 
-    if TYPE_CHECKING:
-        @property
-        def id(self) -> str: ...
-        @property
-        def ending(self) -> bool: ...
-        def log(self, level: Literal["info", "warn", "error"], message: str) -> None: ...
-        def fail(self, cause: str, message: str) -> MissionOver: ...
-        def setback(self, cause: str, message: str) -> MissionOver: ...
-        def check_assigned(self, drone_id: str) -> None: ...
-        def _catch_up(self, pending: PendingBundle) -> None: ...
-        async def next_telemetry(self, drone_id: str) -> None: ...
+    @property
+    def id(self) -> str: ...
+    @property
+    def ending(self) -> bool: ...
+    def log(self, level: Literal["info", "warn", "error"], message: str) -> None: ...
+    def fail(self, cause: str, message: str) -> MissionOver: ...
+    def setback(self, cause: str, message: str) -> MissionOver: ...
+    def check_assigned(self, drone_id: str) -> None: ...
+    def catch_up(self, pending: PendingBundle) -> None: ...
+    async def next_telemetry(self, drone_id: str) -> None: ...
+
+
+class CommandDelivery:
+    """A mission's sending half: what it sent and waits for, and how each send goes
+    (the mission holds one, `Mission.delivery`, and hears the statuses that end them)."""
+
+    def __init__(self, mission: MissionSide) -> None:
+        self.mission = mission
+        self.sent: dict[str, SentCommand] = {}  # command id → the command a verb waits on, and its outcome
+        self.bundles: dict[str, PendingBundle] = {}  # bundle id → the push waiting for it
+        self._pushed = 0
+        self.link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
+        # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
+        # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
+        self.leash: Callable[[str, float, float, float | None], Leash | None] | None = None
+        self.leashed: dict[str, tuple[float, float, float | None]] = {}  # drone → the goal of its held goto
+
+    # What the send-again steps (send_again.Sender) ask of the mission, through it.
+    @property
+    def clock(self) -> Clock:
+        return self.mission.clock
+
+    def log(self, level: Literal["info", "warn", "error"], message: str) -> None:
+        self.mission.log(level, message)
+
+    def setback(self, cause: str, message: str) -> MissionOver:
+        return self.mission.setback(cause, message)
+
+    async def next_telemetry(self, drone_id: str) -> None:
+        await self.mission.next_telemetry(drone_id)
 
     async def execute(self, drone_id: str, body: dict[str, Any], *, wait: bool = True,
                       wait_clear: bool = False) -> CommandStatus | None:
@@ -98,7 +119,7 @@ class CommandDelivery:
         status or no answer → cmd_exec, anything else → unexpected.
         """
         name = str(body["cmd"])
-        if name == "goto" and self.leash is not None and drone_id not in self.plugin_drones and "lat" in body:
+        if name == "goto" and self.leash is not None and drone_id not in self.mission.plugin_drones and "lat" in body:
             await self._on_leash(drone_id, body)
         sent_at = self.clock.monotonic()
         for interrupted in range(RESUME_TRIES + 1):
@@ -109,9 +130,9 @@ class CommandDelivery:
                 status = await self._execute_once(drone_id, name, body, wait=wait, wait_clear=wait_clear)
             if status is None or not ended_by_failsafe(status) or name not in RESUMABLE:
                 break
-            if self.given_up.get(drone_id, -1.0) >= sent_at:  # the plugin went on without it: not sent out again
+            if self.mission.given_up.get(drone_id, -1.0) >= sent_at:  # the plugin went on without it: not sent out again
                 raise self.setback("cmd_exec", f"{name} {drone_id} ended by its lost-link failsafe after "
-                                               f"{self.config.mission.link_grace_s:g} s out of reach; not sent again")
+                                               f"{self.mission.config.mission.link_grace_s:g} s out of reach; not sent again")
             if interrupted == RESUME_TRIES:
                 self.log("warn", f"{drone_id}: {name} interrupted by its lost-link failsafe {RESUME_TRIES + 1} times; "
                                  "going on without it")
@@ -124,7 +145,7 @@ class CommandDelivery:
     def _sent_home(self, drone_id: str) -> bool:
         """The mission's own last command to the drone was a return: a goto refused while
         it returns is the script's doing, not the failsafe's, and is not taken back."""
-        last = next((c for c in reversed(self.commands) if c.drone_id == drone_id), None)
+        last = next((c for c in reversed(self.mission.commands) if c.drone_id == drone_id), None)
         return last is not None and last.cmd == "return"
 
     async def _on_leash(self, drone_id: str, body: dict[str, Any]) -> None:
@@ -149,13 +170,13 @@ class CommandDelivery:
                     self.log("info", f"{drone_id}: held {why}, {short:.0f} m short of its goal")
                 stuck_since = (stuck_since or now) if stuck else None
                 if stuck and stuck_since is not None and now - stuck_since >= LEASH_LIMIT_S:
-                    raise self.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
+                    raise self.mission.fail("requirements", f"{stuck} (held {LEASH_LIMIT_S:g} s)")
                 if edge is None or distance_m(lat, lon, edge[0], edge[1]) > LEASH_STEP_M:
                     edge = (lat, lon, now)
                 elif now - edge[2] >= HOLD_LIMIT_S:
-                    raise self.fail("requirements", f"{drone_id} held {why} for {HOLD_LIMIT_S:g} s, "
-                                                    f"{distance_m(lat, lon, goal[0], goal[1]):.0f} m short of its goal"
-                                                    + (f": {stuck}" if stuck else ""))
+                    raise self.mission.fail("requirements", f"{drone_id} held {why} for {HOLD_LIMIT_S:g} s, "
+                                                            f"{distance_m(lat, lon, goal[0], goal[1]):.0f} m short of its goal"
+                                                            + (f": {stuck}" if stuck else ""))
                 if (sent is None or distance_m(lat, lon, *sent) > LEASH_STEP_M or self._idle_at(drone_id, sent, (lat, lon))) and \
                         await self._leash_step(drone_id, {**body, "lat": lat, "lon": lon, **self._leg_level(drone_id, goal[2])}):
                     sent = (lat, lon)
@@ -169,7 +190,7 @@ class CommandDelivery:
         """The drone stands where its last leg took it and the edge moved, if less than
         LEASH_STEP_M: a short leg is sent too (a drone just outside what covers it, told
         back 1.3 m, was never sent and held to the time limit)."""
-        t = self.station.registry.telemetry(drone_id) if drone_id in self.station.registry else None
+        t = self.mission.station.registry.telemetry(drone_id) if drone_id in self.mission.station.registry else None
         if t is None or t.position is None or distance_m(*edge, *sent) < 0.5:
             return False
         return distance_m(t.position.lat, t.position.lon, *sent) < LEASH_STEP_M
@@ -178,7 +199,7 @@ class CommandDelivery:
         """A leg short of the goal keeps the drone's level when the goal is lower: the
         descent is the last leg's. (A goto home at field level, held 65 m short, flew its
         leg down to the ground and could go no further.)"""
-        t = self.station.registry.telemetry(drone_id) if drone_id in self.station.registry else None
+        t = self.mission.station.registry.telemetry(drone_id) if drone_id in self.mission.station.registry else None
         if alt is None or t is None or t.position is None or t.position.alt <= alt:
             return {}
         return {"alt": t.position.alt}
@@ -186,34 +207,34 @@ class CommandDelivery:
     async def _leash_step(self, drone_id: str, body: dict[str, Any]) -> bool:
         """One leg of a held goto, not waited for. Refused (another drone's spot, say) or
         unanswered, the drone stays where it is and the leg is tried again as it reports."""
-        payload = json.dumps({**body, "command_id": self.station.new_command_id()}).encode()
+        payload = json.dumps({**body, "command_id": self.mission.station.new_command_id()}).encode()
         try:
-            await self.station.command(drone_id, payload, self.id)
+            await self.mission.station.command(drone_id, payload, self.mission.id)
         except (CommandRejected, InvalidMessage, Unreachable) as exc:
-            log.info("mission %s: %s: a leg toward the chain's edge was not taken (%s)", self.id, drone_id, exc)
+            log.info("mission %s: %s: a leg toward the chain's edge was not taken (%s)", self.mission.id, drone_id, exc)
             return False
         self._bundles_ended_by(drone_id)
         return True
 
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
                             wait_clear: bool, take_back: bool = False) -> CommandStatus | None:
-        self.check_assigned(drone_id)
+        self.mission.check_assigned(drone_id)
         if self.out_of_reach(drone_id):  # the ground would refuse it (unknown)
             await self.heard_again(drone_id, name)
-        command_id = self.station.new_command_id()
+        command_id = self.mission.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
-            self._sent[command_id] = SentCommand(drone_id, name, self.clock.monotonic(), fut)
+            self.sent[command_id] = SentCommand(drone_id, name, self.clock.monotonic(), fut)
         sent = self.clock.time_ms()
         try:
             with self._sending(name, drone_id):
                 payload = json.dumps({**body, "command_id": command_id}).encode()
-                await self._deliver(drone_id, name, lambda: self.station.command(drone_id, payload, self.id), wait_clear,
+                await self._deliver(drone_id, name, lambda: self.mission.station.command(drone_id, payload, self.mission.id), wait_clear,
                                     take_back)
                 self._bundles_ended_by(drone_id)
                 if not wait:
                     return None
-                self._sent[command_id].accepted = self.clock.monotonic()
+                self.sent[command_id].accepted = self.clock.monotonic()
                 if name == "goto" and "lat" in body:
                     status = await self._outcome_or_there(fut, drone_id, command_id, body)
                 else:
@@ -221,12 +242,12 @@ class CommandDelivery:
         except (asyncio.CancelledError, MissionOver, TakenBack):
             raise
         except Exception as exc:  # noqa: BLE001
-            log.exception("mission %s: %s %s", self.id, name, drone_id)
-            raise self.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
+            log.exception("mission %s: %s %s", self.mission.id, name, drone_id)
+            raise self.mission.fail("unexpected", f"{name} {drone_id}: {type(exc).__name__}: {exc}") from None
         finally:
-            self._sent.pop(command_id, None)
+            self.sent.pop(command_id, None)
         target: dict[str, float] | None = {k: float(body[k]) for k in ("lat", "lon", "alt") if k in body} or None
-        self.commands.append(CommandResult(
+        self.mission.commands.append(CommandResult(
             drone_id=drone_id, cmd=name, t_sent_ms=sent, t_end_ms=self.clock.time_ms(), state=status.state, target=target,
         ))
         if status.state == "failure":
@@ -245,19 +266,19 @@ class CommandDelivery:
 
     @property
     def link_grace_s(self) -> float:
-        return self.config.mission.link_grace_s
+        return self.mission.config.mission.link_grace_s
 
     @property
     def clear_wait_s(self) -> float:
-        return self.config.mission.clear_wait_s
+        return self.mission.config.mission.clear_wait_s
 
     async def cancel(self, drone_id: str) -> None:
         """Stop what the drone is doing (its failsafe's return), as this mission."""
-        body = {"cmd": "cancel", "command_id": self.station.new_command_id()}
-        await self.station.command(drone_id, json.dumps(body).encode(), self.id)
+        body = {"cmd": "cancel", "command_id": self.mission.station.new_command_id()}
+        await self.mission.station.command(drone_id, json.dumps(body).encode(), self.mission.id)
 
     def out_of_reach(self, drone_id: str) -> bool:
-        back = self._link_back_at.get(drone_id)
+        back = self.link_back_at.get(drone_id)
         return back is not None and not back.done()
 
     async def heard_again(self, drone_id: str, name: str) -> None:
@@ -266,7 +287,7 @@ class CommandDelivery:
         mission.link_grace_s: the mission ends then (link_lost) and this is cancelled."""
         self.log("info", f"{drone_id}: {name} waits for the link to come back")
         if self.out_of_reach(drone_id):
-            await asyncio.shield(self._link_back_at[drone_id])
+            await asyncio.shield(self.link_back_at[drone_id])
         else:
             await self.next_telemetry(drone_id)
 
@@ -288,27 +309,27 @@ class CommandDelivery:
         it once). Sent once only, a relay's homeward bundle lost on a lossy hop unwound
         the plugin's routine and left the relay hovering on its spot, where another passed
         1.1 m from it."""
-        self.check_assigned(drone_id)
+        self.mission.check_assigned(drone_id)
         self._pushed += 1  # fast time replays exactly: its ids come from the mission
-        bundle_id = f"b-{self.id}-{self._pushed}" if self.deterministic else new_bundle_id()
+        bundle_id = f"b-{self.mission.id}-{self._pushed}" if self.mission.deterministic else new_bundle_id()
         timeout_s = body.get("timeout_s")
         deadline = self.clock.monotonic() + (timeout_s if timeout_s is not None else BUNDLE_NO_TIMEOUT_S)
         pending = PendingBundle(drone_id, bundle_id, deadline, asyncio.get_running_loop().create_future())
-        self._bundles[bundle_id] = pending
+        self.bundles[bundle_id] = pending
         try:
             with self._sending("push", drone_id):
                 payload = json.dumps({**body, "bundle_id": bundle_id}).encode()
-                reply = await self._deliver(drone_id, "push", lambda: self.station.push(drone_id, payload, self.id))
+                reply = await self._deliver(drone_id, "push", lambda: self.mission.station.push(drone_id, payload, self.mission.id))
                 self._bundles_ended_by(drone_id, bundle_id)
                 if reply.reason:  # a push sent again that the agent had taken: its end may have gone by
-                    self._catch_up(pending)
+                    self.mission.catch_up(pending)
                 overdue = asyncio.ensure_future(self._overdue(pending))
                 try:
                     return await self._outcome(pending.done, drone_id)
                 finally:
                     overdue.cancel()
         finally:
-            self._bundles.pop(bundle_id, None)
+            self.bundles.pop(bundle_id, None)
 
     async def _overdue(self, pending: PendingBundle) -> None:
         """Past its timeout (the agent ends it then) a bundle whose end was not heard is
@@ -317,7 +338,7 @@ class CommandDelivery:
         time limit, nothing else sent to it."""
         await self.clock.sleep(max(0.0, pending.deadline - self.clock.monotonic()) + OVERDUE_S)
         while not pending.done.done():
-            self._catch_up(pending)
+            self.mission.catch_up(pending)
             await self.clock.sleep(OVERDUE_RETRY_S)
 
     def _bundles_ended_by(self, drone_id: str, newer: str | None = None) -> None:
@@ -325,9 +346,9 @@ class CommandDelivery:
         Its own end may have gone down with a link that dropped (a relay's duty bundle:
         its routine waited for that end until the time limit): the agent's record of
         every bundle of this mission still running there is read again."""
-        for pending in list(self._bundles.values()):
+        for pending in list(self.bundles.values()):
             if pending.drone_id == drone_id and pending.bundle_id != newer and not pending.done.done():
-                self._catch_up(pending)
+                self.mission.catch_up(pending)
 
     @contextlib.contextmanager
     def _sending(self, name: str, drone_id: str) -> Iterator[None]:
@@ -343,16 +364,16 @@ class CommandDelivery:
         except Unreachable as exc:
             raise self.setback("cmd_exec", f"{name} {drone_id}: no answer from the drone ({exc})") from None
 
-    def _superseded_unheard(self, start: CommandStatus) -> None:
+    def superseded_unheard(self, start: CommandStatus) -> None:
         """`start` of a command this mission sent: every command it sent the drone before
         (accepted before this one went) has ended — the agent ends a running command when
         another starts (agent/priority.py). If its own end was never heard (lost with a
         link that closed, and not repeated), it is resolved here, or its verb would wait
         for ever."""
-        later = self._sent.get(start.command_id)
+        later = self.sent.get(start.command_id)
         if later is None or start.command in KEEP_RUNNING:
             return
-        for command_id, earlier in self._sent.items():
+        for command_id, earlier in self.sent.items():
             if (earlier.drone_id != start.drone_id or command_id == start.command_id or earlier.name in KEEP_RUNNING
                     or earlier.accepted is None or earlier.accepted > later.sent or earlier.outcome.done()):
                 continue
@@ -372,7 +393,7 @@ class CommandDelivery:
             await asyncio.wait(either, return_when=asyncio.FIRST_COMPLETED)
         except asyncio.CancelledError:  # as _outcome: a stopped subroutine stops its goto
             watch.cancel()
-            if not self.ending:
+            if not self.mission.ending:
                 await asyncio.shield(self._cancel_quietly(drone_id))
             raise
         watch.cancel()
@@ -386,7 +407,7 @@ class CommandDelivery:
         since: float | None = None
         while True:
             await self.next_telemetry(drone_id)
-            t = self.station.registry.telemetry(drone_id)
+            t = self.mission.station.registry.telemetry(drone_id)
             p = t.position
             close = p is not None and distance_m(p.lat, p.lon, float(body["lat"]), float(body["lon"])) <= ARRIVED_M \
                 and ("alt" not in body or abs(p.alt - float(body["alt"])) <= ARRIVED_M) and t.speed <= 0.3
@@ -401,13 +422,13 @@ class CommandDelivery:
         try:
             return await fut
         except asyncio.CancelledError:
-            if not self.ending:
+            if not self.mission.ending:
                 await asyncio.shield(self._cancel_quietly(drone_id))
             raise
 
     async def _cancel_quietly(self, drone_id: str) -> None:
         try:
-            await self.station.command(drone_id, b'{"cmd": "cancel"}', self.id)
+            await self.mission.station.command(drone_id, b'{"cmd": "cancel"}', self.mission.id)
         except Exception as exc:  # noqa: BLE001 - best effort; the mission goes on
             self.log("warn", f"{drone_id}: could not cancel the stopped subroutine's command: {exc}")
 

@@ -79,6 +79,10 @@ class Subroutine:
     def result(self) -> Any:
         return self._result
 
+    async def ended(self) -> None:
+        """Until the subroutine has ended (at once if it has)."""
+        await asyncio.shield(self._done)
+
     def finish(self) -> None:
         """Mark the subroutine ended (once: its driver or its task's end, whichever first)."""
         if not self._done.done():

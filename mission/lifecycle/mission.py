@@ -20,7 +20,7 @@ from typing import Any, Literal
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle import assignment as a
-from dronefleet.mission.lifecycle.delivery import CommandDelivery, Leash, PendingBundle, SentCommand, leave
+from dronefleet.mission.lifecycle.delivery import CommandDelivery, PendingBundle, leave
 from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.greenlets import Scheduler, Subroutine, current_subroutine
 from dronefleet.mission.lifecycle.record import (
@@ -52,7 +52,7 @@ STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
 
 
-class Mission(CommandDelivery):
+class Mission:
     """The shell: what runs as the mission's main subroutine comes from `script_main`
     (mission.script.ScriptMission runs a mission script there)."""
 
@@ -77,26 +77,19 @@ class Mission(CommandDelivery):
         self.requests: dict[str, a.Request] = {}  # drone id → how it was assigned
         self.plugin_drones: dict[str, str] = {}  # drone id → the plugin that assigned it (its relays, its replacements)
         self.commands: list[CommandResult] = []
-        self._sent: dict[str, SentCommand] = {}  # command id → the command a verb waits on, and its outcome
-        self._bundles: dict[str, PendingBundle] = {}  # bundle id → the push waiting for it
-        self._pushed = 0
         self._pulses: dict[str, list[asyncio.Future[None]]] = {}
         self._ended = asyncio.Event()
         self._stop_listening: Callable[[], None] | None = None
         self._critical: set[str] = set()
         self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
-        self._link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
         self.given_up: dict[str, float] = {}  # a plugin's drone → when it was last unreachable past the grace
-        self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (_catch_up)
+        self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (catch_up)
         # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
         self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
         self._doing: dict[str, tuple[Any, ...]] = {}  # subroutine → what it last reported
         self._drones_of: dict[str, tuple[str, ...]] = {}  # subroutine → the drones its last verb on drones acted on
         self._heard_at: dict[str, float] = {}  # drone id → when its telemetry last came (mission clock)
-        # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
-        # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
-        self.leash: Callable[[str, float, float, float | None], Leash | None] | None = None
-        self.leashed: dict[str, tuple[float, float, float | None]] = {}  # drone → the goal of its held goto
+        self.delivery = CommandDelivery(self)  # what it sent and waits for (mission/lifecycle/delivery.py)
 
     @property
     def id(self) -> str:
@@ -217,10 +210,10 @@ class Mission(CommandDelivery):
         for wait in self._link_waits.values():
             wait.cancel()
         self._link_waits.clear()
-        for sent in self._sent.values():
+        for sent in self.delivery.sent.values():
             if not sent.outcome.done():
                 sent.outcome.cancel()
-        for pending in self._bundles.values():
+        for pending in self.delivery.bundles.values():
             if not pending.done.done():
                 pending.done.cancel()
         for ask in list(self._asks):
@@ -289,18 +282,18 @@ class Mission(CommandDelivery):
                 fut.set_result(None)
 
     def _on_command_status(self, status: CommandStatus) -> None:
-        sent = self._sent.get(status.command_id)
+        sent = self.delivery.sent.get(status.command_id)
         if sent is not None and status.state in TERMINAL_STATES and not sent.outcome.done():
             sent.outcome.set_result(status)
         if status.state == "start":
-            self._superseded_unheard(status)
+            self.delivery.superseded_unheard(status)
 
     def _on_bundle_status(self, status: BundleStatus) -> None:
-        pending = self._bundles.get(status.bundle_id)
+        pending = self.delivery.bundles.get(status.bundle_id)
         if pending is not None and status.ends_bundle:
-            self._catch_up(pending, status)
+            self.catch_up(pending, status)
 
-    def _catch_up(self, pending: PendingBundle, status: BundleStatus | None = None) -> None:
+    def catch_up(self, pending: PendingBundle, status: BundleStatus | None = None) -> None:
         """Ask the agent for the bundle's record (its whole history); resolve the push
         if the bundle has ended. Statuses sent while the link was down never arrived."""
         async def ask() -> None:
@@ -362,7 +355,7 @@ class Mission(CommandDelivery):
         if drone_id in self._link_waits or self.ending:
             return
         grace = self.config.mission.link_grace_s
-        alone = [b for b in self._bundles.values() if b.drone_id == drone_id]
+        alone = [b for b in self.delivery.bundles.values() if b.drone_id == drone_id]
         if alone:  # working alone is not a failure: the grace counts from the bundle's end
             ends_in = max(0.0, max(b.deadline for b in alone) - self.clock.monotonic())
             self.log("info", f"{drone_id}: link lost while it runs bundle {alone[0].bundle_id}; waiting up to "
@@ -370,7 +363,7 @@ class Mission(CommandDelivery):
             grace += ends_in
         else:
             self.log("warn", f"{drone_id}: link lost; waiting up to {grace:g} s for it to come back")
-        self._link_back_at.setdefault(drone_id, asyncio.get_running_loop().create_future())
+        self.delivery.link_back_at.setdefault(drone_id, asyncio.get_running_loop().create_future())
         self._link_waits[drone_id] = asyncio.get_running_loop().create_task(
             self._link_grace(drone_id, grace), name=f"mission {self.id} link grace {drone_id}",
         )
@@ -387,16 +380,16 @@ class Mission(CommandDelivery):
         self.end("link_lost", message)
 
     def _link_back(self, drone_id: str) -> None:
-        back = self._link_back_at.pop(drone_id, None)
+        back = self.delivery.link_back_at.pop(drone_id, None)
         if back is not None and not back.done():
             back.set_result(None)
         wait = self._link_waits.pop(drone_id, None)
         if wait is not None:
             wait.cancel()
             self.log("info", f"{drone_id}: link restored, the mission goes on")
-            for pending in list(self._bundles.values()):
+            for pending in list(self.delivery.bundles.values()):
                 if pending.drone_id == drone_id:
-                    self._catch_up(pending)
+                    self.catch_up(pending)
 
     # ---- what verbs call (on the loop) ----------------------------------------------
 

@@ -57,13 +57,13 @@ class Verbs:
 
     def _send(self, d: Drone, body: dict[str, Any], wait: bool = True, wait_clear: bool = False) -> Any:
         target, generation = self._drone_id(d), handle(d).generation
-        status = call(self.m, self.m.execute(target, body, wait=wait, wait_clear=wait_clear))
+        status = call(self.m, self.m.delivery.execute(target, body, wait=wait, wait_clear=wait_clear))
         if wait and handle(d).generation != generation and status.state not in COMPLETED:
             # `replace` swapped the drone while it ran this command (the return home
             # superseded it): the new drone, once in place, does it instead.
             target = self._drone_id(d)
             self.m.log("info", f"{target} takes over the interrupted {body['cmd']}")
-            status = call(self.m, self.m.execute(target, body, wait=True))
+            status = call(self.m, self.m.delivery.execute(target, body, wait=True))
         if wait:  # the wrapper then shows the effect (telemetry after completion)
             call(self.m, self.m.next_telemetry(handle(d).live()))
         return status
@@ -250,7 +250,7 @@ class Verbs:
             body["timeout_s"] = units.duration(timeout, "timeout")
         if until is not None:
             body["until"] = as_guard(until)
-        record = call(self.m, self.m.push(self._drone_id(d), body))
+        record = call(self.m, self.m.delivery.push(self._drone_id(d), body))
         handle(d).anchor = None
         call(self.m, self.m.next_telemetry(handle(d).live()))
         return record
@@ -277,7 +277,7 @@ class Verbs:
                 call(self.m, self.m.next_telemetry(self._drone_id(thing)))
             elif isinstance(thing, Subroutine):
                 if thing.running:
-                    call(self.m, asyncio.wait([thing._done]))
+                    call(self.m, thing.ended())
             elif isinstance(thing, FieldSensor):
                 call(self.m, self.m.next_field_reading(thing.id))
             elif isinstance(thing, (list, tuple)):

@@ -214,7 +214,7 @@ class Relays:
             self._chains = chains.Chains(duty_alt, good_m)
             self._frame = Frame(ground)
             if self._mission is not None:
-                self._mission.leash = self.leash
+                self._mission.delivery.leash = self.leash
         frame = self._frame
         assert frame is not None
         now = self.now()
@@ -222,7 +222,7 @@ class Relays:
         workers = []
         for d in served:
             goal = _goal(d)
-            held = self._mission.leashed.get(d.id) if self._mission is not None else None
+            held = self._mission.delivery.leashed.get(d.id) if self._mission is not None else None
             if held is not None:
                 goal = Position(held[0], held[1], held[2])
             level = flight_altitude(d)  # where it flies, not the levels it climbs or lands through
