@@ -131,7 +131,7 @@ class UdpEcho:
         return cls(transports, protocol, resolved) if transports else None
 
     async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
-        """Sent BURST datagrams at a time, BURST spacings apart: a fifth of the event
+        """Sends BURST datagrams at a time, BURST spacings apart: a fifth of the event
         loop's wake-ups, and the train still spread over its time."""
         p = self._protocol
         p.sent, p.back, p.expected = {}, {}, count
