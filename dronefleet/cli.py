@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
+from typing import get_args
 
 import click
 
@@ -30,6 +31,7 @@ from dronefleet.cli_kit import (
     with_pki,
 )
 from dronefleet.schemas.errors import ConfigError
+from dronefleet.sim.world import FaultKind
 
 
 @click.group(cls=FleetGroup, help="Fleets of connected drones: the on-board agent, the ground station, missions, "
@@ -150,7 +152,7 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
 
 @main.command()
 @click.argument("drone")
-@click.argument("kind", type=click.Choice(["rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore", "health_failure", "health_ok", "gps_loss", "gps_ok", "gust", "arm_denied", "arm_ok", "status"]))
+@click.argument("kind", type=click.Choice([*get_args(FaultKind), "status"]))  # the world file's faults, one list
 @click.argument("value", required=False)
 @click.option("--control", type=HOST_PORT, default="127.0.0.1:14539", show_default=True, help="Control channel: `fleet sim` (base port - 1) or an agent on `--fc sim://?control=PORT`.")
 def fault(drone: str, kind: str, value: str | None, control: tuple[str, int]) -> None:
