@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.procstat import Window  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
+from dronefleet.bus.datagram_echo import EchoServer  # noqa: E402
 from dronefleet.bus.port import Sample, echo  # noqa: E402
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
@@ -158,7 +159,9 @@ async def main(trials: int, seconds: float, logs: Path | None, steady_s: float) 
         if logs is not None:
             logs.mkdir(parents=True, exist_ok=True)
             tmp = str(logs)
-        ground = await ZenohBus.open("router", listen=[f"tcp/{net.ground_address}:{GROUND_PORT}"])
+        listen = [f"tcp/{net.ground_address}:{GROUND_PORT}"]
+        ground = await ZenohBus.open("router", listen=listen)
+        datagrams = EchoServer(listen)  # as `fleet ground` serves it: the agents' delivery trains come back
         ground.serve(Keys().ground_ping(), echo)
         ground.announce(Keys().ground_alive())
         mesh = Mesh(net, ground, Path(tmp))
@@ -177,6 +180,7 @@ async def main(trials: int, seconds: float, logs: Path | None, steady_s: float) 
             for drone in list(mesh.agents):
                 mesh.stop_agent(drone)
             await ground.close()
+            datagrams.close()
     print(f"failover p50       : {statistics.median(times):.2f} s")
     print(f"failover max       : {max(times):.2f} s")
     print(f"agent A (router, 10 Hz telemetry, probes to ground + B), {usage.window_s:.0f} s window")

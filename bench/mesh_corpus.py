@@ -16,7 +16,7 @@ liveliness token losses, `Link lost` lines and `unknown` states. For every drone
 command (`arm`) sent as soon as it first appears in `GET /drone` must be answered by
 its agent within 3 s (through neighbours too). Needs CAP_NET_ADMIN (root).
 
-    .venv/bin/python bench/mesh_corpus.py [--scenarios 50] [--seed 0]
+    .venv/bin/python bench/mesh_corpus.py [--scenarios 50] [--seed 0] [--keep DIR]
 
 Prints one line per scenario and the rates; exits 1 if any healthy drone went 1.5 s
 unheard, lost its token, was logged `Link lost` or shown `unknown`, or any first
@@ -33,6 +33,7 @@ import json
 import math
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -120,6 +121,7 @@ class Outcome:
     link_lost: dict[str, int]
     unknown: dict[str, int]
     first_command_s: dict[str, float | None]  # every drone: how long its first command took (None: not answered)
+    arrivals: dict[str, list[tuple[float, float]]]  # healthy drones: each sample's arrival (s into the watch), s on its way
 
 
 async def run(sc: Scenario, tmp: Path) -> Outcome:
@@ -162,7 +164,8 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
     for d in healthy:
         during = [(start, 0.0), *((t, w) for t, w in heard[d] if start <= t <= end), (end, 0.0)]
         gaps[d], gap_at[d], gap_transit[d] = max((b - a, a - start, w) for (a, _), (b, w) in itertools.pairwise(during))
-    return Outcome(gaps, gap_at, gap_transit, tokens, lost, unknown, first)
+    arrivals = {d: [(round(t - start, 3), round(w, 3)) for t, w in heard[d]] for d in healthy}
+    return Outcome(gaps, gap_at, gap_transit, tokens, lost, unknown, first, arrivals)
 
 
 def _arrived(times: list[tuple[float, float]], sample: Sample) -> None:
@@ -293,6 +296,9 @@ async def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenarios", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0, help="the first scenario's seed")
+    parser.add_argument("--keep", type=Path, metavar="DIR",
+                        help="keep a failed scenario's ground, sim and agent logs and the healthy drones' "
+                             "arrival times in DIR/seed-N (a passing one's are removed)")
     args = parser.parse_args()
     if not has_net_admin():
         raise ScenarioFailed("the emulated radio needs CAP_NET_ADMIN (run as root)")
@@ -300,10 +306,22 @@ async def main() -> int:
     worst_gap = 0.0
     for seed in range(args.seed, args.seed + args.scenarios):
         sc = scenario(seed)
-        with tempfile.TemporaryDirectory(prefix="mesh-corpus-") as tmp:
-            out = await run(sc, Path(tmp))
+        if args.keep is None:
+            with tempfile.TemporaryDirectory(prefix="mesh-corpus-") as tmp:
+                out = await run(sc, Path(tmp))
+        else:
+            kept = args.keep / f"seed-{seed}"
+            shutil.rmtree(kept, ignore_errors=True)
+            kept.mkdir(parents=True)
+            out = await run(sc, kept)
         bad = [d for d in out.gaps if out.gaps[d] >= GAP_S or out.token_losses[d] or out.link_lost[d] or out.unknown[d]]
         slow = [d for d, s in out.first_command_s.items() if s is None or s > COMMAND_S]
+        if args.keep is not None:
+            if bad or slow:
+                (kept / "arrivals.json").write_text(json.dumps(out.arrivals))
+                print(f"  kept in {kept}", flush=True)
+            else:
+                shutil.rmtree(kept)
         healthy_all += len(out.gaps)
         healthy_ok += len(out.gaps) - len(bad)
         commands_all += len(out.first_command_s)

@@ -74,7 +74,7 @@ def echo_targets(endpoints: Sequence[str]) -> list[tuple[str, int]]:
     return targets
 
 
-class _Client(asyncio.DatagramProtocol):
+class _Echoes:
     """The echoes of the train out: when each came back; `all_back` is set when every
     datagram sent has (one future per train, not one per datagram: the agent's CPU)."""
 
@@ -84,29 +84,32 @@ class _Client(asyncio.DatagramProtocol):
         self.all_back: asyncio.Future[None] | None = None
         self.expected = 0
 
-    def datagram_received(self, data: bytes, addr: tuple[str | object, ...]) -> None:
+    def received(self, data: bytes, at: float) -> None:
         if len(data) != len(MAGIC) + _SEQ.size or not data.startswith(MAGIC):
             return
         (seq,) = _SEQ.unpack_from(data, len(MAGIC))
         if seq in self.sent and seq not in self.back:
-            self.back[seq] = time.monotonic()
+            self.back[seq] = at
             if len(self.back) == self.expected and self.all_back is not None and not self.all_back.done():
                 self.all_back.set_result(None)
-
-    def error_received(self, exc: Exception) -> None:  # an ICMP unreachable: the datagram is lost
-        log.debug("echo: %s", exc)
 
 
 class UdpEcho:
     """Datagram trains from this drone to the ground's echo (`targets`: host, port).
-    A datagram goes to every target; the first echo counts."""
+    A datagram goes to every target; the first echo counts.
 
-    def __init__(self, transports: list[asyncio.DatagramTransport], protocol: _Client,
-                 targets: list[tuple[str, int]]) -> None:
-        self._transports = transports
-        self._protocol = protocol
+    Each socket is read to empty per wake-up of the loop (asyncio's datagram transport
+    reads one datagram per wake-up): a burst's echoes come back together and cost one
+    pass of the agent's loop, not five."""
+
+    def __init__(self, sockets: list[socket.socket], targets: list[tuple[str, int]]) -> None:
+        self._sockets = sockets
         self._targets = targets
+        self._echoes = _Echoes()
         self._seq = 0
+        self._loop = asyncio.get_running_loop()
+        for sock in sockets:
+            self._loop.add_reader(sock.fileno(), self._drain, sock)
 
     @classmethod
     async def open(cls, endpoints: Sequence[str]) -> UdpEcho | None:
@@ -115,8 +118,7 @@ class UdpEcho:
         if not targets:
             return None
         loop = asyncio.get_running_loop()
-        protocol = _Client()
-        transports: list[asyncio.DatagramTransport] = []
+        sockets: list[socket.socket] = []
         resolved: list[tuple[str, int]] = []
         for host, port in targets:
             try:
@@ -125,17 +127,30 @@ class UdpEcho:
                 log.warning("link echo: cannot resolve %s: %s", host, exc)
                 continue
             family, _, _, _, address = infos[0]
-            transport, _ = await loop.create_datagram_endpoint(lambda: protocol, family=family)
-            transports.append(transport)
+            sock = socket.socket(family, socket.SOCK_DGRAM)
+            sock.setblocking(False)
+            sockets.append(sock)
             resolved.append((str(address[0]), int(address[1])))
-        return cls(transports, protocol, resolved) if transports else None
+        return cls(sockets, resolved) if sockets else None
+
+    def _drain(self, sock: socket.socket) -> None:
+        at = time.monotonic()
+        while True:
+            try:
+                data = sock.recv(MAX_DATAGRAM + 1)
+            except BlockingIOError:
+                return
+            except OSError as exc:  # an ICMP unreachable for a datagram sent: it is lost
+                log.debug("echo: %s", exc)
+                continue
+            self._echoes.received(data, at)
 
     async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
         """Sends BURST datagrams at a time, BURST spacings apart: a fifth of the event
         loop's wake-ups, and the train still spread over its time."""
-        p = self._protocol
+        p = self._echoes
         p.sent, p.back, p.expected = {}, {}, count
-        p.all_back = asyncio.get_running_loop().create_future()
+        p.all_back = self._loop.create_future()
         try:
             for i in range(count):
                 if i and i % BURST == 0:
@@ -143,10 +158,10 @@ class UdpEcho:
                 self._seq += 1
                 datagram = MAGIC + _SEQ.pack(self._seq)
                 p.sent[self._seq] = time.monotonic()
-                for transport, target in zip(self._transports, self._targets, strict=True):
+                for sock, target in zip(self._sockets, self._targets, strict=True):
                     try:
-                        transport.sendto(datagram, target)
-                    except OSError:  # no route right now: lost
+                        sock.sendto(datagram, target)
+                    except OSError:  # no route right now, or the buffer full: lost
                         pass
             answered = [p.back[seq] - at for seq, at in p.sent.items() if seq in p.back]
             with contextlib.suppress(TimeoutError):
@@ -157,8 +172,10 @@ class UdpEcho:
             p.sent, p.back, p.all_back = {}, {}, None
 
     def close(self) -> None:
-        for transport in self._transports:
-            transport.close()
+        for sock in self._sockets:
+            self._loop.remove_reader(sock.fileno())
+            sock.close()
+        self._sockets = []
 
 
 class EchoServer:

@@ -293,9 +293,11 @@ class ZenohBus:
             except RuntimeError:
                 pass
 
+        # Run on Zenoh's own thread (neither callback blocks): the default starts a Python
+        # thread per query, a probe's largest cost in the agent (ADR 0003, "Agent CPU").
         self._session.get(
             selector,
-            zenoh.handlers.Callback(replies.append, on_done),
+            zenoh.handlers.Callback(replies.append, on_done, indirect=False),
             payload=payload,
             timeout=timeout_s,
         )
