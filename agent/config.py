@@ -17,7 +17,7 @@ from msgspec import Meta
 from dronefleet.agent.link import LostLinkPolicy
 from dronefleet.schemas.about import DEFAULT_KIND, DEFAULT_ROLES, Role, SensorDeclaration
 from dronefleet.schemas.commands import DEFAULT_RETURN_ALT_M
-from dronefleet.schemas.config import Security
+from dronefleet.schemas.config_loading import Security
 from dronefleet.schemas.endpoints import AGENT_PORT, check_endpoints, ip_endpoint, plain_endpoint
 from dronefleet.schemas.fence import Geofence
 

@@ -32,7 +32,7 @@ from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.auth import Signer, Verifier, load_private_key, load_public_key  # noqa: E402
 from dronefleet.schemas.codec import encode  # noqa: E402
 from dronefleet.schemas.commands import Goto, decode_command  # noqa: E402
-from dronefleet.schemas.config import Security  # noqa: E402
+from dronefleet.schemas.config_loading import Security  # noqa: E402
 from tests.harness import GroundFleet, make_pki  # noqa: E402
 from tests.ports import free_port
 from tests.waiting import until

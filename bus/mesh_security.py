@@ -36,7 +36,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from dronefleet.schemas.config import Security
+from dronefleet.schemas.config_loading import Security
 from dronefleet.schemas.errors import ConfigError
 
 ALL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",

@@ -65,7 +65,7 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
     from dronefleet.agent.config import AgentConfig, default_state_dir
     from dronefleet.agent.runtime import run_agent
-    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.config_loading import load_config
     config = load_config(
         AgentConfig, config_path,
         {"fc": fc, "connect": list(connect) or None, "listen": list(listen) or None,
@@ -98,7 +98,7 @@ def ground(config_path: Path | None, listen: tuple[str, ...], http_port: int | N
     (SPEC §14)."""
     from dronefleet.compose import run_ground
     from dronefleet.ground.config import GroundConfig
-    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.config_loading import load_config
 
     config = load_config(
         GroundConfig, config_path, {"listen": list(listen) or None, "http_port": http_port, "data_dir": data_dir,
@@ -186,7 +186,7 @@ def sensor() -> None:
 def sensor_temperature(drone_id: str | None, config_path: Path | None, connect: tuple[str, ...], rate_ms: int | None,
                        count: int | None, pki_dir: Path | None, cert_name: str | None) -> None:
     """Thesis example 21: the temperature where DRONE is, from a heat field, on drone/<id>/sensor/temperature."""
-    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.config_loading import load_config
     from dronefleet.sim.heat_field import HeatConfig
     from dronefleet.sim.sensors import run_temperature_sensor
 

@@ -35,7 +35,7 @@ def security_with_pki(config_path: Path | None, pki_dir: str | None) -> dict[str
     stands). The flag implies `tls: true` unless the config says otherwise."""
     if pki_dir is None:
         return None
-    from dronefleet.schemas.config import read_yaml
+    from dronefleet.schemas.config_loading import read_yaml
 
     security = dict((read_yaml(config_path) if config_path is not None else {}).get("security") or {})
     security["pki_dir"] = pki_dir
@@ -46,7 +46,7 @@ def security_with_pki(config_path: Path | None, pki_dir: str | None) -> dict[str
 def secured_client(pki_dir: Path | None, name: str, connect: list[str]) -> dict[str, Any]:
     """Zenoh settings of a client (`fleet sub`, `record`, `replay`) on a secured mesh."""
     from dronefleet.bus.mesh_security import mesh_security
-    from dronefleet.schemas.config import Security
+    from dronefleet.schemas.config_loading import Security
 
     if pki_dir is None:
         return {}

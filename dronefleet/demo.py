@@ -44,7 +44,7 @@ from dronefleet.ground.config import DashboardSettings, GroundConfig
 from dronefleet.mission.hosting.simulate import add_field_reading, telemetry_sample
 from dronefleet.mission_cli import PREFLIGHT_WAIT_S, outcome, preflight_summary
 from dronefleet.schemas.codec import decode_sensor, decode_telemetry
-from dronefleet.schemas.config import MissionSettings, writable_dir
+from dronefleet.schemas.config_loading import MissionSettings, writable_dir
 from dronefleet.schemas.errors import ConfigError, FleetError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import Telemetry

@@ -251,7 +251,7 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
     from dronefleet.mission.script.checks import first_problem
     from dronefleet.mission.script.plugins import PluginLibrary, parse_enable, plugin_summary
     from dronefleet.mission.script.sandbox import ScriptError
-    from dronefleet.schemas.config import writable_dir
+    from dronefleet.schemas.config_loading import writable_dir
     from dronefleet.sim.world import load_world
 
     library = PluginLibrary.default(plugins_dir)

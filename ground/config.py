@@ -15,7 +15,7 @@ import msgspec
 import yaml
 from msgspec import Meta
 
-from dronefleet.schemas.config import MissionSettings, Security
+from dronefleet.schemas.config_loading import MissionSettings, Security
 from dronefleet.schemas.endpoints import check_endpoints
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.fence import Geofence

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 from dronefleet.relay.hop import Reach, bottleneck
-from dronefleet.relay.planner import Point, dist, toward
+from dronefleet.relay.placement import Point, dist, toward
 from dronefleet.relay.ways import segment_distance
 from dronefleet.sim.radio import HOLDING_LOSS
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from dronefleet.relay.planner import Point, dist, toward
+from dronefleet.relay.placement import Point, dist, toward
 
 GROUND: Point = (0.0, 0.0)
 MAX_SPEED = 10.0  # m/s: a follower never flies faster (script 5.13)

@@ -9,7 +9,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from dronefleet.relay.planner import Point, dist
+from dronefleet.relay.placement import Point, dist
 
 ORIGIN: Point = (0.0, 0.0)
 FLOOR_M = 20.0  # every radio is taken to hold this far (the corpus's shortest is good to 25 m)

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from dronefleet.schemas.config import Security
+    from dronefleet.schemas.config_loading import Security
     from dronefleet.sim.world import DroneSpec, World
 
 
@@ -80,7 +80,7 @@ def drone_agent_config(base: Path | None, world: World, spec: DroneSpec, out_dir
     import msgspec
     import yaml
 
-    from dronefleet.schemas.config import read_yaml
+    from dronefleet.schemas.config_loading import read_yaml
 
     declared = world.declarations(spec)
     data = read_yaml(base) if base is not None else {}

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import msgspec
 
-from dronefleet.schemas.config import Security, read_yaml
+from dronefleet.schemas.config_loading import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim.agent_command import agent_command, drone_agent_config, sensor_command, world_file
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel

@@ -18,7 +18,7 @@ import logging
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from dronefleet.schemas.config import Security
+from dronefleet.schemas.config_loading import Security
 from dronefleet.schemas.endpoints import AGENT_PORT
 from dronefleet.sim.agent_command import agent_command, sensor_command, world_file
 from dronefleet.sim.radio import GROUND, Spot3, distance_3d, link_losses

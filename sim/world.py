@@ -164,7 +164,7 @@ class World(_Strict, frozen=True):
 
 
 def load_world(path: Path | None) -> World:
-    """A world file, as strictly as a config file (schemas/config.py); None: the default world."""
-    from dronefleet.schemas.config import load_config
+    """A world file, as strictly as a config file (schemas/config_loading.py); None: the default world."""
+    from dronefleet.schemas.config_loading import load_config
 
     return load_config(World, path, {})

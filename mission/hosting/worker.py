@@ -42,7 +42,7 @@ from dronefleet.mission.script.script import ScriptMission
 from dronefleet.schemas.bundles import BundleRecord, BundleReply
 from dronefleet.schemas.codec import decode_sensor, decode_status, decode_telemetry
 from dronefleet.schemas.commands import CommandReply, new_command_id
-from dronefleet.schemas.config import MissionSettings
+from dronefleet.schemas.config_loading import MissionSettings
 from dronefleet.schemas.errors import CommandRejected, FleetError, InvalidMessage
 from dronefleet.schemas.fleet import DroneInfo, WatchEvent
 from dronefleet.schemas.telemetry import SensorReading, Telemetry

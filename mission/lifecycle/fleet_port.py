@@ -14,7 +14,7 @@ from typing import Protocol
 
 from dronefleet.schemas.bundles import BundleRecord, BundleReply
 from dronefleet.schemas.commands import CommandReply
-from dronefleet.schemas.config import MissionSettings
+from dronefleet.schemas.config_loading import MissionSettings
 from dronefleet.schemas.fleet import DroneInfo, WatchEvent
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
 

@@ -1,5 +1,5 @@
 """`relays`, what the bundled `relay` plugin (and any script) uses to ask the pure
-planner of `relay/` where relay drones go: the drone wrappers become points in metres
+placement of `relay/` where relay drones go: the drone wrappers become points in metres
 around the ground station, the plan's points become positions again.
 
     plan = relays.plan(served_drones, on_duty, relay_drones, ground, min_quality=0.6, …)
@@ -22,7 +22,7 @@ from dronefleet.mission.script.drone import handle
 from dronefleet.mission.script.position import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
-from dronefleet.relay import planner, rounds, ways
+from dronefleet.relay import placement, rounds, ways
 from dronefleet.schemas.commands import DEFAULT_RETURN_ALT_M
 from dronefleet.sim.projection import LocalFrame
 
@@ -41,11 +41,11 @@ class Frame:
         g = as_position(ground)
         self.plane = LocalFrame(g.lat, g.lon)
 
-    def local(self, p: Any) -> planner.Point:
+    def local(self, p: Any) -> placement.Point:
         p = as_position(p)
         return self.plane.to_local(p.lat, p.lon)
 
-    def world(self, pt: planner.Point) -> Position:
+    def world(self, pt: placement.Point) -> Position:
         return Position(*self.plane.to_global(*pt))
 
 
@@ -125,7 +125,7 @@ class Relays:
         """Script 5.9's alternating duty altitudes (index 0: base_alt + alt_diff, 1:
         base_alt, …), lifted clear of the altitudes the `served` drones fly at."""
         flying = [a for a in map(flight_altitude, served) if a is not None]
-        return planner.duty_altitude(index, self.params(**inputs), flying)
+        return placement.duty_altitude(index, self.params(**inputs), flying)
 
     def above_flights(self, served: Sequence[Any], margin: Any) -> float:
         """Metres above home that clear by `margin` every level a served drone flies:
@@ -136,11 +136,11 @@ class Relays:
         flying = [a for a in map(flight_altitude, served) if a is not None]
         return round(max([*flying, DEFAULT_RETURN_ALT_M]) + units.length(margin, "margin"), 1)
 
-    def params(self, **inputs: Any) -> planner.Params:
+    def params(self, **inputs: Any) -> placement.Params:
         """The planner's parameters from the plugin's inputs (`base_alt=5*m`: metres)."""
         metres = {"base_alt": "base_alt_m", "alt_diff": "alt_diff_m", "step": "step_m", "min_separation": "min_separation_m",
                   "good_m": "good_m", "lost_m": "lost_m"}
-        return planner.Params(**{metres.get(k, k): units.length(v, k) if k in metres else v for k, v in inputs.items()})
+        return placement.Params(**{metres.get(k, k): units.length(v, k) if k in metres else v for k, v in inputs.items()})
 
     def plan(self, served: Sequence[Any], on_duty: Mapping[str, Mapping[str, Any]], drones: Mapping[str, Any], ground: Any,
              scale: float = 1.0, spare: int | None = None, steady: int = 0, **inputs: Any) -> RelayPlan:
@@ -155,17 +155,17 @@ class Relays:
             t = handle(d).telemetry()
             goal = _goal(d)
             link = d.link
-            mine.append(planner.Drone(
+            mine.append(placement.Drone(
                 d.id, frame.local(d.position), (t.velocity.north, t.velocity.east),
                 frame.local(goal) if goal is not None else None, link.quality if link is not None else None,
                 flight_altitude(d),
             ))
-        relays = [planner.Relay(rid, frame.local(drones[rid].position),
+        relays = [placement.Relay(rid, frame.local(drones[rid].position),
                                 frame.local(duty["target"]) if duty.get("target") is not None else None,
                                 float(duty.get("alt", 0.0)), bool(duty.get("serving", True)))
                   for rid, duty in on_duty.items()]
         returning = sum(1 for r in relays if not r.serving)
-        result = planner.plan(mine, relays, params, scale, spare=(self.spare() if spare is None else spare) + returning,
+        result = placement.plan(mine, relays, params, scale, spare=(self.spare() if spare is None else spare) + returning,
                               steady=steady)
         return RelayPlan(
             moves=[(m.relay, frame.world(m.to), m.alt) for m in result.moves],
@@ -192,7 +192,7 @@ class Relays:
         td = units.length(target_dist, "target_dist")
         to = baseline.new_target(o, g, m, td)
         if alt is not None:
-            near: list[tuple[planner.Point, float]] = []
+            near: list[tuple[placement.Point, float]] = []
             for d in others:
                 here = d.position
                 near.append((frame.local(here), here.alt if here.alt is not None else alt))

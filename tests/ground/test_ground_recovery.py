@@ -160,7 +160,7 @@ def test_http_port_in_use_is_a_clear_error(tmp_path: Path) -> None:
 
 def test_the_shipped_ground_config_loads() -> None:
     from dronefleet.ground.config import GroundConfig
-    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.config_loading import load_config
     from tests.harness import REPO
 
     config = load_config(GroundConfig, REPO / "deploy" / "ground.yml", {})

@@ -25,7 +25,7 @@ from dronefleet.schemas.auth import Signer, Verifier, load_private_key, load_pub
 from dronefleet.schemas.bundles import TaskBundle
 from dronefleet.schemas.codec import encode
 from dronefleet.schemas.commands import CommandReply, Goto, decode_command
-from dronefleet.schemas.config import Security
+from dronefleet.schemas.config_loading import Security
 from dronefleet.sim.world import DroneSpec, Spot, World
 from tests.harness import GroundFleet, make_pki
 from tests.waiting import advance_until, until
@@ -367,7 +367,7 @@ async def test_routers_know_a_node_by_its_certificate_not_its_address(pki: Path,
 
 @pytest.mark.parametrize("name", sorted(p.name for p in (Path(__file__).parents[2] / "deploy").glob("*.yml")))
 def test_every_deploy_config_loads(name: str) -> None:
-    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.config_loading import load_config
 
     kind = GroundConfig if name.startswith("ground") else AgentConfig
     config = load_config(kind, Path(__file__).parents[2] / "deploy" / name, {})
@@ -441,7 +441,7 @@ async def test_api_tokens_401_403_and_the_audit_names_the_holder(tmp_path: Path)
 
 
 def test_bad_token_settings_are_refused_at_start(tmp_path: Path) -> None:
-    from dronefleet.schemas.config import load_config
+    from dronefleet.schemas.config_loading import load_config
     from dronefleet.schemas.errors import ConfigError
 
     short = tmp_path / "short.yml"

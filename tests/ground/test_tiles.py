@@ -22,7 +22,7 @@ from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.dashboard_routes import open_tile_archive
 from dronefleet.ground.tile_archive import TileArchive
 from dronefleet.ground.tile_fetch import FetchError, fetch, parse_zooms, tiles_of
-from dronefleet.schemas.config import load_config
+from dronefleet.schemas.config_loading import load_config
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.geo import Box
 from tests.dashboard.tiles import TileServer

@@ -26,7 +26,7 @@ from dronefleet.mission.lifecycle.assignment import (
 )
 from dronefleet.schemas.about import About, FieldSpec, SensorDeclaration, may_relay, reading_fault, relay_disagreement
 from dronefleet.schemas.codec import decode_about, decode_sensor, encode
-from dronefleet.schemas.config import ConfigError, load_config
+from dronefleet.schemas.config_loading import ConfigError, load_config
 from dronefleet.schemas.telemetry import SensorReading
 from tests.ground.test_registry import lines, telem
 

@@ -21,7 +21,7 @@ from dronefleet.compose import SimField
 from dronefleet.ground.config import GroundConfig
 from dronefleet.mission.script.qgc_plan import NotAPlan, Waypoint, export_plan, import_plan
 from dronefleet.mission.script.sandbox import check_mission
-from dronefleet.schemas.config import load_config
+from dronefleet.schemas.config_loading import load_config
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.world import DroneSpec, Spot, World

@@ -13,7 +13,7 @@ import pytest
 from dronefleet import relay_corpus as rc
 from dronefleet import relay_experiments as rx
 from dronefleet.compose import SimField, simulate
-from dronefleet.schemas.config import load_config
+from dronefleet.schemas.config_loading import load_config
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, USER_LAYOUTS, generate, hop_m
 from dronefleet.sim.faults import apply_fault

@@ -8,7 +8,7 @@ import random
 import pytest
 
 from dronefleet.relay.distance import keep_clear
-from dronefleet.relay.planner import Drone, Params, Relay, dist, duty_altitude, link_quality, path_quality, plan
+from dronefleet.relay.placement import Drone, Params, Relay, dist, duty_altitude, link_quality, path_quality, plan
 
 P = Params()  # the default radio: good to 60 m, lost at 100 m; min_quality 0.6 → 76 m, 64.6 m with the margin
 
@@ -168,7 +168,7 @@ def test_duty_altitudes_rise_clear_of_the_altitude_the_drones_fly_at() -> None:
 
 
 def test_path_quality_is_the_fewest_hop_walk_over_link_quality() -> None:
-    """relay.planner.Mesh inlines the link model for speed: on 300 random meshes (radios,
+    """relay.placement.Mesh inlines the link model for speed: on 300 random meshes (radios,
     scales, node counts) it gives exactly what a walk over link_quality gives, so the
     model has one meaning however often it is written."""
     rng = random.Random(32)
