@@ -52,8 +52,10 @@ def test_the_wheel_installs_by_role_and_runs_outside_the_checkout(tmp_path: Path
     made = run(UV, "venv", "--quiet", "--python", sys.executable, venv, cwd=tmp_path)
     assert made.returncode == 0, made.stderr
     # Built, made and installed with uv (what pip resolves from the same wheel's
-    # metadata, in a quarter of pip's time for matplotlib, Litestar and the rest).
-    install: list[str | Path] = [UV, "pip", "install", "--quiet", "--compile-bytecode", "--python", venv / "bin" / "python",
+    # metadata, in a quarter of pip's time for matplotlib, Litestar and the rest),
+    # without compiling every installed module's bytecode (pip's default): the demo
+    # compiles only what it imports, 11 s less of the suite's CPU.
+    install: list[str | Path] = [UV, "pip", "install", "--quiet", "--python", venv / "bin" / "python",
                                  "-c", REPO / "requirements.lock"]
     fleet = venv / "bin" / "fleet"
     work = tmp_path / "work"  # not the checkout: nothing can come from the source tree
