@@ -518,22 +518,18 @@ class Chains:
         return free - 1
 
     def _stretch(self, now: float, w: Worker, goal: Point, out: ChainPlan) -> bool:
-        """`w`'s chain has lacked a relay with no drone free for STRETCH_AFTER_S (again
-        for a later goal farther out, after it stretched for an earlier one): if hops
+        """`w`'s chain has lacked a relay with no drone free for STRETCH_AFTER_S: if hops
         no longer than a window measured to keep a 3-s gap reach its goal with the relays
         it has, its chain is laid on the shortest such hop from now on — each relay moved
         out along its leg, where it keeps clear of other chains and of the drones on the
         ground. False: it stays as it is (held, and named with the relays it lacks)."""
         chain = self.chains[w.id]
         longest = self.reach.holds * MARGIN
-        already = self.stretched.get(w.id, self.reach.lo * MARGIN)
-        if longest <= already + 0.5 or any(s.relay is None for s in chain):
-            return False  # no longer hop to stretch to
+        if w.id in self.stretched or longest <= self.reach.lo * MARGIN or any(s.relay is None for s in chain):
+            return False
         if self._relaid(chain, goal, w.alt, longest) is None:
             return False
-        # The shortest hop that reaches this goal, within 0.5 m; stretched again when a
-        # later goal of the worker's (the next leg of its survey) is farther still.
-        lo, hi = already, longest
+        lo, hi = self.reach.lo * MARGIN, longest  # the shortest hop that reaches it, within 0.5 m
         while hi - lo > 0.5:
             mid = (lo + hi) / 2
             lo, hi = (lo, mid) if self._relaid(chain, goal, w.alt, mid) is not None else (mid, hi)

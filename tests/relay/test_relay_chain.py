@@ -179,31 +179,6 @@ def test_a_chain_out_of_relays_stretches_to_the_hop_that_held_and_no_further(bey
         assert dist(c.allowed("d1", w.at, w.alt, goal), goal) > 1.0
 
 
-def test_a_stretched_chain_stretches_again_for_a_farther_goal_up_to_the_hop_that_held() -> None:
-    """A survey's legs move the worker's goal outward after the chain stretched to its
-    first one: the chain stretches again (still no drone free) rather than holding the
-    worker for good, and never past the hop a window measured to keep a 3-s gap."""
-    c = Chains(DUTY)
-    c.reach = Reach(lo=50.0, hi=51.0, holds=56.0)
-    (key, spot, _, _), = c.plan(0.0, [Worker("d1", at(5), 15.0, at(60))], {}, spare=1).dispatch
-    c.joined(key, "r1")
-    longest = 56.0 * MARGIN
-    reach = flat(longest, DUTY) + flat(longest, DUTY - 15.0)
-    t, where = 60.0, spot
-    for goal_m in (reach - 6.0, reach - 2.0):
-        w = Worker("d1", at(5), 15.0, at(goal_m))
-        c.plan(t, [w], {"r1": seen(where)}, spare=0)  # short: a drone may come free
-        (relay, where, _), = c.plan(t + STRETCH_AFTER_S, [w], {"r1": seen(where)}, spare=0).moves
-        assert relay == "r1" and c.stuck == {} and math.hypot(dist(where, (0, 0)), DUTY) <= longest + 0.01
-        c.plan(t + STRETCH_AFTER_S + 1, [w], {"r1": seen(where)}, spare=0)
-        assert c.allowed("d1", w.at, w.alt, w.goal) == w.goal  # type: ignore[arg-type]
-        t += 100.0
-    w = Worker("d1", at(5), 15.0, at(reach + 2.0))  # beyond any hop that held: held, named
-    c.plan(t, [w], {"r1": seen(where)}, spare=0)
-    assert c.plan(t + STRETCH_AFTER_S, [w], {"r1": seen(where)}, spare=0).moves == []
-    assert "d1 needs 1 more relay" in c.stuck["d1"]
-
-
 def test_relays_go_home_from_the_far_end_once_the_worker_no_longer_needs_them() -> None:
     c = Chains(DUTY)
     c.reach = Reach(lo=50.0, hi=51.0)
