@@ -142,7 +142,7 @@ class UdpEcho:
                 return
             except OSError as exc:  # an ICMP unreachable for a datagram sent: it is lost
                 log.debug("echo: %s", exc)
-                continue
+                return  # the rest, if any, on the next wake-up (never a spin on an error)
             self._echoes.received(data, at)
 
     async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
