@@ -293,11 +293,14 @@ class ZenohBus:
             except RuntimeError:
                 pass
 
-        # Run on Zenoh's own thread (neither callback blocks): the default starts a Python
-        # thread per query, a probe's largest cost in the agent (ADR 0003, "Agent CPU").
+        # The default handler starts a Python thread per query (three a second for the
+        # probes). Running these callbacks on Zenoh's own thread (indirect=False) saves it,
+        # but an agent then once failed to stop on SIGTERM within 10 s (a fresh-clone run):
+        # a Zenoh thread waiting for the GIL while the loop closes the session is the
+        # suspected deadlock, so not until that is ruled out (ADR 0003, "What it costs").
         self._session.get(
             selector,
-            zenoh.handlers.Callback(replies.append, on_done, indirect=False),
+            zenoh.handlers.Callback(replies.append, on_done),
             payload=payload,
             timeout=timeout_s,
         )
