@@ -27,13 +27,11 @@ sysdeps:
 # uv (pinned in the lock) installs it about 4x faster than pip: 13 s against 47 s from
 # cold caches on the 2-core CI machine. If uv cannot (say, only a pip mirror is
 # reachable: uv does not read pip.conf), pip does the same from the same lock.
-# Python may write bytecode (the image of this 2-core VM exports
-# PYTHONDONTWRITEBYTECODE=1): with it unwritten, every `fleet` process and every pytest
-# worker compiled its imports again, half of a process's start (0.7 s of CPU against
-# 0.3 s for the ground's imports) and a sixth of the suite's CPU (ADR 0011). Each module
-# is compiled once, when first imported, rather than all of site-packages at install
-# (uv's --compile-bytecode): a fresh clone's install took 24 s with it, 9 s without
-# (warm package cache), and the tests took no measurably longer.
+# Bytecode is compiled at install (uv does not by default, pip does), and Python may
+# write our own modules' bytecode: with neither, as in an environment exporting
+# PYTHONDONTWRITEBYTECODE=1 (the image of this 2-core VM does), every `fleet` process and
+# every pytest worker compiled its imports again, half of a process's start (0.7 s of
+# CPU against 0.3 s for the ground's imports) and a sixth of the suite's CPU (ADR 0011).
 # A venv from before the package was renamed (ADR 0012) still holds the old `fleet`
 # distribution: it is removed first, or its finder would serve stale modules.
 UV_PIN := $(shell sed -n 's/^uv==//p' requirements.lock)
@@ -44,7 +42,7 @@ $(STAMP): pyproject.toml requirements.lock
 	@echo "installing requirements.lock into $(VENV)"
 	@if $(BIN)/python -m pip install --quiet --disable-pip-version-check uv==$(UV_PIN) 2>/dev/null \
 	    && { $(BIN)/uv pip uninstall --quiet --python $(BIN)/python fleet 2>/dev/null; true; } \
-	    && $(BIN)/uv pip install --quiet --python $(BIN)/python -r requirements.lock \
+	    && $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -r requirements.lock \
 	    && $(BIN)/uv pip install --quiet --python $(BIN)/python --no-deps -e .; then :; else \
 	  echo "uv could not install the lock; installing it with pip"; \
 	  $(BIN)/python -m pip install --quiet --upgrade pip \
