@@ -93,6 +93,7 @@ class Heard:
 
     locator: str
     answers: collections.deque[bool] = field(default_factory=lambda: collections.deque(maxlen=HELD_WINDOW))
+    rounds: int = 0  # rounds since it was first heard (it is forgotten after ANSWER_WINDOW unheard)
 
     @property
     def rate(self) -> float:
@@ -143,6 +144,7 @@ class Neighbours:
                     self.heard.setdefault(zid, Heard(locator)).locator = locator
                 for zid, heard in list(self.heard.items()):
                     heard.answers.append(zid in answered)
+                    heard.rounds += 1
                     if len(heard.answers) >= ANSWER_WINDOW and heard.rate == 0.0 and zid not in self.bridges:
                         del self.heard[zid]  # gone (a restarted agent comes back under a new ZID)
                 was_needed = need.needed
@@ -153,7 +155,8 @@ class Neighbours:
                              if needed else f"the direct link to the ground has worked {DIRECT_STEADY_S:g} s; "
                              "closing the links through neighbours")
                 stale = futile(self._opened, self.ground.ground_heard_at(), loop.time())
-                wanted = choose({z: h.answers for z, h in self.heard.items()}, set(self.bridges), stale) if needed else set()
+                wanted = choose({z: h.answers for z, h in self.heard.items()}, set(self.bridges), stale,
+                                {z: h.rounds for z, h in self.heard.items()}) if needed else set()
                 for zid in set(self.bridges) - wanted:
                     await self._close(zid)
                 for zid in wanted - set(self.bridges):

@@ -18,6 +18,7 @@ DIRECT_STEADY_S = 5.0  # the direct link worked this long: the bridges close
 START_GRACE_S = 3.0  # at start, the time the direct link gets to come up (a redial every 0.5-1 s)
 UNSURE_PROBES = 3  # the last probes to the ground that must have come back clean …
 RETRANSMITTED_MS = 150.0  # … each within this (TCP's first retransmission is 200 ms)
+STEADY_ROUNDS = 30  # a neighbour heard this many rounds on end is as steady as any (a drone crossing a radio's good range takes less)
 
 
 class GroundView(Protocol):
@@ -57,15 +58,24 @@ def futile(opened: Mapping[str, float], ground_heard_at: float, now: float) -> s
     return {z for z, at in opened.items() if now - at >= SWAP_AFTER_S}
 
 
-def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str], futile: set[str] | frozenset[str] = frozenset()) -> set[str]:
+def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str], futile: set[str] | frozenset[str] = frozenset(),
+           heard_rounds: Mapping[str, int] | None = None) -> set[str]:
     """Which neighbours to hold a bridge to, when the drone needs one (pure), from
-    each neighbour's answers to the last scouting rounds (oldest first).
+    each neighbour's answers to the last scouting rounds (oldest first) and how many
+    rounds on end each has been heard (`heard_rounds`; a neighbour unheard for
+    `ANSWER_WINDOW` rounds starts again from none).
 
     Good neighbours (`good`) first, those already bridged
     before others (unless `futile`: they did not bring the ground back, and other good
     ones are tried before them — a relay with three good neighbours held the worker and
     the relay beyond, equally good, and not the one toward the laptop, and its chain was
-    unheard 30 s; fast-time corpus), then best first, up to `MAX_BRIDGES`. Only when no neighbour is
+    unheard 30 s; fast-time corpus), then the steadiest (heard longest, up to
+    `STEADY_ROUNDS`), then best first, up to `MAX_BRIDGES`. A drone flying through
+    the range of a parked one is heard for a few rounds only; a chain's parked relays
+    for as long as they are parked: a relay that took bridges to two relays flying
+    past it out to their slots, equally good and first by name, had none to the parked
+    one below it, and was unheard 10 s while each pair in turn was found futile; its
+    worker beyond, 3 s (fast-time corpus). Only when no neighbour is
     good: the open bridges answering at least `KEEP_RATE` over the last rounds or
     `HELD_KEEP_RATE` over `HELD_WINDOW` stay (a drone's only way, 14 % loss, missed
     three scouts of five and was closed: unheard 6 s, relay mode measured in
@@ -79,8 +89,9 @@ def choose(answers: Mapping[str, Sequence[bool]], bridged: set[str], futile: set
     bad carried nothing through, and stalled the neighbour's router for seconds
     (bench/mesh_stall.py, frozen: 9.4 s)."""
     rates = {z: rate(a) for z, a in answers.items()}
+    steady = {z: min((heard_rounds or {}).get(z, 0), STEADY_ROUNDS) for z in answers}
     best = sorted((z for z, a in answers.items() if good(a, z in bridged)),
-                  key=lambda z: (z in futile, z not in bridged, -rates[z], z))
+                  key=lambda z: (z in futile, z not in bridged, -steady[z], -rates[z], z))
     if best:
         return set(best[:MAX_BRIDGES])
     keep = sorted((z for z in bridged if z in answers and (rates[z] >= KEEP_RATE or rate(answers[z], HELD_WINDOW) >= HELD_KEEP_RATE)),

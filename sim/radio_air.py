@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 from dronefleet.bus.clock import VirtualClock
 from dronefleet.bus.datagram_echo import settle_s
-from dronefleet.bus.mesh_policy import HELD_WINDOW, GroundView, NeedWatch, choose, futile
+from dronefleet.bus.mesh_policy import ANSWER_WINDOW, HELD_WINDOW, GroundView, NeedWatch, choose, futile
 from dronefleet.sim.radio import GROUND, RadioModel, Spot3, distance_3d
 
 LEASE_S = 2.0  # a link with nothing through it for this long is closed
@@ -68,6 +68,7 @@ class RadioAir:
         self.bridges: dict[str, dict[str, float]] = {}  # per drone: the neighbours it holds a bridge to, and since when
         self._needs: dict[str, NeedWatch] = {}
         self._answers: dict[tuple[str, str], deque[bool]] = {}  # per drone and neighbour: its scouts answered
+        self._heard_rounds: dict[tuple[str, str], int] = {}  # … and the rounds since it was first heard (agent/neighbours.py)
         self._next_round = 0.0
         # Interference a test or a bench adds on the air: (src, dst, stream) -> True loses
         # that message, whatever the links say (a shadow, a burst of loss on one stream).
@@ -225,6 +226,7 @@ class RadioAir:
         drones = sorted(n for n in where if n != GROUND)
         for a in drones:
             heard: dict[str, deque[bool]] = {}
+            rounds: dict[str, int] = {}
             for b in drones:
                 if b == a:
                     continue
@@ -232,6 +234,8 @@ class RadioAir:
                 loss = self.model.loss(distance_3d(where[a], where[b]))
                 answered.append(self._rng("scout", a, b).random() < (1.0 - loss) ** 2)
                 heard[b] = answered
+                silent = not any(list(answered)[-ANSWER_WINDOW:])  # never heard, or forgotten
+                rounds[b] = self._heard_rounds[(a, b)] = 0 if silent else self._heard_rounds.get((a, b), 0) + 1
             need = self._needs.setdefault(a, NeedWatch(now))
             direct = self.links.get(_pair(a, GROUND))
             agent = self.agent(a)
@@ -239,7 +243,7 @@ class RadioAir:
             needed = need.update(direct is not None and direct.up and not unsure, now)
             held = self.bridges.get(a, {})
             stale = futile(held, agent.ground_heard_at(), now) if agent is not None else set()
-            chosen = choose(heard, set(held), stale) if needed else set()
+            chosen = choose(heard, set(held), stale, rounds) if needed else set()
             self.bridges[a] = {b: held.get(b, now) for b in sorted(chosen)}
 
 

@@ -25,6 +25,7 @@ from dronefleet.bus.mesh_policy import (
     HELD_WINDOW,
     KEEP_RATE,
     MAX_BRIDGES,
+    STEADY_ROUNDS,
     SWAP_AFTER_S,
     NeedWatch,
     choose,
@@ -108,6 +109,19 @@ def test_bridges_that_do_not_bring_the_ground_back_give_way_to_other_good_ones()
     assert choose(heard, set(opened)) == {"beyond", "worker"}  # the open ones, as before
     assert choose(heard, set(opened), stale) == {"toward", "beyond"}  # the other first
     assert choose({"beyond": answered(5)}, {"beyond"}, {"beyond"}) == {"beyond"}  # nothing else: kept
+
+
+def test_among_good_neighbours_the_ones_heard_longest_come_first() -> None:
+    """A relay took bridges to two relays flying past it to their slots (equally good,
+    first by name) and none to the parked one below it: unheard 10 s."""
+    heard = {"a_passing": answered(5), "b_passing": answered(5), "parked": answered(5)}
+    rounds = {"a_passing": 4, "b_passing": 6, "parked": 40}
+    assert choose(heard, set()) == {"a_passing", "b_passing"}  # without the rounds: by name
+    assert choose(heard, set(), heard_rounds=rounds) == {"parked", "b_passing"}
+    assert choose(heard, {"a_passing"}, heard_rounds=rounds) == {"a_passing", "parked"}  # an open one stays
+    steady = {"a_passing": STEADY_ROUNDS, "b_passing": STEADY_ROUNDS + 50, "parked": STEADY_ROUNDS + 9}
+    assert choose({**heard, "a_passing": answered(4)}, set(), heard_rounds=steady) == {"b_passing", "parked"}  # then by rate
+    assert choose({"new": answered(5), "old but fair": answered(3)}, set(), heard_rounds={"old but fair": 60}) == {"new"}
 
 
 def test_good_bridges_already_open_are_kept_before_other_good_ones() -> None:
