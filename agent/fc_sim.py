@@ -27,6 +27,11 @@ from dronefleet.sim.vehicle import Vehicle
 
 DEFAULT_SPAWN = (40.633490, -8.660815, 8.2)  # thesis test field, Aveiro
 STEP_S = 0.02
+# A vehicle at rest (disarmed on the ground, no setpoint streaming) is stepped this often:
+# nothing moves, commands refresh the state at once (`_command`), and what the fault
+# channel changes shows within a step. An idle agent's loop woke 50 times a second for it
+# (ADR 0003 "What it costs").
+REST_STEP_S = 0.1
 SETPOINT_PERIOD_S = 0.05
 FENCE_MAX_VERTICES = 64  # PX4 v1.16 keeps at most this many fence items (DM_KEY_FENCE_POINTS_MAX)
 
@@ -74,7 +79,8 @@ class SimFlightController:
     async def _run(self) -> None:
         last = self._clock.monotonic()
         while True:
-            await self._clock.sleep(STEP_S)
+            v = self.vehicle
+            await self._clock.sleep(REST_STEP_S if not v.armed and v.landed_state == "on_ground" and self._setpoint is None else STEP_S)
             now = self._clock.monotonic()
             if self._setpoint and now - self._last_sent >= SETPOINT_PERIOD_S:
                 self._send_setpoint(now)

@@ -42,7 +42,7 @@ STOP_POLL_S = 0.2  # how soon an echo thread sees that it is to stop
 # for a whole period, which would make every report that much older (ADR 0003).
 SETTLE_RTTS = 4
 SETTLE_MIN_S = 0.2  # a busy laptop (the echo thread, the agent's loop) answers late, not lost
-BURST = 5  # datagrams a train sends at once (back to back: well under a millisecond apart)
+BURST = 10  # datagrams a train sends at once (back to back: well under a millisecond apart)
 
 
 def settle_s(answered_s: Sequence[float], timeout_s: float) -> float:
@@ -146,7 +146,7 @@ class UdpEcho:
             self._echoes.received(data, at)
 
     async def train(self, count: int, spacing_s: float, timeout_s: float) -> list[float | None]:
-        """Sends BURST datagrams at a time, BURST spacings apart: a fifth of the event
+        """Sends BURST datagrams at a time, BURST spacings apart: a tenth of the event
         loop's wake-ups, and the train still spread over its time."""
         p = self._echoes
         p.sent, p.back, p.expected = {}, {}, count

@@ -24,7 +24,7 @@ import traceback
 log = logging.getLogger(__name__)
 
 STALL_S = 1.0  # a loop that has not turned for this long is reported
-LOOK_S = 0.25  # how often the watching thread looks
+LOOK_S = 0.5  # how often the watching thread looks (and the loop beats: each a wake-up of an idle agent)
 
 
 class LoopWatch:
