@@ -15,6 +15,8 @@ from typing import cast
 import msgspec
 import pytest
 import zenoh
+from hypothesis import given
+from hypothesis import strategies as st
 
 from dronefleet.agent.config import AgentConfig, own_endpoint
 from dronefleet.agent.neighbours import Heard, Neighbours, radio_locator
@@ -122,6 +124,21 @@ def test_among_good_neighbours_the_ones_heard_longest_come_first() -> None:
     steady = {"a_passing": STEADY_ROUNDS, "b_passing": STEADY_ROUNDS + 50, "parked": STEADY_ROUNDS + 9}
     assert choose({**heard, "a_passing": answered(4)}, set(), heard_rounds=steady) == {"b_passing", "parked"}  # then by rate
     assert choose({"new": answered(5), "old but fair": answered(3)}, set(), heard_rounds={"old but fair": 60}) == {"new"}
+
+
+@given(st.dictionaries(st.sampled_from("abcdef"), st.tuples(st.lists(st.booleans(), min_size=1, max_size=HELD_WINDOW),
+                                                             st.integers(0, 3 * STEADY_ROUNDS)), max_size=6))
+def test_no_bridge_goes_to_a_good_neighbour_while_a_steadier_good_one_is_left_out(heard: dict[str, tuple[list[bool], int]]) -> None:
+    """The property behind the rule above, over random answers and rounds (nothing open yet)."""
+    answers = {z: a for z, (a, _) in heard.items()}
+    rounds = {z: r for z, (_, r) in heard.items()}
+    chosen = choose(answers, set(), heard_rounds=rounds)
+    good = {z for z, a in answers.items() if mesh_policy.good(a, held=False)}
+    steady = {z: min(r, STEADY_ROUNDS) for z, r in rounds.items()}
+    assert len(chosen) <= MAX_BRIDGES
+    if good:
+        assert chosen <= good and len(chosen) == min(MAX_BRIDGES, len(good))
+        assert all(steady[c] >= steady[z] for c in chosen for z in good - chosen)
 
 
 def test_good_bridges_already_open_are_kept_before_other_good_ones() -> None:
