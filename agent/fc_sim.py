@@ -31,7 +31,7 @@ STEP_S = 0.02
 # nothing moves, commands refresh the state at once (`_command`), and what the fault
 # channel changes shows within a step. An idle agent's loop woke 50 times a second for it
 # (ADR 0003 "What it costs").
-REST_STEP_S = 0.1
+REST_STEP_S = 0.25
 SETPOINT_PERIOD_S = 0.05
 FENCE_MAX_VERTICES = 64  # PX4 v1.16 keeps at most this many fence items (DM_KEY_FENCE_POINTS_MAX)
 

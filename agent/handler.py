@@ -31,7 +31,7 @@ from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, Comma
 log = logging.getLogger(__name__)
 
 POLL_S = 0.05
-IDLE_POLL_S = 0.2  # with no command running, only the system events (arming, mode, failsafes) are tracked
+IDLE_POLL_S = 0.5  # with no command running, only the system events (arming, mode, failsafes) are tracked
 # How long an accepted command's effects are expected to show in telemetry (one
 # heartbeat on PX4, plus margin): within it, those effects are not "system" events.
 EFFECT_LAG_S = 3.0

