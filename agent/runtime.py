@@ -49,7 +49,9 @@ from dronefleet.schemas.telemetry import GROUND_PEER, Telemetry
 log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 LOST_LINK_TICK_S = 0.2
-RESTING_TICK_S = 1.0  # on the ground the failsafes and the fence have nothing to act on: an idle agent wakes less
+# On the ground no failsafe or fence return is taken, only the link warning (then up to a
+# second later): the checks tick this often there, so an idle agent wakes less.
+RESTING_TICK_S = 1.0
 JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving without it
 # A contact gap this long may have been a link closing and the mesh routing the drone
 # another way: its command and bundle queryables are declared afresh (ADR 0003).
@@ -163,7 +165,7 @@ class Agent:
                     if policy is not None:  # the bundle's own policy, instead of the agent's
                         self.lost_link.acted_alone(policy, self.clock.monotonic())  # type: ignore[arg-type]
                         self._system("failsafe", policy)
-            await self.clock.sleep(LOST_LINK_TICK_S if flying else RESTING_TICK_S)
+            await self.clock.sleep(_check_every_s(flying))
 
     def _failsafe(self, action: LostLinkAction, why: str | None = None) -> None:
         """Act alone: the same handler and priority rules as a command from the ground.
@@ -189,11 +191,12 @@ class Agent:
         fence, out = self.config.geofence, False
         while True:
             s = self.fc.state()
-            where = fence.outside(s.position.lat, s.position.lon, s.position.rel_alt) if _flying(s) and s.position else None
+            flying = _flying(s)
+            where = fence.outside(s.position.lat, s.position.lon, s.position.rel_alt) if flying and s.position else None
             if where is not None and not out:
                 self._failsafe("return", f"{GEOFENCE_OUTSIDE}, {where}")
             out = where is not None
-            await self.clock.sleep(LOST_LINK_TICK_S if _flying(s) else RESTING_TICK_S)
+            await self.clock.sleep(_check_every_s(flying))
 
     async def _upload_fence(self) -> None:
         """The fence's polygon as the autopilot's own geofence, where it takes one."""
@@ -369,6 +372,11 @@ class Agent:
 
 def _flying(state: FcState) -> bool:
     return state.armed and state.landed_state not in ("on_ground", "unknown")
+
+
+def _check_every_s(flying: bool) -> float:
+    """How often the lost-link and fence checks look: in the air they bound a failsafe's delay."""
+    return LOST_LINK_TICK_S if flying else RESTING_TICK_S
 
 
 async def _join(bus: Bus, keys: Keys, drone_id: str) -> None:
