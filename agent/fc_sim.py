@@ -20,7 +20,7 @@ from urllib.parse import parse_qs, urlsplit
 import msgspec
 
 from dronefleet.agent.fc_port import FcRejected, FcState
-from dronefleet.bus.clock import Clock
+from dronefleet.bus.clock import Clock, until_next_tick_s
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim.faults import FaultChannel, open_fault_channel
 from dronefleet.sim.vehicle import Vehicle
@@ -80,7 +80,8 @@ class SimFlightController:
         last = self._clock.monotonic()
         while True:
             v = self.vehicle
-            await self._clock.sleep(REST_STEP_S if not v.armed and v.landed_state == "on_ground" and self._setpoint is None else STEP_S)
+            period_s = REST_STEP_S if not v.armed and v.landed_state == "on_ground" and self._setpoint is None else STEP_S
+            await self._clock.sleep(until_next_tick_s(self._clock.monotonic(), period_s))
             now = self._clock.monotonic()
             if self._setpoint and now - self._last_sent >= SETPOINT_PERIOD_S:
                 self._send_setpoint(now)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import heapq
 import itertools
+import math
 import time
 from collections.abc import Callable
 from typing import Protocol
@@ -40,7 +41,7 @@ class VirtualClock:
     def __init__(self, start_s: float = 0.0, epoch_ms: int = 1_700_000_000_000) -> None:
         self._now = start_s
         self._epoch_ms = epoch_ms
-        self._timers: list[tuple[float, int, asyncio.Future[None]]] = []
+        self._timers: list[tuple[float, int, asyncio.Future[None] | Callable[[], None]]] = []
         self._seq = itertools.count()
 
     def monotonic(self) -> float:
@@ -55,10 +56,9 @@ class VirtualClock:
         await fut
 
     def call_later(self, seconds: float, callback: Callable[[], None]) -> None:
-        """Run `callback` when virtual time reaches now + seconds (a message in flight)."""
-        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        fut.add_done_callback(lambda _: callback())
-        heapq.heappush(self._timers, (self._now + max(0.0, seconds), next(self._seq), fut))
+        """Run `callback` when virtual time reaches now + seconds (a message in flight):
+        at that instant it joins the loop's queue where a woken sleeper would."""
+        heapq.heappush(self._timers, (self._now + max(0.0, seconds), next(self._seq), callback))
 
     async def advance(self, seconds: float) -> None:
         """Move time forward, waking each sleeper at its deadline and letting it run.
@@ -68,17 +68,28 @@ class VirtualClock:
         the deadlines alone, so a simulation replays identically.
         """
         target = self._now + seconds
+        loop = asyncio.get_running_loop()
         await _settle()
         while self._timers and self._timers[0][0] <= target:
             deadline = self._timers[0][0]
             self._now = max(self._now, deadline)
             while self._timers and self._timers[0][0] == deadline:
-                _, _, fut = heapq.heappop(self._timers)
-                if not fut.done():
-                    fut.set_result(None)
+                _, _, due = heapq.heappop(self._timers)
+                if not isinstance(due, asyncio.Future):
+                    loop.call_soon(due)
+                elif not due.done():
+                    due.set_result(None)
             await _settle()
         self._now = target
         await _settle()
+
+
+def until_next_tick_s(now_s: float, period_s: float) -> float:
+    """Seconds from `now_s` to the next multiple of `period_s`: loops that tick on this
+    grid wake together under a VirtualClock (one settle of the loop for all of them,
+    not one each at its own phase) and the same instants replay from the same start."""
+    tick = math.floor(now_s / period_s + 1e-6) + 1
+    return max(0.0, tick * period_s - now_s)
 
 
 async def _settle(max_rounds: int = 64) -> None:
@@ -87,7 +98,7 @@ async def _settle(max_rounds: int = 64) -> None:
     ready = getattr(loop, "_ready", None)  # CPython's run queue; absent: fixed rounds
     for i in range(max_rounds):
         await asyncio.sleep(0)
-        if ready is not None and not ready and i >= 1:
+        if ready is not None and not ready:
             return
         if ready is None and i >= 7:
             return

@@ -240,16 +240,21 @@ class MemoryBus:
             return reply
 
         trip = asyncio.ensure_future(exchange())
-        timer = asyncio.ensure_future(medium.sleep(timeout_s))
-        try:
-            await asyncio.wait((trip, timer), return_when=asyncio.FIRST_COMPLETED)
-        finally:
-            timer.cancel()
+        expired = False
+
+        def expire() -> None:  # on the Medium's clock: a timer, not a task per query
+            nonlocal expired
             if not trip.done():
+                expired = True
                 trip.cancel()
-        if not trip.done() or trip.cancelled():
-            raise QueryTimeout(f"no reply from {key} within {timeout_s:g} s")
-        return trip.result()
+
+        medium.call_later(timeout_s, expire)
+        try:
+            return await trip
+        except asyncio.CancelledError:
+            if expired:
+                raise QueryTimeout(f"no reply from {key} within {timeout_s:g} s") from None
+            raise
 
     def announce(self, key: str) -> _Decl:
         def close() -> None:

@@ -12,7 +12,8 @@ from typing import Any
 
 import httpx
 import pytest
-from playwright.async_api import Page, Route, ViewportSize, expect
+from playwright.async_api import Page, Request, Route, ViewportSize, expect
+from playwright.async_api import TimeoutError as PlaywrightTimeoutError
 
 PLANS = Path(__file__).resolve().parents[1] / "plans"
 
@@ -56,12 +57,31 @@ class Dashboard:
     def __init__(self, page: Page) -> None:
         self.page = page
         self.errors: list[str] = []  # uncaught exceptions in the page
+        self.console: list[str] = []  # what the page logged, for a failure's message
+        self.pending: dict[Request, str] = {}  # requests sent and not answered yet
         page.on("pageerror", lambda exc: self.errors.append(str(exc)))
+        page.on("console", lambda msg: self.console.append(f"{msg.type}: {msg.text}"))
+        page.on("request", self._sent)
+        page.on("requestfinished", self._answered)
+        page.on("requestfailed", self._answered)
+
+    def _sent(self, request: Request) -> None:
+        self.pending[request] = f"{request.method} {request.url}"
+
+    def _answered(self, request: Request) -> None:
+        self.pending.pop(request, None)
 
     async def open(self, url: str) -> None:
         await self.page.goto(url)
         # the first page of a run loads while every worker starts its processes: 30 s was missed
-        await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=2 * UI_S * 1000)
+        try:
+            await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=2 * UI_S * 1000)
+        except PlaywrightTimeoutError:
+            banner = await self.page.locator("#banner").text_content()
+            raise AssertionError(
+                f"the page at {url} did not come up in {2 * UI_S:g} s; banner {banner!r}; "
+                f"unanswered requests {sorted(self.pending.values())}; console {self.console[-20:]}; "
+                f"errors {self.errors}") from None
 
     async def metres_per_pixel(self) -> float:
         """What the scale bar says."""
