@@ -27,11 +27,13 @@ sysdeps:
 # uv (pinned in the lock) installs it about 4x faster than pip: 13 s against 47 s from
 # cold caches on the 2-core CI machine. If uv cannot (say, only a pip mirror is
 # reachable: uv does not read pip.conf), pip does the same from the same lock.
-# Bytecode is compiled at install (uv does not by default, pip does), and Python may
-# write our own modules' bytecode: with neither, as in an environment exporting
-# PYTHONDONTWRITEBYTECODE=1 (the image of this 2-core VM does), every `fleet` process and
-# every pytest worker compiled its imports again, half of a process's start (0.7 s of
-# CPU against 0.3 s for the ground's imports) and a sixth of the suite's CPU (ADR 0011).
+# Python may write bytecode: in an environment exporting PYTHONDONTWRITEBYTECODE=1 (the
+# image of this 2-core VM does), every `fleet` process and every pytest worker compiled
+# its imports again, half of a process's start (0.7 s of CPU against 0.3 s for the
+# ground's imports) and a sixth of the suite's CPU (ADR 0011). Nothing is compiled at
+# install: uv's --compile-bytecode compiled all 900 MB of the venv, 15 of the 16 s an
+# install took, before the first test could start; `make pytest` compiles what the
+# suite imports by collecting it once.
 # A venv from before the package was renamed (ADR 0012) still holds the old `fleet`
 # distribution: it is removed first, or its finder would serve stale modules.
 UV_PIN := $(shell sed -n 's/^uv==//p' requirements.lock)
@@ -42,7 +44,7 @@ $(STAMP): pyproject.toml requirements.lock
 	@echo "installing requirements.lock into $(VENV)"
 	@if $(BIN)/python -m pip install --quiet --disable-pip-version-check uv==$(UV_PIN) 2>/dev/null \
 	    && { $(BIN)/uv pip uninstall --quiet --python $(BIN)/python fleet 2>/dev/null; true; } \
-	    && $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -r requirements.lock \
+	    && $(BIN)/uv pip install --quiet --python $(BIN)/python -r requirements.lock \
 	    && $(BIN)/uv pip install --quiet --python $(BIN)/python --no-deps -e .; then :; else \
 	  echo "uv could not install the lock; installing it with pip"; \
 	  $(BIN)/python -m pip install --quiet --upgrade pip \
@@ -73,8 +75,9 @@ test: $(STAMP) sysdeps
 	@$(MAKE) --no-print-directory -j2 lint pytest
 
 # Collected once first: the workers then find every test module's assertions rewritten
-# and our modules compiled (each worker's collection 2.2 CPU-seconds instead of 4.2 in a
-# fresh clone). A collection error is reported by the run that follows.
+# and every module the suite imports (1800, most of what a `fleet` process imports too)
+# compiled: each worker's collection takes 2.2 CPU-seconds instead of 4.2 in a fresh
+# clone. A collection error is reported by the run that follows.
 pytest: $(STAMP)
 	@$(BIN)/python -m pytest -qq --collect-only > /dev/null || true
 	$(BIN)/python -m pytest -q -n 8 --dist loadgroup

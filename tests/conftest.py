@@ -4,6 +4,7 @@ and agent subprocesses that are always stopped."""
 from __future__ import annotations
 
 import fcntl
+import itertools
 import os
 import resource
 import signal
@@ -58,7 +59,8 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
 
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has suffixed the grouped tests' ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Longest first (the `slow` marker's estimate), each followed by a short test.
+    """Longest first (the `slow` marker's estimate), real-time and fast-time tests in
+    turns, each followed by a short test.
 
     `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test,
     or a group: the Chromium tests, each radio slot's tests) with the groups first (the
@@ -76,7 +78,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             config.stash[LOADGROUP_BROKEN] = (
                 f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: see "
                 "pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
+    # A long test that starts processes mostly waits on real time (drones flying); a long
+    # pure one (fast time) is all CPU. Taken in turns, the CPU-bound ones fill the cores
+    # while the others wait: longest first, the two kinds one after the other.
+    # (Grouped tests go out first whatever their place.)
+    def kind(item: pytest.Item) -> str:
+        if item.get_closest_marker("xdist_group"):
+            return "grouped"
+        return "real" if item.get_closest_marker("integration") else "pure"
+
     long = sorted((i for i in items if seconds(i)), key=seconds, reverse=True)
+    real, pure = ([i for i in long if kind(i) == k] for k in ("real", "pure"))
+    long = [i for i in long if kind(i) == "grouped"] + [
+        i for pair in itertools.zip_longest(real, pure) for i in pair if i is not None]
     # The short tests that start processes go between the long ones, the pure ones last:
     # they fill the end in a few CPU-seconds, where tests that start processes would
     # compete for both cores with the last long tests.
