@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import pytest_asyncio
 from playwright.async_api import Browser
 
 from bench.dashboard_frames import (
@@ -19,13 +20,16 @@ from tests.dashboard.tiles import TileServer
 from tests.harness import GroundFleet
 
 
-@pytest.fixture
+# One Chromium per worker, a fresh context (cookies, storage, page) per test: a launch
+# cost 0.9 CPU-seconds, 15 of the suite's (ADR 0011). The tests of tests/dashboard run on
+# the session's event loop (page.SESSION_LOOP), where the browser lives.
+@pytest_asyncio.fixture(scope="session", loop_scope="session")
 async def browser() -> AsyncIterator[Browser]:
     async with launch_chromium(chromium()) as browser:
         yield browser
 
 
-@pytest.fixture
+@pytest_asyncio.fixture(loop_scope="session")
 async def dashboard(browser: Browser, tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterator[Dashboard]:
     context = await browser.new_context(viewport=DESKTOP)
     try:

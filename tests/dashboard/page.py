@@ -29,6 +29,10 @@ SCALE_JS = ("(parseFloat(document.querySelector('#scale-label').textContent) * "
             "document.querySelector('#scale-bar').getBoundingClientRect().width)")
 
 
+# The dashboard tests run on the session's event loop, where their one Chromium lives (conftest.py).
+SESSION_LOOP = pytest.mark.asyncio(loop_scope="session")
+
+
 # Deadlines are generous: two cores run five pytest workers, Chromium and the drones.
 UI_S = 30.0
 

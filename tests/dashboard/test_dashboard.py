@@ -31,6 +31,7 @@ from tests.dashboard.page import (
     PHONE,
     PLANS,
     SCALE_JS,
+    SESSION_LOOP,
     SPAWNS,
     UI_S,
     Dashboard,
@@ -43,7 +44,7 @@ from tests.waiting import until
 
 # One Chromium at a time (`--dist loadgroup`): with 200 drones a page takes a core, and
 # beside it the real-packet radio tests missed their deadlines.
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium")]
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium"), SESSION_LOOP]
 
 
 @pytest.mark.slow(60)

@@ -15,15 +15,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from playwright.async_api import Page, expect
+import pytest_asyncio
+from playwright.async_api import Browser, Page, expect
 
-from bench.dashboard_frames import DESKTOP, launch_chromium
+from bench.dashboard_frames import DESKTOP
 from dronefleet.schemas.geo import destination, distance_m
-from tests.dashboard.page import PLANS, UI_S, chromium
+from tests.dashboard.page import PLANS, SESSION_LOOP, UI_S
 from tests.harness import GroundFleet, ended
 from tests.waiting import until
 
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium-planner")]
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("chromium-planner"), SESSION_LOOP]
 HOME = (40.633400, -8.660810)
 SPAWNS = {"drone01": HOME, "drone02": destination(*HOME, 12, 90)}
 
@@ -100,21 +101,20 @@ async def test_the_planner_api_checks_simulates_against_the_live_fleet_and_expor
         assert r.status_code == 400 and r.json()["detail"]["field"] == "$.end", r.text
 
 
-@pytest.fixture
-async def page(tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterator[Page]:
-    async with launch_chromium(chromium()) as browser:
-        context = await browser.new_context(viewport=DESKTOP, accept_downloads=True)
-        page = await context.new_page()
-        errors: list[str] = []
-        page.on("pageerror", lambda exc: errors.append(str(exc)))
-        try:
-            yield page
-            assert not errors, errors
-        finally:
-            with contextlib.suppress(Exception):
-                await page.screenshot(path=str(tmp_path / f"{request.node.name}.png"))
-                print(f"screenshot: {tmp_path / f'{request.node.name}.png'}")
-            await context.close()
+@pytest_asyncio.fixture(loop_scope="session")
+async def page(browser: Browser, tmp_path: Path, request: pytest.FixtureRequest) -> AsyncIterator[Page]:
+    context = await browser.new_context(viewport=DESKTOP, accept_downloads=True)
+    page = await context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda exc: errors.append(str(exc)))
+    try:
+        yield page
+        assert not errors, errors
+    finally:
+        with contextlib.suppress(Exception):
+            await page.screenshot(path=str(tmp_path / f"{request.node.name}.png"))
+            print(f"screenshot: {tmp_path / f'{request.node.name}.png'}")
+        await context.close()
 
 
 async def open_planner(page: Page, url: str, drones: list[str]) -> None:
