@@ -42,9 +42,10 @@ export class MissionPanel {
 
   /** After a (re)connection: every record, and the open mission's whole log. */
   async reload() {
+    const sentAt = performance.now();
     const r = await call("GET", "/mission");
     if (!r.ok) return;
-    for (const record of r.data) this.fleet.onMission(record);
+    for (const record of r.data) this.fleet.onMission(record, sentAt);
     if (this.selected) await this.load(this.selected);
     this.hooks.redraw();
   }
@@ -71,7 +72,7 @@ export class MissionPanel {
     this.fleet.setMissionLog(id, log, sentAt);
     if (!this.fleet.lanes.has(id)) this.fleet.lanes.set(id, new MissionLanes());
     this.fleet.lanes.get(id).seed({ source, subroutines, marks });
-    this.fleet.onMission(record);
+    this.fleet.onMission(record, sentAt);
     if (this.selected === id) this.logShown = { id: null, count: 0 };
   }
 
@@ -102,10 +103,11 @@ export class MissionPanel {
     const name = $("mission-name").value.trim();
     const box = $("mission-error");
     box.hidden = true;
+    const sentAt = performance.now();
     const r = await call("POST", `/mission?name=${encodeURIComponent(name)}`, { text: source });
     if (r.ok) {
       const id = r.data.mission_id;
-      if (!this.fleet.missions.has(id)) this.fleet.onMission({ mission_id: id, name, status: "pending", used_drones: [] });
+      if (!this.fleet.missions.has(id)) this.fleet.onMission({ mission_id: id, name, status: "pending", used_drones: [] }, sentAt);
       await this.select(id);
       return;
     }
@@ -130,13 +132,14 @@ export class MissionPanel {
   async cancel() {
     const id = this.selected;
     if (!id) return;
+    const sentAt = performance.now();
     const r = await call("DELETE", `/mission/${encodeURIComponent(id)}`);
     const p = $("mission-notice") || document.createElement("p");
     p.id = "mission-notice";
     p.className = r.ok ? "" : "error";
     p.textContent = r.ok ? `cancel of ${id} requested` : `cancel of ${id}: ${r.message}`;
     $("mission-message").after(p);
-    if (r.ok) this.fleet.onMission(r.data);
+    if (r.ok) this.fleet.onMission(r.data, sentAt);
     this.hooks.redraw();
   }
 

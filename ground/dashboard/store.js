@@ -15,6 +15,7 @@ export class Fleet {
     this.view = view;
     this.drones = new Map(); // id -> Drone
     this.missions = new Map(); // id -> record
+    this.missionHeard = new Map(); // id -> when the stream last brought its record (performance.now())
     this.missionLogs = new Map(); // id -> [{timestamp, level, message}], the mission's own
     this.missionDroneLines = new Map(); // id -> its drones' lines heard while they were in it
     this.missionFetched = new Map(); // id -> keys of the last fetched lines, which the stream may bring again
@@ -142,7 +143,14 @@ export class Fleet {
     this.changed.add(id);
   }
 
-  onMission(record) {
+  /** A mission's record: from the stream (`sentAt` undefined), or from a request sent
+   * at `sentAt` (performance.now()). A request's answer is older than any record the
+   * stream brought after it was sent, and is dropped: arriving last, it turned a running
+   * mission back to pending. */
+  onMission(record, sentAt) {
+    const heard = this.missionHeard.get(record.mission_id);
+    if (sentAt !== undefined && heard !== undefined && heard >= sentAt) return;
+    if (sentAt === undefined) this.missionHeard.set(record.mission_id, performance.now());
     this.missions.set(record.mission_id, record);
     this.missionsChanged.add(record.mission_id);
   }

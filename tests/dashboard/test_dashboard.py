@@ -430,6 +430,29 @@ async def test_an_older_mission_fetch_that_answers_last_does_not_wipe_newer_line
     assert dashboard.errors == []
 
 
+async def test_a_mission_record_fetched_before_its_status_changed_does_not_turn_it_back(
+        mission_fleet: GroundFleet, dashboard: Dashboard) -> None:
+    """Opening a mission fetches its record; the stream says when its status changes.
+    A fetch answered before a change but arriving after it is stale: a submitted
+    mission's page showed `pending` for 30 s after the ground had it running."""
+    fleet, page = mission_fleet, dashboard.page
+    status = "id => window.fleetDashboard.fleet.missions.get(id)?.status"
+    async with fleet.client() as http:
+        await dashboard.open(fleet.ground.url)
+        mission_id = await submit(http, "sleep(60*s)\n", "waiting")
+        await page.wait_for_function(f"id => ({status})(id) === 'running'", arg=mission_id, timeout=UI_S * 1000)
+        held = await HeldAnswer.on(page, re.compile(rf"/mission/{mission_id}$"))
+        older = asyncio.ensure_future(page.evaluate("id => window.fleetDashboard.missions.select(id)", mission_id))
+        await asyncio.wait_for(held.fetched.wait(), UI_S)  # the ground answered: running
+        assert (await http.delete(f"/mission/{mission_id}")).status_code == 200
+        await page.wait_for_function(f"id => ({status})(id) === 'cancelled'", arg=mission_id, timeout=UI_S * 1000)
+        held.release.set()
+        await asyncio.wait_for(older, UI_S)
+        assert await page.evaluate(status, mission_id) == "cancelled"
+        await expect(page.locator("#mission-status")).to_have_text("cancelled")
+    assert dashboard.errors == []
+
+
 # ---- 4. 200 drones at 10 Hz ------------------------------------------------------------
 
 
