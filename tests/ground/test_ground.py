@@ -24,7 +24,9 @@ from tests.harness import GroundFleet, fleet_command, signal_and_wait, wait_stat
 from tests.ports import free_udp_base
 from tests.waiting import Collector, until
 
-pytestmark = pytest.mark.integration
+# One worker runs them all, on the module's one fleet: spread over the workers, each
+# started a fleet of its own for its one or two tests (ADR 0011).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("ground-fleet")]
 
 DRONES = ("drone01", "drone02", "drone03")
 SPAWNS = {"drone01": (40.633490, -8.660815), "drone02": (40.633590, -8.660815), "drone03": (40.633690, -8.660815)}

@@ -29,7 +29,9 @@ from tests.harness import (
 )
 from tests.waiting import until
 
-pytestmark = pytest.mark.integration
+# One worker runs them all, on the module's one fleet: spread over the workers, each
+# started a fleet of its own for its one or two tests (ADR 0011).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("mission-fleet")]
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"

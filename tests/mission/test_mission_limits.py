@@ -23,7 +23,9 @@ from bench.procstat import children, rss_mib
 from tests.harness import GroundFleet, ended, record, seq_above, submit, telemetry_seq
 from tests.waiting import until
 
-pytestmark = pytest.mark.integration
+# One worker runs them all, on the module's one fleet: spread over the workers, each
+# started a fleet of its own for its one or two tests (ADR 0011).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("limits-fleet")]
 
 MAX_MEMORY_MB = 200
 MAX_CPU_S = 4
