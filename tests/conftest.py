@@ -63,7 +63,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     turns, each followed by a short test.
 
     `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test,
-    or a group: the Chromium tests, each radio slot's tests) with the groups first (the
+    or a group: the Chromium tests, each radio slot's tests, a module's tests that share
+    one fleet) with the groups first (the
     most tests first), then in collection order: one per worker at first, a second to
     each, then one each time a worker is down to two tests. So the long real-time tests
     start early, and a short one sits between two long ones. The order is the same on
@@ -78,25 +79,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             config.stash[LOADGROUP_BROKEN] = (
                 f"--dist loadgroup is not grouping {lost[0]} (pytest {pytest.__version__}: see "
                 "pytest-dev/pytest-xdist#1386; requirements.lock pins a pytest that groups)")
+    # Grouped tests go out first whatever their place, in collection order: a group's
+    # modules one after the other, as their module-scoped fleets expect.
+    grouped = [i for i in items if i.get_closest_marker("xdist_group")]
+    single = [i for i in items if not i.get_closest_marker("xdist_group")]
     # A long test that starts processes mostly waits on real time (drones flying); a long
     # pure one (fast time) is all CPU. Taken in turns, the CPU-bound ones fill the cores
     # while the others wait: longest first, the two kinds one after the other.
-    # (Grouped tests go out first whatever their place.)
-    def kind(item: pytest.Item) -> str:
-        if item.get_closest_marker("xdist_group"):
-            return "grouped"
-        return "real" if item.get_closest_marker("integration") else "pure"
-
-    long = sorted((i for i in items if seconds(i)), key=seconds, reverse=True)
-    real, pure = ([i for i in long if kind(i) == k] for k in ("real", "pure"))
-    long = [i for i in long if kind(i) == "grouped"] + [
-        i for pair in itertools.zip_longest(real, pure) for i in pair if i is not None]
+    long = sorted((i for i in single if seconds(i)), key=seconds, reverse=True)
+    real = [i for i in long if i.get_closest_marker("integration")]
+    pure = [i for i in long if not i.get_closest_marker("integration")]
+    long = [i for pair in itertools.zip_longest(real, pure) for i in pair if i is not None]
     # The short tests that start processes go between the long ones, the pure ones last:
     # they fill the end in a few CPU-seconds, where tests that start processes would
     # compete for both cores with the last long tests.
-    short = sorted((i for i in items if not seconds(i)), key=lambda i: i.get_closest_marker("integration") is None)
+    short = sorted((i for i in single if not seconds(i)), key=lambda i: i.get_closest_marker("integration") is None)
     order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
-    items[:] = order
+    items[:] = grouped + order
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

@@ -25,8 +25,9 @@ from tests.ports import free_udp_base
 from tests.waiting import Collector, until
 
 # One worker runs them all, on the module's one fleet: spread over the workers, each
-# started a fleet of its own for its one or two tests (ADR 0011).
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("ground-fleet")]
+# started a fleet of its own for its one or two tests. The group holds the other
+# short modules with a fleet of their own too, one after the other (ADR 0011).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("module-fleets")]
 
 DRONES = ("drone01", "drone02", "drone03")
 SPAWNS = {"drone01": (40.633490, -8.660815), "drone02": (40.633590, -8.660815), "drone03": (40.633690, -8.660815)}

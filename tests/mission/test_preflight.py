@@ -19,8 +19,9 @@ from tests.harness import GroundFleet, ended, fleet_command
 from tests.waiting import until
 
 # One worker runs them all, on the module's one fleet: spread over the workers, each
-# started a fleet of its own for its one or two tests (ADR 0011).
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("preflight-fleet")]
+# started a fleet of its own for its one or two tests. The group holds the other
+# short modules with a fleet of their own too, one after the other (ADR 0011).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("module-fleets")]
 
 DRONES = ("drone01", "drone02", "drone03")
 DRAIN_PER_S = 0.004  # the ground's flight_drain_per_s here: a pack lasts about 4 minutes in the air
