@@ -70,9 +70,11 @@ demo: $(STAMP)
 # tests of each of the two radio slots), then single tests longest first (the `slow`
 # marker, tests/conftest.py); a worker gets another unit when it has two tests or fewer
 # left (ADR 0011). Each run prints its 25 slowest tests.
-# The lint runs beside the tests (13 s of mypy and friends); either failing fails it.
+# The lint runs beside the tests (13 s of mypy and friends) at the lowest CPU priority:
+# it takes the cores while the tests wait on flying drones, not while workers start.
+# Either failing fails it.
 test: $(STAMP) sysdeps
-	@$(MAKE) --no-print-directory -j2 lint pytest
+	@$(MAKE) --no-print-directory -j2 LINT_PRIORITY="nice -n 19" lint pytest
 
 # Collected once first: the workers then find every test module's assertions rewritten
 # and every module the suite imports (1800, most of what a `fleet` process imports too)
@@ -88,9 +90,9 @@ docs: $(STAMP)
 
 # ruff, mypy and the layer contracts (import-linter), configured in pyproject.toml.
 lint: $(STAMP)
-	$(BIN)/ruff check .
-	$(BIN)/mypy
-	$(BIN)/lint-imports
+	$(LINT_PRIORITY) $(BIN)/ruff check .
+	$(LINT_PRIORITY) $(BIN)/mypy
+	$(LINT_PRIORITY) $(BIN)/lint-imports
 
 # Pure logic and virtual-time tests only: seconds, no processes, no sockets.
 test-fast: $(STAMP)
