@@ -57,10 +57,13 @@ def pytest_runtest_setup(item: pytest.Item) -> None:
             pytest.fail(f"a radio test belongs to one of the groups {sorted(groups)} (one per radio slot)")
 
 
+SPACERS = 3  # short tests after each long one (pytest_collection_modifyitems)
+
+
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has suffixed the grouped tests' ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Longest first (the `slow` marker's estimate), real-time and fast-time tests in
-    turns, each followed by a short test.
+    turns, each followed by short tests.
 
     `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test,
     or a group: the Chromium tests, each radio slot's tests, a module's tests that share
@@ -90,12 +93,17 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     real = [i for i in long if i.get_closest_marker("integration")]
     pure = [i for i in long if not i.get_closest_marker("integration")]
     long = [i for pair in itertools.zip_longest(real, pure) for i in pair if i is not None]
-    # The short tests that start processes go between the long ones, the pure ones last:
-    # they fill the end in a few CPU-seconds, where tests that start processes would
-    # compete for both cores with the last long tests.
+    # Three short tests after each long one: a worker holds its running test and one more
+    # (xdist hands it another when it is down to two), so a long test drawn right after
+    # another waited for it on the same worker while other workers were free (a 50-s
+    # flight contract started at 178 s). The short tests that start processes go first,
+    # the pure ones last: they fill the end in a few CPU-seconds, where tests that start
+    # processes would compete for both cores with the last long tests.
     short = sorted((i for i in single if not seconds(i)), key=lambda i: i.get_closest_marker("integration") is None)
-    order = [i for pair in zip(long, short, strict=False) for i in pair] + long[len(short):] + short[len(long):]
-    items[:] = grouped + order
+    order: list[pytest.Item] = []
+    for n, item in enumerate(long):
+        order += [item, *short[SPACERS * n:SPACERS * (n + 1)]]
+    items[:] = grouped + order + short[SPACERS * len(long):]
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
