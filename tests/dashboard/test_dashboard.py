@@ -472,10 +472,10 @@ async def test_200_drones_at_10_hz_keep_frames_under_50_ms(tmp_path: Path, brows
             await wait_for_drones(page, 200, 60)
             await page.locator("#drone-list li[data-drone=synth107]").click()
             await expect(page.locator("#detail-state")).to_have_text("hold")
-            frames = await measure_frames(browser, page, 4.0)
+            frames = await measure_frames(browser, page, 2.0)
             print(f"200 drones at 10 Hz: {frames.summary()}")
             await page.screenshot(path=str(tmp_path / "200-drones.png"))
-            assert synthetic.sent >= 200 * 10 * 8
+            assert synthetic.sent >= 200 * 10 * 5
         await ground.ready()  # it has worked off the telemetry backlog: SIGTERM is heard
     finally:
         ground.stop()

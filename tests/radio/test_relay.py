@@ -177,10 +177,10 @@ enable("relay", mode="measured", good_m=35*m, lost_m=60*m, ground=[GROUND_LAT, G
 d = assign("drone01")
 arm(d)
 takeoff(d, 10*m)
-move(d, forward=75*m, speed=5*m/s)  # past the radio's 60 m: only a relay reaches it there
-sleep(10*s)
+move(d, forward=75*m, speed=8*m/s)  # past the radio's 60 m: only a relay reaches it there
+sleep(5*s)
 print(f"out at {distance(d.position, position(GROUND_LAT, GROUND_LON)):.0f} m")
-move(d, backward=75*m, speed=5*m/s)  # sent while it is out: it must get there through the relay
+move(d, backward=75*m, speed=8*m/s)  # sent while it is out: it must get there through the relay
 land(d)
 """
 RELAY_RADIO = {"good_m": 35, "lost_m": 60}  # a short radio: the same code as the default 60/100 m, in less flight
