@@ -26,7 +26,7 @@ from tests.waiting import Collector, until
 
 # One worker runs them all, on the module's one fleet: spread over the workers, each
 # started a fleet of its own for its one or two tests. The group holds the other
-# short modules with a fleet of their own too, one after the other (ADR 0011).
+# modules with a fleet of their own too, one after the other (ADR 0011).
 pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("module-fleets")]
 
 DRONES = ("drone01", "drone02", "drone03")

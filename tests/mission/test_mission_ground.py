@@ -30,8 +30,9 @@ from tests.harness import (
 from tests.waiting import until
 
 # One worker runs them all, on the module's one fleet: spread over the workers, each
-# started a fleet of its own for its one or two tests (ADR 0011).
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("mission-fleet")]
+# started a fleet of its own for its one or two tests. The group holds the other
+# modules with a fleet of their own too, one after the other (ADR 0011).
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("module-fleets")]
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
