@@ -82,7 +82,7 @@ test: $(STAMP) sysdeps
 # clone. A collection error is reported by the run that follows.
 pytest: $(STAMP)
 	@$(BIN)/python -m pytest -qq --collect-only > /dev/null || true
-	$(BIN)/python -m pytest -q -n 10 --dist loadgroup
+	$(BIN)/python -m pytest -q -n 8 --dist loadgroup
 
 # The documentation site into site/ (mkdocs-material; the suite builds it with --strict).
 docs: $(STAMP)
