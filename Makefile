@@ -62,14 +62,12 @@ lock: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/fleet demo $(ARGS)
 
-# Eight workers on the 2 cores: most tests wait on real time (drones flying), not CPU
-# (eight, before processes stopped recompiling their imports and before the relay corpus
-# shrank to its smoke form, kept both cores at 100 % and real-time tests missed deadlines;
-# now they average 1.5 busy cores, ADR 0011).
+# Eight workers on the 2 cores: many tests wait on real time (drones flying), and eight
+# keep both cores busy 81-88 % of a run (ten: 94 %, and no faster: ADR 0011).
 # `--dist loadgroup` hands out work units: the groups first (the Chromium tests; the radio
-# tests of each of the two radio slots), then single tests longest first (the `slow`
-# marker, tests/conftest.py); a worker gets another unit when it has two tests or fewer
-# left (ADR 0011). Each run prints its 25 slowest tests.
+# tests of each of the two radio slots; the modules sharing a fleet), then single tests
+# longest first (the `slow` marker, tests/conftest.py); a worker gets another unit when it
+# has two tests or fewer left (ADR 0011). Each run prints its 25 slowest tests.
 # The lint runs beside the tests (13 s of mypy and friends) at the lowest CPU priority:
 # it takes the cores while the tests wait on flying drones, not while workers start.
 # Either failing fails it.
