@@ -66,12 +66,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     turns, each followed by short tests.
 
     `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test,
-    or a group: the Chromium tests, each radio slot's tests, a module's tests that share
-    one fleet) with the groups first (the
-    most tests first), then in collection order: one per worker at first, a second to
-    each, then one each time a worker is down to two tests. So the long real-time tests
-    start early, and a short one sits between two long ones. The order is the same on
-    every worker (a stable sort), as xdist requires."""
+    or a group: the Chromium tests, each radio slot's tests, the modules that share a
+    fleet) with the groups first (the most tests first), then in collection order: one
+    per worker at first, a second to each, then one each time a worker is down to two
+    tests. So the long real-time tests start early, and short ones sit between two long
+    ones. The order is the same on every worker (a stable sort), as xdist requires."""
     def seconds(item: pytest.Item) -> float:
         marker = item.get_closest_marker("slow")
         return float(marker.args[0]) if marker is not None else 0.0
