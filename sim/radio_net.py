@@ -198,6 +198,11 @@ class RadioNet:
             # The laptop: a veth from here to the bridge, carrying the ground's address.
             _run("ip", "link", "add", self.laptop_link, "type", "veth", "peer", "name", "g", "netns", self.air)
             self._made.append(lambda: _run("ip", "link", "del", self.laptop_link, check=False))
+            # No IPv6 link-local address on it: one address fewer appearing on the laptop,
+            # where browsers abort requests in flight at each (Chromium's ERR_NETWORK_CHANGED).
+            with contextlib.suppress(FileNotFoundError):
+                with open(f"/proc/sys/net/ipv6/conf/{self.laptop_link}/disable_ipv6", "w") as ipv6:
+                    ipv6.write("1")
             with host_lock():
                 self.subnet = _pick_subnet()
                 hosts = self.subnet.hosts()

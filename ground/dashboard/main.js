@@ -231,6 +231,7 @@ async function main() {
   });
   stream.start();
 
+  sessionStorage.removeItem("fleet-load-attempt"); // loaded: the next failure waits from the start (index.html)
   // For people poking at the page from the console, and for the browser tests.
   window.fleetDashboard = {
     config, view, fleet, map, drones, missions, planner, stream,

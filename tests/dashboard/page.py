@@ -12,6 +12,7 @@ from typing import Any
 
 import httpx
 import pytest
+from playwright.async_api import Error as PlaywrightError
 from playwright.async_api import Page, Request, Route, ViewportSize, expect
 from playwright.async_api import TimeoutError as PlaywrightTimeoutError
 
@@ -55,6 +56,19 @@ def chromium() -> str:
     return path
 
 
+async def load(page: Page, url: str) -> None:
+    """`page.goto(url)`, again when the load was aborted because the machine's network
+    changed (the radio tests add and remove the laptop's link while pages load), as a
+    person would reload; the page's own modules recover by themselves (index.html)."""
+    for attempt in range(3):
+        try:
+            await page.goto(url)
+            return
+        except PlaywrightError as exc:
+            if "ERR_NETWORK_CHANGED" not in str(exc) or attempt == 2:
+                raise
+
+
 class Dashboard:
     """One page of the dashboard, with what the tests read and do on it."""
 
@@ -76,7 +90,7 @@ class Dashboard:
         self.pending.pop(request, None)
 
     async def open(self, url: str) -> None:
-        await self.page.goto(url)
+        await load(self.page, url)
         # the first page of a run loads while every worker starts its processes: 30 s was missed
         try:
             await self.page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=2 * UI_S * 1000)

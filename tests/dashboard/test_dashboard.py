@@ -361,6 +361,37 @@ async def test_a_first_request_the_ground_never_answers_is_asked_again(dashboard
         fleet.stop()
 
 
+@pytest.mark.slow(15)
+async def test_a_module_that_fails_to_load_is_said_and_the_page_loads_again(dashboard: Dashboard, tmp_path: Path) -> None:
+    """One of the page's modules fails to load (Chromium aborts requests in flight with
+    ERR_NETWORK_CHANGED when the laptop's network changes; a ground restarting drops
+    them): the page says so and loads again — it once stayed blank for good."""
+    fleet = GroundFleet(tmp_path, {})
+    page = dashboard.page
+    failed: list[str] = []
+
+    async def fail_once(route: Any) -> None:
+        if failed:
+            await route.continue_()
+        else:
+            failed.append(route.request.url)
+            await route.abort("connectionreset")
+
+    loads: list[str] = []
+    page.on("request", lambda request: loads.append(request.url) if request.resource_type == "document" else None)
+    await page.route(re.compile(r"/dashboard/store\.js$"), fail_once)
+    try:
+        await fleet.ground.ready()
+        await dashboard.open(fleet.ground.url)
+        assert len(failed) == 1 and any("ERR_CONNECTION_RESET" in line for line in dashboard.console), dashboard.console
+        assert len(loads) == 2, loads
+        await expect(page.locator("#banner")).to_be_hidden(timeout=UI_S * 1000)
+        assert await page.evaluate("() => sessionStorage.getItem('fleet-load-attempt')") is None
+        assert dashboard.errors == []
+    finally:
+        fleet.stop()
+
+
 @pytest.mark.slow(20)
 async def test_an_older_log_fetch_that_answers_last_does_not_wipe_newer_lines(dashboard: Dashboard, tmp_path: Path) -> None:
     """The selected drone's log is fetched again on each reconnection and whenever the

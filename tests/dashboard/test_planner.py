@@ -20,7 +20,7 @@ from playwright.async_api import Browser, Page, expect
 
 from bench.dashboard_frames import DESKTOP
 from dronefleet.schemas.geo import destination, distance_m
-from tests.dashboard.page import PLANS, SESSION_LOOP, UI_S
+from tests.dashboard.page import PLANS, SESSION_LOOP, UI_S, Dashboard
 from tests.harness import GroundFleet, ended
 from tests.waiting import until
 
@@ -118,8 +118,7 @@ async def page(browser: Browser, tmp_path: Path, request: pytest.FixtureRequest)
 
 
 async def open_planner(page: Page, url: str, drones: list[str]) -> None:
-    await page.goto(url)
-    await page.wait_for_function("() => window.fleetDashboard !== undefined", timeout=UI_S * 1000)
+    await Dashboard(page).open(url)
     await page.wait_for_function("ids => ids.every(id => window.fleetDashboard.map.screenOf(id))", arg=drones,
                                  timeout=UI_S * 1000)
     await page.locator("#tab-plan").click()
