@@ -44,10 +44,24 @@ from dronefleet.schemas.keys import Keys  # noqa: E402
 from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
 from tests.harness import GroundProcess  # noqa: E402
 
+# Features Playwright disables itself (its chromiumSwitches.ts): a second
+# --disable-features replaces the first in Chromium, so its list is repeated here and
+# tests/dashboard/test_chromium_args.py checks it against the installed Playwright.
+PLAYWRIGHT_DISABLED_FEATURES = (
+    "AvoidUnnecessaryBeforeUnloadCheckSync", "DestroyProfileOnBrowserClose", "HttpsUpgrades",
+    "HttpsFirstBalancedModeAutoEnable", "LensOverlay", "MediaRouter", "PaintHolding", "ThirdPartyStoragePartitioning",
+    "AvoidCorsURLLoaderRestartOnRedirect", "TcpPortRandomizationWin", "OptimizationHints", "NetworkTimeServiceQuerying",
+    "AimEnabled", "PreconnectToSearch", "msForceBrowserSignIn", "msEdgeUpdateLaunchServicesPreferredVersion",
+)
+# Chromium 156 in headless mode still builds each window's omnibox popup (a WebUI page
+# in a renderer of its own): 0.8 of the 1.3 CPU-seconds a context cost to load the
+# dashboard and close, measured over 15 contexts.
+NO_BROWSER_UI_FEATURES = ("WebUIOmniboxPopup", "WebUIOmniboxAimPopup", "PreloadTopChromeWebUI")
 # Debian's chromium misbehaves without these on a machine with no internet.
 CHROMIUM_ARGS = [
     "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
     "--disable-component-update", "--disable-sync",
+    "--disable-features=" + ",".join((*PLAYWRIGHT_DISABLED_FEATURES, *NO_BROWSER_UI_FEATURES)),
 ]
 DESKTOP = ViewportSize(width=1280, height=800)
 FRAME_LIMIT_MS = 50.0
