@@ -60,6 +60,15 @@ class VirtualClock:
         at that instant it joins the loop's queue where a woken sleeper would."""
         heapq.heappush(self._timers, (self._now + max(0.0, seconds), next(self._seq), callback))
 
+    @property
+    def epoch_ms(self) -> int:
+        """The wall time (ms) virtual time 0 stands for."""
+        return self._epoch_ms
+
+    def next_deadline(self) -> float | None:
+        """When the earliest sleeper or callback is due (None: nothing waits on time)."""
+        return self._timers[0][0] if self._timers else None
+
     async def advance(self, seconds: float) -> None:
         """Move time forward, waking each sleeper at its deadline and letting it run.
 

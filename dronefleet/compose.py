@@ -150,6 +150,7 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
             station.keep_copies("missions", store.stream(), store.last_change, store)
             station.record_missions(data_dir / "missions")
             missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True)
+            station.on_takeover = missions.take_over
             server = _EmbeddedServer(uvicorn.Config(
                 create_app(station, missions, tiles), log_level="warning", lifespan="on",
                 timeout_graceful_shutdown=SHUTDOWN_GRACE_S,

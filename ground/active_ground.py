@@ -38,6 +38,7 @@ class Change:
     state: Literal["active", "standby"]
     epoch: int
     why: str
+    taken_from: str | None = None  # active: the ground that was active and is gone (its missions go on here)
 
 
 class Standing:
@@ -71,9 +72,13 @@ class Standing:
         if ground_id == self.me.ground_id or self.heard.pop(ground_id, None) is None:
             return []
         self.epochs.pop(ground_id, None)
-        if self.active_id == ground_id:
+        was_active = self.active_id == ground_id
+        if was_active:
             self.active_id = None
-        return self._decide(f"{ground_id} is gone")
+        changes = self._decide(f"{ground_id} is gone")
+        if was_active:
+            changes = [Change(c.state, c.epoch, c.why, ground_id) if c.state == "active" else c for c in changes]
+        return changes
 
     def heard_active(self, said: ActiveGround) -> list[Change]:
         """Another ground says it is active with `said.epoch`. Active with an epoch no

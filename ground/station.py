@@ -125,6 +125,9 @@ class GroundStation:
                                  streams=self.stream_ends, on_active=self._heard_active)
         # SPEC §14: what the active ground records, kept by the others (more added by whoever owns them)
         self.copies: dict[str, tuple[StreamCopy, Callable[[], int]]] = {}
+        # Taking over from a lost active ground (its id, and how far the missions' copy is
+        # whole): whoever runs missions here goes on with its running ones.
+        self.on_takeover: Callable[[str, int], object] = lambda origin, upto: None
         self.keep_copies("log", events.stream(), events.last_id, events)
 
     def record_missions(self, directory: Path, ground_station: tuple[float, float] | None = None) -> None:
@@ -190,6 +193,9 @@ class GroundStation:
         me = self.config.ground_id
         if change.state == "active":
             self.log_ground("info", f"Ground {me} is active (epoch {change.epoch}): {change.why}")
+            if change.taken_from is not None:
+                copy = self.copies.get("missions")
+                self.on_takeover(change.taken_from, copy[0].upto(change.taken_from) if copy is not None else 0)
         else:
             active = self.peers.active_ground()
             self.log_ground("warn", f"Ground {me} is standby ({active.ground_id if active else 'no ground'} "

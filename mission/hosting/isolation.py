@@ -21,8 +21,10 @@ import asyncio
 import contextlib
 import logging
 import multiprocessing
+import random
 import signal
 import socket
+import uuid
 from collections.abc import Callable
 from multiprocessing.context import ForkServerContext
 from typing import Any, Literal
@@ -31,6 +33,7 @@ import msgspec
 
 from dronefleet.bus.clock import Clock
 from dronefleet.mission.hosting import worker
+from dronefleet.mission.hosting.journal import Entry
 from dronefleet.mission.lifecycle.delivery import leave
 from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import STOP_GRACE_S
@@ -43,6 +46,7 @@ log = logging.getLogger(__name__)
 
 MAX_BACKLOG = 64 * 2**20  # bytes of events a worker has not read: it is stuck in one call
 EXIT_WAIT_S = 5.0  # how long a worker that said Done (or closed) may take to exit
+JOURNAL_FLUSH_S = 0.1  # the journal's entries are kept (and go to the standby grounds) in batches this often
 _context: ForkServerContext | None = None
 
 
@@ -67,7 +71,12 @@ class IsolatedMission:
         on_log: Callable[[IsolatedMission, MissionLogLine], None] = lambda m, line: None,
         plugins: PluginLibrary | None = None,
         enable: dict[str, dict[str, Any]] | None = None,
+        on_journal: Callable[[IsolatedMission, str, bytes], None] = lambda m, kind, body: None,
+        resume: tuple[worker.Start, list[Entry]] | None = None,
     ) -> None:
+        """`on_journal(mission, kind, body)` keeps its journal: kind `start` (the
+        worker's Start, msgpack) once, then `entries` (msgpack list of Entry) in order.
+        `resume`: another ground's Start and journal to take over (SPEC §14)."""
         self.record = record
         self.source = source
         self.station = station
@@ -86,6 +95,10 @@ class IsolatedMission:
         self._killed: tuple[str, str] | None = None  # why this side killed the worker (cause, message)
         self._reported: str | None = None  # the cause the worker last reported
         self._tasks: set[asyncio.Task[None]] = set()
+        self._on_journal = on_journal
+        self._resume = resume
+        self._journal: list[Entry] = []  # entries not yet kept
+        self._flushing: asyncio.TimerHandle | None = None
 
     @property
     def id(self) -> str:
@@ -114,12 +127,20 @@ class IsolatedMission:
             if self._requested is not None:  # ended before it started
                 await self._conclude(*self._requested)
                 return self.record
-            start = worker.Start(
-                record=self.record, source=self.source, settings=self.settings,
-                plugins=self.plugins.sources() if self.plugins is not None else [],
-                enable=self.enable, snapshot=self._snapshot(),
-                relays=None if self.station.registry.relays is None else sorted(self.station.registry.relays),
-            )
+            if self._resume is None:
+                start = worker.Start(
+                    record=self.record, source=self.source, settings=self.settings,
+                    plugins=self.plugins.sources() if self.plugins is not None else [],
+                    enable=self.enable, snapshot=self._snapshot(),
+                    relays=None if self.station.registry.relays is None else sorted(self.station.registry.relays),
+                    uid=str(uuid.uuid4()), started_ms=self.clock.time_ms(), seed=random.getrandbits(32),
+                )
+                self._on_journal(self, "start", msgspec.msgpack.encode(start))
+            else:  # its first Start, then its journal; the fleet as this ground sees it follows live
+                first, entries = self._resume
+                start = msgspec.structs.replace(first, journal=entries)
+                for event in self._snapshot():
+                    self._send(event)
             # No await between the snapshot and listening: the worker misses no event.
             stop_listening = self.station.listen(self._forward)
             self._process = fork_server().Process(
@@ -145,6 +166,9 @@ class IsolatedMission:
             return self.record
         finally:
             stop_listening()
+            if self._flushing is not None:
+                self._flushing.cancel()
+            self._flush_journal()
             for task in self._tasks:
                 task.cancel()
             if self._writer is not None:
@@ -168,7 +192,11 @@ class IsolatedMission:
                 self._kill("security", f"the mission's process sent a malformed message ({exc})")
                 return None
             if isinstance(message, worker.Done):
+                self._flush_journal()
                 return message.record
+            if isinstance(message, worker.Resumed):  # its claims first: the calls it makes again follow
+                await self._claim(message.held)
+                continue
             self._take(message)
 
     def _take(self, message: Any) -> None:
@@ -193,6 +221,24 @@ class IsolatedMission:
             self.station.log_ground(message.level, message.message)
         elif isinstance(message, worker.Ack):
             self._acked.set()
+        elif isinstance(message, worker.Journalled):
+            self._journal.append(message.entry)
+            if self._flushing is None:
+                self._flushing = asyncio.get_running_loop().call_later(JOURNAL_FLUSH_S, self._flush_journal)
+
+    def _flush_journal(self) -> None:
+        self._flushing = None
+        if self._journal:
+            entries, self._journal = self._journal, []
+            self._on_journal(self, "entries", msgspec.msgpack.encode(entries))
+
+    async def _claim(self, held: list[str]) -> None:
+        """A mission taken over holds here the drones it held on the ground it came from."""
+        for drone_id in held:
+            try:
+                await self.station.assign(drone_id, self.id)
+            except Exception as exc:  # noqa: BLE001 - its next verb on the drone says what is wrong
+                self._log("warn", f"{drone_id}: not held here after the takeover ({exc})")
 
     async def _answer(self, call: worker.Call) -> None:
         """Do what the worker asks, as this mission whatever it claims to be."""

@@ -10,6 +10,7 @@ every mission; ones that were running when it died are marked failed with cause
 from __future__ import annotations
 
 import asyncio
+import base64
 import builtins
 import itertools
 import json
@@ -23,7 +24,9 @@ import msgspec
 
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.stream_copy import Stream, unbroken_from
+from dronefleet.mission.hosting import worker
 from dronefleet.mission.hosting.isolation import IsolatedMission
+from dronefleet.mission.hosting.journal import Entry
 from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import Activity, CommandResult, MissionLogLine, MissionRecord
@@ -54,7 +57,7 @@ CREATE INDEX IF NOT EXISTS mission_log_mission ON mission_log (mission_id, id);
 CREATE TABLE IF NOT EXISTS mission_changes (
     seq INTEGER PRIMARY KEY AUTOINCREMENT,
     mission_id TEXT NOT NULL,
-    kind TEXT NOT NULL CHECK (kind IN ('record', 'line')),
+    kind TEXT NOT NULL CHECK (kind IN ('record', 'line', 'start', 'entries')),
     body TEXT NOT NULL
 );
 CREATE TABLE IF NOT EXISTS mission_copies (
@@ -66,7 +69,21 @@ CREATE TABLE IF NOT EXISTS mission_copies (
     PRIMARY KEY (origin, seq)
 );
 """
+# Before journals (ADR 0017) mission_changes took records and lines only.
+_MIGRATE_CHANGES = """
+ALTER TABLE mission_changes RENAME TO mission_changes_old;
+CREATE TABLE mission_changes (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    mission_id TEXT NOT NULL,
+    kind TEXT NOT NULL CHECK (kind IN ('record', 'line', 'start', 'entries')),
+    body TEXT NOT NULL
+);
+INSERT INTO mission_changes (seq, mission_id, kind, body) SELECT seq, mission_id, kind, body FROM mission_changes_old;
+DROP TABLE mission_changes_old;
+"""
 _record_decoder = msgspec.json.Decoder(MissionRecord)
+_start_decoder = msgspec.msgpack.Decoder(worker.Start)
+_entries_decoder = msgspec.msgpack.Decoder(list[Entry])
 _line_decoder = msgspec.json.Decoder(MissionLogLine)
 Running = Mission | IsolatedMission
 
@@ -93,6 +110,9 @@ class MissionStore:
         if str(path) != ":memory:":
             self._db.execute("PRAGMA journal_mode=WAL")
         self._db.executescript(_SCHEMA)
+        made = self._db.execute("SELECT sql FROM sqlite_master WHERE name = 'mission_changes'").fetchone()[0]
+        if "'entries'" not in made:
+            self._db.executescript("BEGIN;" + _MIGRATE_CHANGES + "COMMIT;")
 
     def close(self) -> None:
         self._db.close()
@@ -118,6 +138,11 @@ class MissionStore:
             (mission_id, line.timestamp, line.level, line.message),
         )
         self._changed(mission_id, "line", msgspec.json.encode(line).decode())
+
+    def journal(self, mission_id: str, kind: str, body: bytes) -> None:
+        """A mission's journal (kind `start`: its worker's Start; `entries`: a batch of
+        Entry), numbered with its other changes: the standby grounds copy it in order."""
+        self._changed(mission_id, kind, base64.b64encode(body).decode())
 
     def _changed(self, mission_id: str, kind: str, body: str) -> None:
         cur = self._db.execute("INSERT INTO mission_changes (mission_id, kind, body) VALUES (?, ?, ?)",
@@ -153,6 +178,20 @@ class MissionStore:
             "(SELECT MAX(seq) FROM mission_copies WHERE origin = ? AND kind = 'record' GROUP BY mission_id) "
             "ORDER BY mission_id", (origin, origin)).fetchall()
         return [_record_decoder.decode(r[0]) for r in rows]
+
+    def copied_journal(self, origin: str, mission_id: str, upto: int) -> tuple[worker.Start | None, list[Entry]]:
+        """Another ground's mission's Start and journal as far as this copy is whole
+        (entries numbered up to `upto`)."""
+        rows = self._db.execute("SELECT kind, body FROM mission_copies WHERE origin = ? AND mission_id = ? AND "
+                                "kind IN ('start', 'entries') AND seq <= ? ORDER BY seq", (origin, mission_id, upto))
+        start: worker.Start | None = None
+        entries: list[Entry] = []
+        for kind, body in rows:
+            if kind == "start":
+                start = _start_decoder.decode(base64.b64decode(body))
+            else:
+                entries += _entries_decoder.decode(base64.b64decode(body))
+        return start, entries
 
     def copied_log(self, origin: str, mission_id: str) -> list[MissionLogLine]:
         rows = self._db.execute("SELECT body FROM mission_copies WHERE origin = ? AND mission_id = ? AND kind = 'line' "
@@ -258,7 +297,8 @@ class MissionManager:
         mission: Running
         if self.isolate:
             mission = IsolatedMission(record, source, self.station, self.clock, on_change=self._on_change,
-                                      on_log=self._on_log, plugins=self.plugins, enable=enable)
+                                      on_log=self._on_log, plugins=self.plugins, enable=enable,
+                                      on_journal=self._on_journal)
         else:
             mission = ScriptMission(
                 record, code, self.station, self.clock,
@@ -266,12 +306,55 @@ class MissionManager:
                 on_change=self._on_change, on_log=self._on_log, plugins=self.plugins, enable=enable,
             )
             mission.commands = self.commands
-        mission.on_activity = self._on_activity
         self.station.log_ground("info", f"Mission {mission_id} submitted" + (f" ({name})" if name else ""))
-        task = asyncio.get_running_loop().create_task(self._run(mission), name=f"mission {mission_id}")
-        self._running[mission_id] = (mission, task)
-        self._broadcast(record)
+        self._start(mission)
         return msgspec.structs.replace(record)
+
+    def _start(self, mission: Running) -> None:
+        mission.on_activity = self._on_activity
+        task = asyncio.get_running_loop().create_task(self._run(mission), name=f"mission {mission.id}")
+        self._running[mission.id] = (mission, task)
+        self._broadcast(mission.record)
+
+    def take_over(self, origin: str, upto: int) -> builtins.list[MissionRecord]:
+        """Go on with the missions that ground `origin` (lost) was running, each from its
+        journal as this ground's copy holds it whole (changes numbered up to `upto`):
+        replayed in a process of its own, then live (SPEC §14). Each runs here as
+        `<origin>-<its id>`; one whose journal did not reach this ground ends at once
+        with cause `ground_lost`. Returns the records taken over."""
+        taken = []
+        for copied in self.store.copied_records(origin):
+            if copied.status not in ("pending", "running"):
+                continue
+            mission_id = f"{origin}-{copied.mission_id}"
+            if self.store.get(mission_id) is not None:
+                continue
+            start, entries = self.store.copied_journal(origin, copied.mission_id, upto)
+            record = msgspec.structs.replace(copied, mission_id=mission_id)
+            source = start.source if start is not None else ""
+            self.store.create(record, source)
+            for line in self.store.copied_log(origin, copied.mission_id):
+                self.store.append(mission_id, line)
+            if start is None or not self.isolate:
+                record.status, record.cause = "failed", "ground_lost"
+                record.message = f"ground {origin} was lost and its journal of mission {copied.mission_id} did not reach this ground"
+                record.end, record.active_drones = self.clock.time_ms(), []
+                self.store.save(record)
+                self.store.append(mission_id, MissionLogLine(timestamp=self.clock.time_ms(), level="error",
+                                                             message=f"Mission failed: ground_lost ({record.message})"))
+                self._broadcast(record)
+                taken.append(record)
+                continue
+            self.store.append(mission_id, MissionLogLine(
+                timestamp=self.clock.time_ms(), level="warn",
+                message=f"Mission {copied.mission_id} of ground {origin} goes on here as {mission_id}: "
+                        f"{len(entries)} journal entries replayed, then live"))
+            self.station.log_ground("warn", f"Mission {copied.mission_id} of lost ground {origin} taken over as {mission_id}")
+            self._start(IsolatedMission(record, source, self.station, self.clock, on_change=self._on_change,
+                                        on_log=self._on_log, plugins=self.plugins, on_journal=self._on_journal,
+                                        resume=(start, entries)))
+            taken.append(record)
+        return taken
 
     async def _run(self, mission: Running) -> MissionRecord:
         try:
@@ -329,6 +412,9 @@ class MissionManager:
     def _on_change(self, mission: Running) -> None:
         self.store.save(mission.record)
         self._broadcast(mission.record)
+
+    def _on_journal(self, mission: IsolatedMission, kind: str, body: bytes) -> None:
+        self.store.journal(mission.id, kind, body)
 
     def _on_log(self, mission: Running, line: MissionLogLine) -> None:
         self.store.append(mission.id, line)

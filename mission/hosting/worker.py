@@ -27,13 +27,14 @@ import os
 import resource
 import signal
 import socket
+import uuid
 from collections.abc import Callable
 from typing import Any, Literal
 
 import msgspec
 
-from dronefleet.bus.clock import SystemClock
 from dronefleet.bus.port import QueryTimeout, Unreachable
+from dronefleet.mission.hosting.journal import Driver, Entry, mission_clock
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import Activity, MissionLogLine, MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary
@@ -41,7 +42,7 @@ from dronefleet.mission.script.sandbox import compile_mission
 from dronefleet.mission.script.script import ScriptMission
 from dronefleet.schemas.bundles import BundleRecord, BundleReply
 from dronefleet.schemas.codec import decode_sensor, decode_status, decode_telemetry
-from dronefleet.schemas.commands import CommandReply, new_command_id
+from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.config_loading import MissionSettings
 from dronefleet.schemas.errors import CommandRejected, FleetError, InvalidMessage
 from dronefleet.schemas.fleet import DroneInfo, WatchEvent
@@ -129,8 +130,21 @@ class Done(msgspec.Struct, tag=True, frozen=True):
     record: MissionRecord
 
 
+class Journalled(msgspec.Struct, tag=True, frozen=True):
+    """Worker → ground: a frame the mission took, for its journal (mission.journal)."""
+
+    entry: Entry
+
+
+class Resumed(msgspec.Struct, tag=True, frozen=True):
+    """Worker → ground: the journal is replayed; the mission holds these drones and goes
+    on live (its calls still unanswered follow)."""
+
+    held: list[str]
+
+
 ToWorker = Event | Reply | End
-ToGround = Call | Release | Changed | Logged | Active | GroundLog | Ack | Done
+ToGround = Call | Release | Changed | Logged | Active | GroundLog | Ack | Done | Journalled | Resumed
 
 
 class Start(msgspec.Struct, frozen=True, kw_only=True):
@@ -143,6 +157,10 @@ class Start(msgspec.Struct, frozen=True, kw_only=True):
     enable: dict[str, dict[str, Any]] | None
     snapshot: list[Event]  # the registry as the ground knew it at the start
     relays: list[str] | None  # the drones that may relay (Registry.relays)
+    uid: str  # this run of the mission, whichever ground hosts it: its command and bundle ids derive from it
+    started_ms: int  # wall time at mission time 0
+    seed: int  # the script's `random`
+    journal: list[Entry] = []  # frames to take again before going on live (a takeover)
 
 
 _encoder = msgspec.msgpack.Encoder()
@@ -258,14 +276,35 @@ class _Settings:
 class WorkerPort:
     """The FleetPort of a mission in its own process."""
 
-    def __init__(self, settings: MissionSettings, send: Callable[[Any], None], relays: list[str] | None = None) -> None:
+    def __init__(self, settings: MissionSettings, send: Callable[[Any], None], relays: list[str] | None = None,
+                 uid: str = "") -> None:
+        """`uid`: the mission's run, whose command ids are uuid5s of it and a count, the
+        same when a journal is replayed (an agent answers a command id it has seen as
+        before, and does nothing again)."""
         self.config = _Settings(settings)
         self.registry = Mirror(relays)
-        self._send = send
+        self._out = send
         self._listeners: list[Callable[[WatchEvent], None]] = []
-        self._calls: dict[int, asyncio.Future[bytes]] = {}
+        self._calls: dict[int, tuple[asyncio.Future[bytes], Call]] = {}
         self._ids = itertools.count(1)
+        self._command_ids = itertools.count(1)
+        self._uid = uuid.UUID(uid) if uid else uuid.uuid4()
         self._gone: str | None = None
+        self.held: set[str] = set()  # the drones its claims won and it has not released
+        self.replaying = False  # taking a journal again: nothing goes out
+
+    def emit(self, message: Any) -> None:
+        """A frame to the ground (none while a journal is replayed)."""
+        if not self.replaying:
+            self._out(message)
+
+    def go_live(self) -> None:
+        """The journal is replayed: say which drones the mission holds, then make the
+        calls the journal holds no answer to (their effects are idempotent: ids)."""
+        self.replaying = False
+        self._out(Resumed(sorted(self.held)))
+        for _, call in sorted(self._calls.values(), key=lambda fc: fc[1].call):
+            self._out(call)
 
     # ---- from the ground ----
 
@@ -276,17 +315,19 @@ class WorkerPort:
             listener(watch)
 
     def on_reply(self, reply: Reply) -> None:
-        fut = self._calls.pop(reply.call, None)
-        if fut is None or fut.done():
+        fut, call = self._calls.pop(reply.call, (None, None))
+        if fut is None or call is None or fut.done():
             return
         if reply.failure is not None:
             fut.set_exception(exception_of(reply.failure))
         else:
+            if call.op == "assign":
+                self.held.add(call.drone_id)
             fut.set_result(reply.result)
 
     def ground_gone(self) -> None:
         self._gone = "the ground station closed the mission's connection"
-        for fut in self._calls.values():
+        for fut, _ in self._calls.values():
             if not fut.done():
                 fut.set_exception(Unreachable(self._gone))
         self._calls.clear()
@@ -300,18 +341,19 @@ class WorkerPort:
     async def _call(self, op: Op, drone_id: str, arg: bytes = b"") -> bytes:
         if self._gone is not None:
             raise Unreachable(self._gone)
-        call = next(self._ids)
+        message = Call(call=next(self._ids), op=op, drone_id=drone_id, arg=arg)
         fut: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
-        self._calls[call] = fut
-        self._send(Call(call=call, op=op, drone_id=drone_id, arg=arg))
+        self._calls[message.call] = (fut, message)
+        self.emit(message)
         return await fut
 
     async def assign(self, drone_id: str, mission_id: str) -> None:
         await self._call("assign", drone_id)
 
     def release(self, drone_id: str) -> None:
+        self.held.discard(drone_id)
         if self._gone is None:
-            self._send(Release(drone_id))
+            self.emit(Release(drone_id))
 
     async def command(self, drone_id: str, body: bytes, mission_id: str | None = None) -> CommandReply:
         return msgspec.json.decode(await self._call("command", drone_id, body), type=CommandReply)
@@ -324,10 +366,10 @@ class WorkerPort:
 
     def log_ground(self, level: str, message: str) -> None:
         if self._gone is None and level in ("info", "warn", "error"):
-            self._send(GroundLog(level, message))  # type: ignore[arg-type]
+            self.emit(GroundLog(level, message))  # type: ignore[arg-type]
 
     def new_command_id(self) -> str:
-        return new_command_id()
+        return str(uuid.uuid5(self._uid, f"command {next(self._command_ids)}"))
 
     def broadcast(self, event: WatchEvent) -> None:
         raise NotImplementedError("a mission's process has no watchers; its manager broadcasts on the ground")
@@ -376,32 +418,61 @@ def _out_of_memory(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> 
 async def _serve(sock: socket.socket, start: Start) -> None:
     asyncio.get_running_loop().set_exception_handler(_out_of_memory)
     reader, writer = await asyncio.open_unix_connection(sock=sock)
-    port = WorkerPort(start.settings, lambda message: writer.write(frame(message)), start.relays)
+
+    def send(message: Any) -> None:
+        writer.write(frame(message))
+
+    port = WorkerPort(start.settings, send, start.relays, uid=start.uid)
     for event in start.snapshot:
         port.registry.apply(event.kind, event.data)
     mission_id = start.record.mission_id
+    # On a clock of its own that only the driver moves, slicing its work by count: what
+    # it does follows from the frames it takes, so its journal can run it again.
+    clock = mission_clock(start.started_ms)
     mission = ScriptMission(
-        start.record, compile_mission(start.source, filename=f"<mission {mission_id}>"), port, SystemClock(),
-        on_change=lambda m: writer.write(frame(Changed(m.record))),
-        on_log=lambda m, line: writer.write(frame(Logged(line))),
+        start.record, compile_mission(start.source, filename=f"<mission {mission_id}>"), port, clock,
+        deterministic=True, seed=start.seed,
+        on_change=lambda m: port.emit(Changed(m.record)),
+        on_log=lambda m, line: port.emit(Logged(line)),
         plugins=PluginLibrary.from_sources(start.plugins), enable=start.enable,
     )
-    mission.on_activity = lambda m, activity: writer.write(frame(Active(activity)))
+    mission.uid = start.uid
+    mission.on_activity = lambda m, activity: port.emit(Active(activity))
+
+    def deliver(body: bytes) -> None:
+        message = _decode_to_worker(body)
+        if isinstance(message, Event):
+            port.on_event(message)
+        elif isinstance(message, Reply):
+            port.on_reply(message)
+        else:
+            mission.end(message.cause, message.message)
+
+    driver = Driver(clock, deliver, record=lambda entry: send(Journalled(entry)))
+    frames: asyncio.Queue[bytes | None] = asyncio.Queue()
+    listen = asyncio.ensure_future(_listen(reader, frames, mission, writer))
     run = asyncio.ensure_future(mission.run())
-    listen = asyncio.ensure_future(_listen(reader, port, mission, writer))
-    await asyncio.wait([run, listen], return_when=asyncio.FIRST_COMPLETED)
+    if start.journal:
+        port.replaying = True
+        await driver.replay(start.journal)
+        port.go_live()
+        send(Changed(mission.record))
+    drive = asyncio.ensure_future(driver.live(frames))
+    await asyncio.wait([run, drive], return_when=asyncio.FIRST_COMPLETED)
     if listen.done() and isinstance(listen.exception(), MemoryError):
         raise MemoryError
     if run.done():
-        writer.write(frame(Done(run.result())))
+        send(Done(run.result()))
         # Closing now would make the ground's next event fail (EPIPE), and its reader
         # drop the Done still buffered: wait for the ground to close first.
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(asyncio.shield(listen), CLOSE_WAIT_S)
-        listen.cancel()
     else:  # the ground is gone: nobody to tell, nothing to send commands through
+        port.ground_gone()
         run.cancel()
-    await asyncio.gather(run, listen, return_exceptions=True)
+    listen.cancel()
+    drive.cancel()
+    await asyncio.gather(run, listen, drive, return_exceptions=True)
     try:
         await writer.drain()
         writer.close()
@@ -412,14 +483,14 @@ async def _serve(sock: socket.socket, start: Start) -> None:
 _decode_to_worker = msgspec.msgpack.Decoder(ToWorker).decode
 
 
-async def _listen(reader: asyncio.StreamReader, port: WorkerPort, mission: Mission, writer: asyncio.StreamWriter) -> None:
+async def _listen(reader: asyncio.StreamReader, frames: asyncio.Queue[bytes | None], mission: Mission,
+                  writer: asyncio.StreamWriter) -> None:
+    """The ground's frames, in order, for the driver (None at the end). An End is also
+    taken at once: a script computing without a verb stops at its next slice."""
     while (body := await read_frame(reader)) is not None:
         message = _decode_to_worker(body)
-        if isinstance(message, Event):
-            port.on_event(message)
-        elif isinstance(message, Reply):
-            port.on_reply(message)
-        else:
+        if isinstance(message, End):
             mission.end(message.cause, message.message)
             writer.write(frame(Ack()))
-    port.ground_gone()
+        frames.put_nowait(body)
+    frames.put_nowait(None)

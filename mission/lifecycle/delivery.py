@@ -66,6 +66,7 @@ class MissionSide(Protocol):
     config: MissionConfig
     clock: Clock
     deterministic: bool
+    uid: str  # what its deterministic bundle ids derive from
     commands: list[CommandResult]
     plugin_drones: dict[str, str]
     given_up: dict[str, float]
@@ -311,7 +312,7 @@ class CommandDelivery:
         1.1 m from it."""
         self.mission.check_assigned(drone_id)
         self._pushed += 1  # fast time replays exactly: its ids come from the mission
-        bundle_id = f"b-{self.mission.id}-{self._pushed}" if self.mission.deterministic else new_bundle_id()
+        bundle_id = f"b-{self.mission.uid}-{self._pushed}" if self.mission.deterministic else new_bundle_id()
         timeout_s = body.get("timeout_s")
         deadline = self.clock.monotonic() + (timeout_s if timeout_s is not None else BUNDLE_NO_TIMEOUT_S)
         pending = PendingBundle(drone_id, bundle_id, deadline, asyncio.get_running_loop().create_future())

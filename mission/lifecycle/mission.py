@@ -71,6 +71,7 @@ class Mission:
         self.config: MissionConfig = station.config
         self.clock = clock
         self.deterministic = deterministic
+        self.uid = record.mission_id  # what its deterministic ids derive from (a journalled run: its own)
         self._on_change = on_change
         self._on_log = on_log
         self.scheduler: Scheduler | None = None

@@ -12,7 +12,7 @@ import msgspec
 from dronefleet.schemas.errors import FleetError
 
 MissionStatus = Literal["pending", "running", "finished", "failed", "cancelled"]
-# Thesis table 5.3, plus geofence, link_lost, ground_restart (SPEC §5) and time_limit.
+# Thesis table 5.3, plus geofence, link_lost, ground_restart (SPEC §5), ground_lost (§14) and time_limit.
 CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "success": ("finished", "success"),
     "user": ("cancelled", "user request"),
@@ -36,6 +36,7 @@ CAUSES: dict[str, tuple[MissionStatus, str]] = {
     "geofence": ("failed", "drone left the geofence"),
     "link_lost": ("failed", "lost the link to a drone"),
     "ground_restart": ("failed", "the ground station stopped while the mission ran"),
+    "ground_lost": ("failed", "the ground running it was lost and its journal could not be taken over"),
     "time_limit": ("cancelled", "time limit reached"),  # fast-time simulation's --max-time
 }
 
