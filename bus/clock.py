@@ -69,6 +69,28 @@ class VirtualClock:
         """When the earliest sleeper or callback is due (None: nothing waits on time)."""
         return self._timers[0][0] if self._timers else None
 
+    def wake_next(self) -> float | None:
+        """Move to the earliest deadline and wake what is due then, no more: nothing runs
+        until the caller yields (mission/hosting/journal.py lets the loop run until it is
+        quiet, then wakes the next). Returns that deadline, or None if nothing waits."""
+        if not self._timers:
+            return None
+        deadline = self._timers[0][0]
+        self._now = max(self._now, deadline)
+        loop = asyncio.get_running_loop()
+        while self._timers and self._timers[0][0] == deadline:
+            _, _, due = heapq.heappop(self._timers)
+            if not isinstance(due, asyncio.Future):
+                loop.call_soon(due)
+            elif not due.done():
+                due.set_result(None)
+        return deadline
+
+    def move_to(self, t_s: float) -> None:
+        """Set the time forward to `t_s` with nothing due before it (wake_next first)."""
+        assert not self._timers or self._timers[0][0] > t_s, "a sleeper is due before the time moved to"
+        self._now = max(self._now, t_s)
+
     async def advance(self, seconds: float) -> None:
         """Move time forward, waking each sleeper at its deadline and letting it run.
 

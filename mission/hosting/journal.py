@@ -12,9 +12,9 @@ do at the time it stands at:
 
 - live, it waits for whichever comes first, the next frame or the next sleeper's
   deadline on the wall clock; a frame is journalled with the mission time it is taken
-  at, then the clock advances there (waking every sleeper due before) and the frame is
-  delivered; a deadline only advances the clock (time is not an input: it follows
-  from the frames' times);
+  at, then the clock moves there (waking every sleeper due before, one deadline at a
+  time) and the frame is delivered; a deadline only wakes its sleepers (time is not an
+  input: it follows from the frames' times);
 - in replay, it takes the journal's frames at their times instead, and nothing the
   mission does goes out (its calls are answered by the journalled replies).
 
@@ -69,8 +69,18 @@ class Driver:
         self._deliver = deliver
         self._record = record
 
+    async def _wake_next(self) -> None:
+        """Wake the sleepers due next and let the mission do all it then can."""
+        self.clock.wake_next()
+        await quiet()
+
     async def _take(self, entry: Entry) -> None:
-        await self.clock.advance(max(0.0, entry.t_s - self.clock.monotonic()))
+        """The clock to the entry's time, one deadline at a time, then its frame. Each
+        step runs the loop until it is quiet, however many rounds that takes: a bounded
+        settle would end early or late as other callbacks (the socket's) come and go."""
+        while (deadline := self.clock.next_deadline()) is not None and deadline <= entry.t_s:
+            await self._wake_next()
+        self.clock.move_to(entry.t_s)
         self._deliver(entry.frame)
         await quiet()
 
@@ -92,9 +102,7 @@ class Driver:
             deadline = clock.next_deadline()
             wait_s = None if deadline is None else deadline - (time.monotonic() - origin)
             if wait_s is not None and wait_s <= 0:
-                assert deadline is not None
-                await clock.advance(max(0.0, deadline - clock.monotonic()))
-                await quiet()
+                await self._wake_next()
                 continue
             try:
                 body = await asyncio.wait_for(frames.get(), wait_s)

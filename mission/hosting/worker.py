@@ -160,7 +160,7 @@ class Start(msgspec.Struct, frozen=True, kw_only=True):
     uid: str  # this run of the mission, whichever ground hosts it: its command and bundle ids derive from it
     started_ms: int  # wall time at mission time 0
     seed: int  # the script's `random`
-    journal: list[Entry] = []  # frames to take again before going on live (a takeover)
+    journal: list[Entry] | None = None  # a takeover: the frames to take again before going on live
 
 
 _encoder = msgspec.msgpack.Encoder()
@@ -277,13 +277,14 @@ class WorkerPort:
     """The FleetPort of a mission in its own process."""
 
     def __init__(self, settings: MissionSettings, send: Callable[[Any], None], relays: list[str] | None = None,
-                 uid: str = "") -> None:
+                 uid: str = "", replayed: Callable[[Any], None] = lambda message: None) -> None:
         """`uid`: the mission's run, whose command ids are uuid5s of it and a count, the
         same when a journal is replayed (an agent answers a command id it has seen as
         before, and does nothing again)."""
         self.config = _Settings(settings)
         self.registry = Mirror(relays)
         self._out = send
+        self._replayed = replayed
         self._listeners: list[Callable[[WatchEvent], None]] = []
         self._calls: dict[int, tuple[asyncio.Future[bytes], Call]] = {}
         self._ids = itertools.count(1)
@@ -295,7 +296,9 @@ class WorkerPort:
 
     def emit(self, message: Any) -> None:
         """A frame to the ground (none while a journal is replayed)."""
-        if not self.replaying:
+        if self.replaying:
+            self._replayed(message)
+        else:
             self._out(message)
 
     def go_live(self) -> None:
@@ -418,11 +421,19 @@ def _out_of_memory(loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> 
 async def _serve(sock: socket.socket, start: Start) -> None:
     asyncio.get_running_loop().set_exception_handler(_out_of_memory)
     reader, writer = await asyncio.open_unix_connection(sock=sock)
+    await serve(reader, writer, start)
+
+
+async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, start: Start,
+                replayed: Callable[[Any], None] = lambda message: None) -> None:
+    """Run the mission of `start` over one stream to its ground until it ends or the
+    ground goes. `replayed` sees each frame the mission would have sent while its journal
+    was taken again (none goes out): a replay makes what the original run made."""
 
     def send(message: Any) -> None:
         writer.write(frame(message))
 
-    port = WorkerPort(start.settings, send, start.relays, uid=start.uid)
+    port = WorkerPort(start.settings, send, start.relays, uid=start.uid, replayed=replayed)
     for event in start.snapshot:
         port.registry.apply(event.kind, event.data)
     mission_id = start.record.mission_id
@@ -452,7 +463,7 @@ async def _serve(sock: socket.socket, start: Start) -> None:
     frames: asyncio.Queue[bytes | None] = asyncio.Queue()
     listen = asyncio.ensure_future(_listen(reader, frames, mission, writer))
     run = asyncio.ensure_future(mission.run())
-    if start.journal:
+    if start.journal is not None:
         port.replaying = True
         await driver.replay(start.journal)
         port.go_live()

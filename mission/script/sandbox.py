@@ -359,7 +359,9 @@ class Guards:
             if name == "random":  # one seeded generator per mission: simulations replay
                 overrides = {
                     k: getattr(self.rng, k) for k, v in vars(_random).items()
-                    if not k.startswith("_") and isinstance(v, types.MethodType)
+                    # random() and getrandbits() are C methods (BuiltinMethodType): missed
+                    # once, they drew from the process's unseeded generator
+                    if not k.startswith("_") and isinstance(v, (types.MethodType, types.BuiltinMethodType))
                 }
             elif name == "itertools":  # infinite iterators tick, so C consumers stop too
                 overrides = {

@@ -8,11 +8,12 @@ written in tmp_path). Run-time cases execute as real missions in a fast-time fie
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from dronefleet.compose import SimField
-from dronefleet.mission.script.sandbox import ScriptError, check_mission, compile_mission
+from dronefleet.mission.script.sandbox import Guards, ScriptError, check_mission, compile_mission
 from dronefleet.sim.world import World
 
 MARK = "MARKFILE"
@@ -144,3 +145,17 @@ def test_ordinary_python_is_accepted() -> None:
         "try:\n    1 / 0\nexcept ZeroDivisionError as e:\n    print(f'{e!r:>10}')\n"
         "print(format(math.pi, '.2f'), statistics.mean([1, 2]), sorted({3, 1}))\n"
     )
+
+
+def test_random_in_a_script_draws_from_the_missions_seed_alone() -> None:
+    """`random.random()` and `getrandbits()` (C methods) come from the mission's seeded
+    generator as `uniform()` does: they once drew from the process's, so a replay or a
+    simulation with the same seed read other numbers."""
+
+    def draws(seed: int) -> list[float]:
+        load: Any = Guards(lambda: None, lambda line: None, seed).builtins()["__import__"]
+        module = load("random")
+        return [module.random(), module.getrandbits(16), module.uniform(0, 1), module.random()]
+
+    assert draws(7) == draws(7)
+    assert draws(7) != draws(8)
