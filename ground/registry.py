@@ -69,6 +69,8 @@ class _Sensor:
     received_ms: int
 
 
+COMMANDS_KEPT = 32  # command statuses kept per drone (Registry.command_statuses)
+
 @dataclass
 class _Drone:
     drone_id: str
@@ -88,6 +90,7 @@ class _Drone:
     bundle_heard: dict[str, set[tuple[int, str]]] = field(default_factory=dict)  # bundle id → (step, state) heard
     status_heard: dict[tuple[object, ...], None] = field(default_factory=dict)  # (command id, state) or a bundle event, oldest first
     info: DroneInfo | None = None
+    commands: list[CommandStatus] = field(default_factory=list)  # its latest command statuses, oldest first
     dropping: dict[str, tuple[int, int]] = field(default_factory=dict)  # sensor type → (logged at ms, dropped since)
     health_failing_since_ms: int | None = None  # the first sample of the current run of failing health checks
 
@@ -133,6 +136,11 @@ class Registry:
     def sensor_readings(self, drone_id: str) -> list[SensorReading]:
         d = self._drones[drone_id]
         return [d.sensors[t].reading for t in sorted(d.sensors)]
+
+    def command_statuses(self, drone_id: str) -> list[CommandStatus]:
+        """Its last COMMANDS_KEPT command statuses, oldest first: what a mission taken over
+        may have missed while no ground was active (mission.hosting.isolation)."""
+        return list(self._drones[drone_id].commands)
 
     def select(self, state: str | None = None, sensors: list[str] | None = None) -> list[str]:
         """Ids of the drones in `state` (if given) carrying every sensor type listed."""
@@ -260,6 +268,8 @@ class Registry:
                 d.fc_disconnected = False
             level, message = system_line(status)
             return [self._line(now_ms, level, d, message), *self._publish(d, self._derive(d))]
+        d.commands.append(status)
+        del d.commands[:-COMMANDS_KEPT]
         if status.state in ("start", "queued"):
             d.described[status.command_id] = describe_start(status)
         described = d.described.get(status.command_id) or describe_start(status)

@@ -141,6 +141,11 @@ class IsolatedMission:
                 start = msgspec.structs.replace(first, journal=entries)
                 for event in self._snapshot():
                     self._send(event)
+                # What the drones said of their commands while no ground was active (a
+                # leg that ended then): the mission takes what its journal lacks.
+                for drone_id in self.station.registry.ids():
+                    for status in self.station.registry.command_statuses(drone_id):
+                        self._send(worker.Event("status", msgspec.json.encode(status)))
             # No await between the snapshot and listening: the worker misses no event.
             stop_listening = self.station.listen(self._forward)
             self._process = fork_server().Process(
@@ -258,6 +263,19 @@ class IsolatedMission:
                 log.debug("mission %s: %s %s failed", self.id, call.op, call.drone_id, exc_info=True)
             failure = worker.failure_of(exc)
         self._send(worker.Reply(call=call.call, result=result, failure=failure))
+        if self._resume is not None and call.op == "command" and failure is None:
+            self._send_known_statuses(call)
+
+    def _send_known_statuses(self, call: worker.Call) -> None:
+        """A mission taken over makes again the calls its journal did not hold; the ground
+        it came from may have sent that command already, so the agent answers it as
+        before, and its statuses went by before this command was waited on: they follow."""
+        command_id = msgspec.json.decode(call.arg).get("command_id")
+        if call.drone_id not in self.station.registry:
+            return
+        for status in self.station.registry.command_statuses(call.drone_id):
+            if status.command_id == command_id:
+                self._send(worker.Event("status", msgspec.json.encode(status)))
 
     # ---- events to the worker ------------------------------------------------------
 

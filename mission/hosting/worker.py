@@ -27,6 +27,7 @@ import os
 import resource
 import signal
 import socket
+import time
 import uuid
 from collections.abc import Callable
 from typing import Any, Literal
@@ -46,6 +47,7 @@ from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.config_loading import MissionSettings
 from dronefleet.schemas.errors import CommandRejected, FleetError, InvalidMessage
 from dronefleet.schemas.fleet import DroneInfo, WatchEvent
+from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
@@ -262,6 +264,9 @@ class Mirror:
     def field_readings(self) -> list[SensorReading]:
         return [self._field[k] for k in sorted(self._field)]
 
+    def command_statuses(self, drone_id: str) -> list[CommandStatus]:
+        return []  # the statuses came as events; the ground keeps the history
+
     def sensor_readings(self, drone_id: str) -> list[SensorReading]:
         present = set(self._infos[drone_id].sensors)  # the ground drops a sensor that timed out
         readings = self._readings.get(drone_id, {})
@@ -465,9 +470,12 @@ async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, star
     run = asyncio.ensure_future(mission.run())
     if start.journal is not None:
         port.replaying = True
+        began = time.perf_counter()
         await driver.replay(start.journal)
+        took_ms = (time.perf_counter() - began) * 1000
         port.go_live()
         send(Changed(mission.record))
+        mission.log("info", f"Journal taken again: {len(start.journal)} entries in {took_ms:.0f} ms; live from here")
     drive = asyncio.ensure_future(driver.live(frames))
     await asyncio.wait([run, drive], return_when=asyncio.FIRST_COMPLETED)
     if listen.done() and isinstance(listen.exception(), MemoryError):

@@ -16,6 +16,7 @@ from dronefleet.schemas.bundles import BundleRecord, BundleReply
 from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.config_loading import MissionSettings
 from dronefleet.schemas.fleet import DroneInfo, WatchEvent
+from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
 
 
@@ -27,6 +28,9 @@ class FleetView(Protocol):
     def info(self, drone_id: str) -> DroneInfo: ...
     def telemetry(self, drone_id: str) -> Telemetry: ...
     def sensor_readings(self, drone_id: str) -> list[SensorReading]: ...
+    def command_statuses(self, drone_id: str) -> list[CommandStatus]:
+        """Its latest command statuses, oldest first (a mission's process: none)."""
+        ...
     def field_readings(self) -> list[SensorReading]:
         """The latest reading of every field sensor (not on a drone) and type, with its
         `sensor_id` and `position` (SPEC §2)."""

@@ -132,3 +132,5 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
         if mesh is not None:
             await mesh.close()
         stop_all([*agents, bravo, alpha])
+
+
