@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from dronefleet.mission.hosting import worker  # noqa: E402
 from dronefleet.mission.hosting.journal import Entry  # noqa: E402
 from tests.ground.test_durable_missions import SCRIPT, SPAWNS  # noqa: E402
-from tests.harness import AgentProcess, GroundProcess, ended, stop_all, submit, wait_state  # noqa: E402
+from tests.harness import ended, stop_all, submit, two_grounds_and_fleet, wait_state  # noqa: E402
 from tests.waiting import until  # noqa: E402
 
 _entries = msgspec.msgpack.Decoder(list[Entry])
@@ -71,13 +71,7 @@ def journal_of(db: Path, origin: str, mission_id: str) -> tuple[int, int]:
 
 
 async def one_takeover(tmp: Path) -> Run:
-    for d in ("alpha", "bravo"):
-        (tmp / d).mkdir()
-    alpha = GroundProcess(tmp / "alpha", ground_id="alpha", priority=10)
-    bravo = GroundProcess(tmp / "bravo", ground_id="bravo", connect=[alpha.endpoint])
-    agents = [AgentProcess(d, alpha.endpoint, tmp, fc=f"sim://?lat={lat}&lon={lon}&alt=8.2",
-                           extra_args=["--connect", bravo.endpoint], max_speed=6)
-              for d, (lat, lon) in SPAWNS.items()]
+    alpha, bravo, agents = two_grounds_and_fleet(tmp, SPAWNS, max_speed=6)
     try:
         await alpha.ready()
         await bravo.ready()

@@ -77,6 +77,12 @@ class VirtualClock:
             return None
         deadline = self._timers[0][0]
         self._now = max(self._now, deadline)
+        self._wake(deadline)
+        return deadline
+
+    def _wake(self, deadline: float) -> None:
+        """Wake every sleeper due at `deadline`: a callback joins the loop's queue where a
+        woken sleeper would."""
         loop = asyncio.get_running_loop()
         while self._timers and self._timers[0][0] == deadline:
             _, _, due = heapq.heappop(self._timers)
@@ -84,7 +90,6 @@ class VirtualClock:
                 loop.call_soon(due)
             elif not due.done():
                 due.set_result(None)
-        return deadline
 
     def move_to(self, t_s: float) -> None:
         """Set the time forward to `t_s` with nothing due before it (wake_next first)."""
@@ -99,17 +104,11 @@ class VirtualClock:
         the deadlines alone, so a simulation replays identically.
         """
         target = self._now + seconds
-        loop = asyncio.get_running_loop()
         await _settle()
         while self._timers and self._timers[0][0] <= target:
             deadline = self._timers[0][0]
             self._now = max(self._now, deadline)
-            while self._timers and self._timers[0][0] == deadline:
-                _, _, due = heapq.heappop(self._timers)
-                if not isinstance(due, asyncio.Future):
-                    loop.call_soon(due)
-                elif not due.done():
-                    due.set_result(None)
+            self._wake(deadline)
             await _settle()
         self._now = target
         await _settle()

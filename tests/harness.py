@@ -335,6 +335,19 @@ async def seq_above(http: httpx.AsyncClient, drone_id: str, seq: int) -> bool:
     return await telemetry_seq(http, drone_id) > seq
 
 
+def two_grounds_and_fleet(tmp: Path, spawns: dict[str, tuple[float, float]],
+                          **agent_config: Any) -> tuple[GroundProcess, GroundProcess, list[AgentProcess]]:
+    """Two grounds as in `two_grounds` and a sim agent per spawn, connected to both."""
+    for d in ("alpha", "bravo"):
+        (tmp / d).mkdir()
+    alpha = GroundProcess(tmp / "alpha", ground_id="alpha", priority=10)
+    bravo = GroundProcess(tmp / "bravo", ground_id="bravo", connect=[alpha.endpoint])
+    agents = [AgentProcess(d, alpha.endpoint, tmp, fc=f"sim://?lat={lat}&lon={lon}&alt=8.2",
+                           extra_args=["--connect", bravo.endpoint], **agent_config)
+              for d, (lat, lon) in spawns.items()]
+    return alpha, bravo, agents
+
+
 def two_grounds(tmp: Path) -> tuple[GroundProcess, GroundProcess, AgentProcess]:
     """SPEC §14's smallest mesh, not started: alpha (priority 10: active), bravo joining
     alpha's router (standby), and drone01's agent connected to both."""

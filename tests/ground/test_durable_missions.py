@@ -21,7 +21,7 @@ from dronefleet.schemas.codec import decode_status
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
-from tests.harness import AgentProcess, GroundProcess, ended, stop_all, submit, wait_state
+from tests.harness import ended, stop_all, submit, two_grounds_and_fleet, wait_state
 from tests.waiting import until
 
 pytestmark = pytest.mark.integration
@@ -60,13 +60,7 @@ async def active(http: httpx.AsyncClient, ground_id: str) -> bool:
 
 @pytest.mark.slow(60)
 async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed(tmp_path: Path) -> None:
-    for d in ("alpha", "bravo"):
-        (tmp_path / d).mkdir()
-    alpha = GroundProcess(tmp_path / "alpha", ground_id="alpha", priority=10)
-    bravo = GroundProcess(tmp_path / "bravo", ground_id="bravo", connect=[alpha.endpoint])
-    agents = [AgentProcess(d, alpha.endpoint, tmp_path, fc=f"sim://?lat={lat}&lon={lon}&alt=8.2",
-                           extra_args=["--connect", bravo.endpoint], max_speed=6)
-              for d, (lat, lon) in SPAWNS.items()]
+    alpha, bravo, agents = two_grounds_and_fleet(tmp_path, SPAWNS, max_speed=6)
     statuses: dict[str, list[CommandStatus]] = defaultdict(list)  # command id → what its drone said of it
 
     def heard(sample: Sample) -> None:
