@@ -62,8 +62,9 @@ SPACERS = 3  # short tests after each long one (pytest_collection_modifyitems)
 
 @pytest.hookimpl(trylast=True)  # after pytest-xdist has suffixed the grouped tests' ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Longest first (the `slow` marker's estimate), real-time and fast-time tests in
-    turns, each followed by short tests.
+    """Groups, then a few short tests per worker, then the rest longest first (the `slow`
+    marker's estimate), real-time and fast-time tests in turns, each followed by short
+    tests.
 
     `make test` runs xdist with `--dist loadgroup`, which hands out work units (one test,
     or a group: the Chromium tests, each radio slot's tests, the modules that share a
@@ -99,7 +100,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     # the pure ones last: they fill the end in a few CPU-seconds, where tests that start
     # processes would compete for both cores with the last long tests.
     short = sorted((i for i in single if not seconds(i)), key=lambda i: i.get_closest_marker("integration") is None)
-    order: list[pytest.Item] = []
+    # Two short tests per worker right after the groups: xdist hands each worker a second
+    # unit at the start, and a worker that drew a group (the radio lanes run 215-230 s)
+    # holds that one until its group ends. A 53-s flight contract drawn there started at
+    # 214 s and ended the run 40 s after every other worker.
+    workers = getattr(config.option, "numprocesses", None)
+    lead = 2 * workers if isinstance(workers, int) and grouped else 0
+    order: list[pytest.Item] = short[:lead]
+    short = short[lead:]
     for n, item in enumerate(long):
         order += [item, *short[SPACERS * n:SPACERS * (n + 1)]]
     items[:] = grouped + order + short[SPACERS * len(long):]
