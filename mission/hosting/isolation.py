@@ -13,6 +13,10 @@ fails with cause `security` and this side leaves its drones as a mission's end d
 (hold or return, then release). So does a worker that does not answer an end within
 `STOP_GRACE_S` (one long call in C code): it is killed. The ground's loop, its
 memory, telemetry and the other missions are never at stake.
+
+The worker journals every frame it takes (mission.hosting.journal); this side keeps
+the journal in batches (`on_journal`), and a ground taking over from a lost one starts
+the worker with it (`resume`) so the mission goes on where it was (ADR 0017).
 """
 
 from __future__ import annotations
