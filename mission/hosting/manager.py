@@ -267,14 +267,16 @@ class MissionManager:
     def _recover(self) -> None:
         for record in self.store.all():
             if record.status in ("pending", "running"):
-                record.status, record.cause = "failed", "ground_restart"
-                record.message = "the ground station stopped while the mission ran"
-                record.end = record.end or self.clock.time_ms()
-                record.active_drones = []
-                self.store.save(record)
-                self.store.append(record.mission_id, MissionLogLine(
-                    timestamp=self.clock.time_ms(), level="error", message="Mission failed: ground_restart",
-                ))
+                self._fail_unrun(record, "ground_restart", "the ground station stopped while the mission ran",
+                                 "Mission failed: ground_restart")
+
+    def _fail_unrun(self, record: MissionRecord, cause: str, message: str, line: str) -> None:
+        """End a mission this ground will not run (its record saved, `line` logged)."""
+        record.status, record.cause, record.message = "failed", cause, message
+        record.end = record.end or self.clock.time_ms()
+        record.active_drones = []
+        self.store.save(record)
+        self.store.append(record.mission_id, MissionLogLine(timestamp=self.clock.time_ms(), level="error", message=line))
 
     # ---- operations ----------------------------------------------------------------
 
@@ -336,12 +338,8 @@ class MissionManager:
             for line in self.store.copied_log(origin, copied.mission_id):
                 self.store.append(mission_id, line)
             if start is None or not self.isolate:
-                record.status, record.cause = "failed", "ground_lost"
-                record.message = f"ground {origin} was lost and its journal of mission {copied.mission_id} did not reach this ground"
-                record.end, record.active_drones = self.clock.time_ms(), []
-                self.store.save(record)
-                self.store.append(mission_id, MissionLogLine(timestamp=self.clock.time_ms(), level="error",
-                                                             message=f"Mission failed: ground_lost ({record.message})"))
+                why = f"ground {origin} was lost and its journal of mission {copied.mission_id} did not reach this ground"
+                self._fail_unrun(record, "ground_lost", why, f"Mission failed: ground_lost ({why})")
                 self._broadcast(record)
                 taken.append(record)
                 continue
