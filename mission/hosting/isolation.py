@@ -29,7 +29,9 @@ import random
 import signal
 import socket
 import uuid
+from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from multiprocessing.context import ForkServerContext
 from typing import Any, Literal
 
@@ -54,6 +56,17 @@ JOURNAL_FLUSH_S = 0.1  # the journal's entries are kept (and go to the standby g
 _context: ForkServerContext | None = None
 
 
+@dataclass(frozen=True)
+class Resume:
+    """A mission another ground ran, to take over (SPEC §14): its first Start, the
+    journal as this ground's copy holds it, and the copy of its log (the lines the
+    replay writes again and the copy lacks are added to it)."""
+
+    start: worker.Start
+    journal: list[Entry]
+    log: list[MissionLogLine]
+
+
 def fork_server() -> ForkServerContext:
     """The multiprocessing context whose fork server has the runtime imported."""
     global _context
@@ -76,7 +89,7 @@ class IsolatedMission:
         plugins: PluginLibrary | None = None,
         enable: dict[str, dict[str, Any]] | None = None,
         on_journal: Callable[[IsolatedMission, str, bytes], None] = lambda m, kind, body: None,
-        resume: tuple[worker.Start, list[Entry]] | None = None,
+        resume: Resume | None = None,
     ) -> None:
         """`on_journal(mission, kind, body)` keeps its journal: kind `start` (the
         worker's Start, msgpack) once, then `entries` (msgpack list of Entry) in order.
@@ -141,8 +154,7 @@ class IsolatedMission:
                 )
                 self._on_journal(self, "start", msgspec.msgpack.encode(start))
             else:  # its first Start, then its journal; the fleet as this ground sees it follows live
-                first, entries = self._resume
-                start = msgspec.structs.replace(first, journal=entries)
+                start = msgspec.structs.replace(self._resume.start, journal=self._resume.journal)
                 for event in self._snapshot():
                     self._send(event)
                 # What the drones said of their commands while no ground was active (a
@@ -175,8 +187,6 @@ class IsolatedMission:
             return self.record
         finally:
             stop_listening()
-            if self._flushing is not None:
-                self._flushing.cancel()
             self._flush_journal()
             for task in self._tasks:
                 task.cancel()
@@ -205,6 +215,7 @@ class IsolatedMission:
                 return message.record
             if isinstance(message, worker.Resumed):  # its claims first: the calls it makes again follow
                 await self._claim(message.held)
+                self._retell(message)
                 continue
             self._take(message)
 
@@ -217,6 +228,10 @@ class IsolatedMission:
             self.record = record
             self._on_change(self)
         elif isinstance(message, worker.Logged):
+            # The journal is kept (and goes to the standby grounds) before the line: a
+            # ground that takes over replays to at least every line it has, so its live
+            # run never writes one of them again (SPEC §14).
+            self._flush_journal()
             self._on_log(self, message.line)
         elif isinstance(message, worker.Active):
             self.on_activity(self, msgspec.structs.replace(message.activity, mission_id=self.id))
@@ -236,10 +251,27 @@ class IsolatedMission:
                 self._flushing = asyncio.get_running_loop().call_later(JOURNAL_FLUSH_S, self._flush_journal)
 
     def _flush_journal(self) -> None:
-        self._flushing = None
+        if self._flushing is not None:
+            self._flushing.cancel()
+            self._flushing = None
         if self._journal:
             entries, self._journal = self._journal, []
             self._on_journal(self, "entries", msgspec.msgpack.encode(entries))
+
+    def _retell(self, resumed: worker.Resumed) -> None:
+        """What the replay wrote again: the log lines the copy lacks (written on the lost
+        ground after its last line reached this one; a replay writes each line as the
+        first run did, timestamp included) and every subroutine's activity (the lanes)."""
+        assert self._resume is not None
+        copied = Counter((line.timestamp, line.level, line.message) for line in self._resume.log)
+        for line in resumed.log:
+            key = (line.timestamp, line.level, line.message)
+            if copied[key] > 0:
+                copied[key] -= 1
+            else:
+                self._on_log(self, line)
+        for activity in resumed.activities:
+            self.on_activity(self, msgspec.structs.replace(activity, mission_id=self.id))
 
     async def _claim(self, held: list[str]) -> None:
         """A mission taken over holds here the drones it held on the ground it came from."""

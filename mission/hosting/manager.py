@@ -25,7 +25,7 @@ import msgspec
 from dronefleet.bus.clock import Clock
 from dronefleet.bus.stream_copy import Stream, unbroken_from
 from dronefleet.mission.hosting import worker
-from dronefleet.mission.hosting.isolation import IsolatedMission
+from dronefleet.mission.hosting.isolation import IsolatedMission, Resume
 from dronefleet.mission.hosting.journal import Entry
 from dronefleet.mission.lifecycle.fleet_port import FleetPort
 from dronefleet.mission.lifecycle.mission import Mission
@@ -335,7 +335,8 @@ class MissionManager:
             record = msgspec.structs.replace(copied, mission_id=mission_id)
             source = start.source if start is not None else ""
             self.store.create(record, source)
-            for line in self.store.copied_log(origin, copied.mission_id):
+            copied_log = self.store.copied_log(origin, copied.mission_id)
+            for line in copied_log:
                 self.store.append(mission_id, line)
             if start is None or not self.isolate:
                 why = f"ground {origin} was lost and its journal of mission {copied.mission_id} did not reach this ground"
@@ -350,7 +351,7 @@ class MissionManager:
             self.station.log_ground("warn", f"Mission {copied.mission_id} of lost ground {origin} taken over as {mission_id}")
             self._start(IsolatedMission(record, source, self.station, self.clock, on_change=self._on_change,
                                         on_log=self._on_log, plugins=self.plugins, on_journal=self._on_journal,
-                                        resume=(start, entries)))
+                                        resume=Resume(start, entries, copied_log)))
             taken.append(record)
         return taken
 

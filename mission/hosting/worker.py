@@ -140,9 +140,13 @@ class Journalled(msgspec.Struct, tag=True, frozen=True):
 
 class Resumed(msgspec.Struct, tag=True, frozen=True):
     """Worker → ground: the journal is replayed; the mission holds these drones and goes
-    on live (its calls still unanswered follow)."""
+    on live (its calls still unanswered follow). The replay wrote `log` and `activities`
+    again, as the first run had: the ground keeps the lines its copy of the log lacks
+    (those written after the last line that reached it) and the subroutines' lanes."""
 
     held: list[str]
+    log: list[MissionLogLine] = []
+    activities: list[Activity] = []
 
 
 ToWorker = Event | Reply | End
@@ -298,19 +302,25 @@ class WorkerPort:
         self._gone: str | None = None
         self.held: set[str] = set()  # the drones its claims won and it has not released
         self.replaying = False  # taking a journal again: nothing goes out
+        self._retold: list[Logged | Active] = []  # what the replay wrote again
 
     def emit(self, message: Any) -> None:
         """A frame to the ground (none while a journal is replayed)."""
         if self.replaying:
+            if isinstance(message, Logged | Active):
+                self._retold.append(message)
             self._replayed(message)
         else:
             self._out(message)
 
     def go_live(self) -> None:
-        """The journal is replayed: say which drones the mission holds, then make the
-        calls the journal holds no answer to (their effects are idempotent: ids)."""
+        """The journal is replayed: say which drones the mission holds and what the
+        replay wrote, then make the calls the journal holds no answer to (their effects
+        are idempotent: ids)."""
         self.replaying = False
-        self._out(Resumed(sorted(self.held)))
+        retold, self._retold = self._retold, []
+        self._out(Resumed(sorted(self.held), log=[m.line for m in retold if isinstance(m, Logged)],
+                          activities=[m.activity for m in retold if isinstance(m, Active)]))
         for _, call in sorted(self._calls.values(), key=lambda fc: fc[1].call):
             self._out(call)
 

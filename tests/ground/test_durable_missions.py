@@ -105,6 +105,10 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
             assert (done["status"], done["cause"]) == ("finished", "success"), done
             messages = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
             assert any(f"Mission {mission_id} of ground alpha goes on here as {taken}" in m for m in messages), messages
+            # The log as alpha wrote it, each line once: the replay writes alpha's lines
+            # again and bravo keeps only those its copy lacked.
+            for line in ("Mission started", "Assigned drone01 (drone 'drone01')", "Assigned drone02 (drone 'drone02')"):
+                assert messages.count(line) == 1, messages
 
             # Each verb's command was run once: one end per command id, none started
             # twice, and four legs each, as if alpha had never died.

@@ -185,15 +185,15 @@ def test_a_prefix_of_the_journal_runs_the_mission_again_to_that_point(seed: int,
                                                                        cut: float) -> None:
     start = start_of(seed)
 
-    async def both() -> tuple[Ground, list[Any], int]:
+    async def both() -> tuple[Ground, Ground, list[Any], int]:
         first = await run(start, plan, [])
         assert isinstance(first.sent[-1], worker.Done) and first.sent[-1].record.status == "finished", first.sent[-1]
         k = round(cut * len(first.entries))
         again: list[Any] = []
-        await run(msgspec.structs.replace(start, journal=first.entries[:k]), None, again)
-        return first, again, k
+        second = await run(msgspec.structs.replace(start, journal=first.entries[:k]), None, again)
+        return first, second, again, k
 
-    first, again, k = asyncio.run(both())
+    first, second, again, k = asyncio.run(both())
     live = [msgspec.msgpack.encode(m) for m in first.sent if not isinstance(m, worker.Done)]
     # Nothing the replay makes differs from the first run, to the byte (command ids, log
     # times), and it gets at least as far as the first run had when it journalled the
@@ -201,3 +201,9 @@ def test_a_prefix_of_the_journal_runs_the_mission_again_to_that_point(seed: int,
     assert again == live[:len(again)]
     if k:
         assert len(again) >= first.marks[k - 1], (len(again), first.marks[k - 1])
+    # What the replay wrote goes to the ground when it goes live: the ground keeps the
+    # log lines its copy lacks, and the subroutines' lanes.
+    (resumed,) = [m for m in second.sent if isinstance(m, worker.Resumed)]
+    wrote = [_to_ground.decode(m) for m in again]
+    assert resumed.log == [m.line for m in wrote if isinstance(m, worker.Logged)]
+    assert resumed.activities == [m.activity for m in wrote if isinstance(m, worker.Active)]
