@@ -77,9 +77,14 @@ test: $(STAMP) sysdeps
 # Collected once first: the workers then find every test module's assertions rewritten
 # and every module the suite imports (1800, most of what a `fleet` process imports too)
 # compiled: each worker's collection takes 2.2 CPU-seconds instead of 4.2 in a fresh
-# clone. A collection error is reported by the run that follows.
+# clone. Two processes collect half the test folders each, on both cores (6 s instead of
+# 9 in a fresh clone; what both import is compiled twice at most). A collection error is
+# reported by the run that follows.
 pytest: $(STAMP)
-	@$(BIN)/python -m pytest -qq --collect-only > /dev/null || true
+	@half=0; one=""; other=""; for t in tests/[!_]*/ tests/test_*.py; do \
+	  if [ $$half = 0 ]; then one="$$one $$t"; half=1; else other="$$other $$t"; half=0; fi; done; \
+	$(BIN)/python -m pytest -qq --collect-only -p no:cacheprovider $$one > /dev/null 2>&1 & \
+	$(BIN)/python -m pytest -qq --collect-only -p no:cacheprovider $$other > /dev/null 2>&1; wait; true
 	$(BIN)/python -m pytest -q -n 8 --dist loadgroup
 
 # The documentation site into site/ (mkdocs-material; the suite builds it with --strict).

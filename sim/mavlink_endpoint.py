@@ -360,6 +360,8 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
             p.takeoff_alt_m = value
         elif name == "RTL_RETURN_ALT":
             p.rtl_min_alt_m = value
+        elif name == "RTL_ALT":  # ArduCopter's, in centimetres
+            p.rtl_min_alt_m = value / 100
         elif name == "WPNAV_SPEED":
             self.vehicle.cruise_speed = value / 100
         elif name == "FENCE_ENABLE":

@@ -15,24 +15,13 @@ from pathlib import Path
 import httpx
 import pytest
 import requests
-import schemathesis
 from hypothesis import HealthCheck, given, settings
 from hypothesis.errors import Unsatisfiable
-from schemathesis import GenerationMode
-from schemathesis.checks import (
-    content_type_conformance,
-    not_a_server_error,
-    response_headers_conformance,
-    response_schema_conformance,
-    status_code_conformance,
-)
-from schemathesis.core.failures import FailureGroup
 
 from tests.harness import AgentProcess, GroundProcess, wait_state
 
 pytestmark = pytest.mark.integration
 
-CHECKS = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance, response_headers_conformance]
 # Hypothesis examples per operation and mode: at 50 this was the suite's costliest test in
 # CPU (31 of about 590 CPU-seconds, ADR 0011); at 25 it still sends over MIN_CASES requests.
 EXAMPLES_PER_MODE = 25
@@ -62,6 +51,21 @@ async def _registered(ground: GroundProcess) -> None:
 @pytest.mark.slow(50)
 @pytest.mark.timeout(600)
 def test_generated_requests_never_5xx_and_always_match_the_schema(ground: GroundProcess) -> None:
+    # schemathesis is imported here, not at the top: every pytest worker collects this
+    # module, and schemathesis is a tenth of a collection.
+    import schemathesis
+    from schemathesis import GenerationMode
+    from schemathesis.checks import (
+        content_type_conformance,
+        not_a_server_error,
+        response_headers_conformance,
+        response_schema_conformance,
+        status_code_conformance,
+    )
+    from schemathesis.core.failures import FailureGroup
+
+    checks = [not_a_server_error, status_code_conformance, content_type_conformance, response_schema_conformance,
+              response_headers_conformance]
     loaded = schemathesis.openapi.from_url(f"{ground.url}/openapi.json", wait_for_schema=10)
     schema = loaded.exclude(method="GET", path="/events")  # a stream never ends: tested elsewhere
     session = requests.Session()
@@ -88,7 +92,7 @@ def test_generated_requests_never_5xx_and_always_match_the_schema(ground: Ground
                 counts[label] = counts.get(label, 0) + 1  # noqa: B023
                 if "drone_id" in (case.path_parameters or {}) and counts[label] % 2:  # noqa: B023
                     case.path_parameters = {**case.path_parameters, "drone_id": "drone01"}  # a real drone
-                case.call_and_validate(session=session, checks=CHECKS)
+                case.call_and_validate(session=session, checks=checks)
 
             try:
                 run()

@@ -12,11 +12,11 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import httpx
 import mercantile
 import pytest
-from matplotlib import image
 
 from dronefleet.ground.config import GroundConfig
 from dronefleet.ground.dashboard_routes import open_tile_archive
@@ -139,8 +139,16 @@ async def test_the_ground_serves_an_archives_tiles_and_refuses_a_bad_one_at_star
             open_tile_archive(config)
 
 
+def _pixels(png: bytes) -> Any:
+    """A PNG's pixels, RGB(A) in 0..1 (matplotlib, imported here: every pytest worker
+    collects this module, and matplotlib with numpy is a fifth of a collection)."""
+    from matplotlib import image
+
+    return image.imread(io.BytesIO(png), format="png")
+
+
 def _rgb(png: bytes, row: int, col: int) -> tuple[float, float, float]:
-    pixel = image.imread(io.BytesIO(png), format="png")[row, col]
+    pixel = _pixels(png)[row, col]
     return float(pixel[0]), float(pixel[1]), float(pixel[2])
 
 
@@ -184,7 +192,7 @@ def test_a_world_is_drawn_as_a_map_with_its_fire_and_its_ring_at_every_zoom(tmp_
         assert g >= r and b > 0.7, (r, g, b)  # plain ground, far from the fire
         ring = archive.tile(17, *mercantile.tile(fire[1], fire[0], 17)[:2])
         assert ring is not None
-        pixels = image.imread(io.BytesIO(ring), format="png")
+        pixels = _pixels(ring)
         dark_red = (pixels[..., 0] > 0.5) & (pixels[..., 1] < 0.2)
         assert dark_red.sum() > 20  # the 40 °C ring: 20 m out at this source, a circle of pixels
     finally:

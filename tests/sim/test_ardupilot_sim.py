@@ -106,6 +106,26 @@ async def test_a_takeoff_climbs_in_guided_and_stays_there_then_land_disarms_and_
     assert not endpoint.vehicle.armed and mode(endpoint) == ardupilot.LAND
 
 
+@pytest.mark.parametrize("rtl_alt_m", [8.0, 25.0])
+async def test_rtl_climbs_to_the_rtl_alt_it_was_set_to(copter, rtl_alt_m: float) -> None:
+    """RTL_ALT set by a client (MAVSDK's set_return_to_launch_altitude, the agent's
+    return altitude) is where RTL climbs to, below the 15 m default as above it."""
+    endpoint, gcs = copter
+    m = gcs.mav
+    param = await gcs.ask(m.param_set_encode(1, 1, b"RTL_ALT", rtl_alt_m * 100, mav2.MAV_PARAM_TYPE_INT32), "PARAM_VALUE")
+    assert param.param_value == rtl_alt_m * 100
+    assert await set_mode(gcs, ardupilot.GUIDED) == ACCEPTED
+    assert (await command(gcs, mav2.MAV_CMD_COMPONENT_ARM_DISARM, 1))[0] == ACCEPTED
+    assert (await command(gcs, mav2.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 5))[0] == ACCEPTED
+    fly_for(endpoint, 10.0)
+    assert await set_mode(gcs, ardupilot.RTL) == ACCEPTED
+    highest = 0.0
+    for _ in range(200):
+        fly_for(endpoint, 0.1)
+        highest = max(highest, endpoint.vehicle.rel_alt)
+    assert highest == pytest.approx(max(rtl_alt_m, 5.0), abs=0.3)
+
+
 async def test_hold_is_brake_where_speed_changes_fail_and_a_heading_is_condition_yaw(copter) -> None:
     endpoint, gcs = copter
     await hovering(endpoint, gcs)
