@@ -134,8 +134,18 @@ class GroundPeers:
         task.add_done_callback(lambda _: self._asking.pop(ground_id, None))
 
     async def _ask_info(self, ground_id: str) -> None:
-        """What a ground that appeared says of itself (unanswered, it counts with
-        defaults), then its epoch if it is the active one."""
+        """What a ground that appeared says of itself (a reply it could not make in
+        time counts with defaults), then its epoch if it is the active one.
+
+        A token that no queryable of its ground ever stands behind is not a ground: a
+        ground serves `info` before it declares its token, so once the mesh has had time
+        to route to it (ASK_TRIES), nobody there means a token the routers kept or put
+        back after its ground was lost. Zenoh 1.x routers do that: a token declaration
+        from a router that has just left the link-state graph is registered anyway
+        ("Error propagating token …: cannot get index of …", zenoh's hat/router/token.rs)
+        and never withdrawn. Counted, such a ghost would win the rule by its id and
+        make the active ground stand down (ADR 0016). It counts once it speaks (an
+        announcement of `ground/<id>/active`) or its token comes again."""
         info = GroundInfo(ground_id=ground_id)
         pause_s = 0.1
         for _ in range(ASK_TRIES):  # its token can cross the mesh before its queryable does
@@ -149,7 +159,9 @@ class GroundPeers:
                 log.warning("ground %s did not say what it is (%s): counted as priority 0", ground_id, exc)
                 break
         else:
-            log.warning("ground %s did not say what it is after %d tries: counted as priority 0", ground_id, ASK_TRIES)
+            log.warning("ground %s: its token is on the mesh but nothing answers for it after %d tries: not counted "
+                        "(a token kept after its ground was lost)", ground_id, ASK_TRIES)
+            return
         self._apply(self.standing.heard_ground(info))
         try:  # and its epoch, if it is active: not only at its next announcement
             said = await self.bus.query(self.keys.ground(ground_id, "active"), timeout_s=2.0)

@@ -220,6 +220,13 @@ class IsolatedMission:
             self._take(message)
 
     def _take(self, message: Any) -> None:
+        if not isinstance(message, worker.Journalled | worker.Active | worker.Ack):
+            # Write-ahead: the journal that led the mission here is kept (and goes to
+            # the standby grounds) before anything it does reaches the fleet or the
+            # log. A ground taking over then replays at least to the mission's last
+            # command and log line and makes each again as this one did (same id, same
+            # body), never a different decision under an id an agent has answered.
+            self._flush_journal()
         if isinstance(message, worker.Changed):
             self._reported = message.record.cause
             record = msgspec.structs.replace(message.record, mission_id=self.id)
@@ -228,10 +235,6 @@ class IsolatedMission:
             self.record = record
             self._on_change(self)
         elif isinstance(message, worker.Logged):
-            # The journal is kept (and goes to the standby grounds) before the line: a
-            # ground that takes over replays to at least every line it has, so its live
-            # run never writes one of them again (SPEC §14).
-            self._flush_journal()
             self._on_log(self, message.line)
         elif isinstance(message, worker.Active):
             self.on_activity(self, msgspec.structs.replace(message.activity, mission_id=self.id))

@@ -21,7 +21,7 @@ from dronefleet.schemas.codec import decode_status
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
-from tests.harness import ended, stop_all, submit, two_grounds_and_fleet, wait_state
+from tests.harness import GroundProcess, ended, stop_all, submit, two_grounds_and_fleet, wait_state
 from tests.waiting import until
 
 pytestmark = pytest.mark.integration
@@ -58,24 +58,47 @@ async def active(http: httpx.AsyncClient, ground_id: str) -> bool:
     return any(g["ground_id"] == ground_id and g["active"] for g in (await http.get("/ground")).json())
 
 
+class Heard:
+    """Every command status the agents publish, heard on the mesh (a peer on bravo's
+    router), by command id. An agent sends its recent statuses again when a ground may
+    have missed them (the takeover): the same status, its timestamp and all, counts once."""
+
+    def __init__(self) -> None:
+        self.statuses: dict[str, list[CommandStatus]] = defaultdict(list)
+
+    def __call__(self, sample: Sample) -> None:
+        status = decode_status(sample.payload)
+        if isinstance(status, CommandStatus) and status not in self.statuses[status.command_id]:
+            self.statuses[status.command_id].append(status)
+
+    def each_run_once(self) -> None:
+        """Each command started at most once and ended at most once."""
+        for command_id, said in self.statuses.items():
+            ends = [s.state for s in said if s.state in ("success", "finish", "failure", "cancel", "stop")]
+            assert len(ends) <= 1, (command_id, said)
+            assert sum(1 for s in said if s.state == "start") <= 1, (command_id, said)
+
+    def started(self, drone_id: str, command: str) -> list[CommandStatus]:
+        return [s for ss in self.statuses.values() for s in ss
+                if s.drone_id == drone_id and s.command == command and s.state == "start"]
+
+
+async def listen(bravo: GroundProcess, heard: Heard) -> ZenohBus:
+    mesh = await ZenohBus.open("peer", connect=[bravo.endpoint], wait=True)  # a client on bravo hears nothing (see the closing note)
+    mesh.subscribe(Keys().status(), heard, maxsize=100_000)
+    return mesh
+
+
 @pytest.mark.slow(60)
 async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed(tmp_path: Path) -> None:
     alpha, bravo, agents = two_grounds_and_fleet(tmp_path, SPAWNS, max_speed=6)
-    statuses: dict[str, list[CommandStatus]] = defaultdict(list)  # command id → what its drone said of it
-
-    def heard(sample: Sample) -> None:
-        status = decode_status(sample.payload)
-        # An agent sends its recent statuses again when a ground may have missed them
-        # (the takeover): the same status, its timestamp and all, counts once.
-        if isinstance(status, CommandStatus) and status not in statuses[status.command_id]:
-            statuses[status.command_id].append(status)
-
+    heard = Heard()
+    statuses = heard.statuses  # command id → what its drone said of it
     mesh: ZenohBus | None = None
     try:
         await alpha.ready()
         await bravo.ready()
-        mesh = await ZenohBus.open("peer", connect=[bravo.endpoint], wait=True)  # a client on bravo hears nothing (see the closing note)
-        mesh.subscribe(Keys().status(), heard, maxsize=100_000)
+        mesh = await listen(bravo, heard)
         async with httpx.AsyncClient(base_url=alpha.url, timeout=10) as a, \
                 httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
             for drone_id in SPAWNS:
@@ -112,14 +135,10 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
 
             # Each verb's command was run once: one end per command id, none started
             # twice, and four legs each, as if alpha had never died.
-            for command_id, said in statuses.items():
-                ends = [s.state for s in said if s.state in ("success", "finish", "failure", "cancel", "stop")]
-                assert len(ends) <= 1, (command_id, said)
-                assert sum(1 for s in said if s.state == "start") <= 1, (command_id, said)
+            heard.each_run_once()
             assert moved("drone01") == LEGS and moved("drone02") == LEGS, dict(statuses)
             for drone_id in ("drone01", "drone02"):
-                legs = [s.coords for ss in statuses.values() for s in ss
-                        if s.drone_id == drone_id and s.command == "goto" and s.state == "start"]
+                legs = [s.coords for s in heard.started(drone_id, "goto")]
                 assert len(legs) == LEGS and all(c is not None for c in legs), legs
                 start = SPAWNS[drone_id]
                 last = legs[-1]
@@ -132,3 +151,71 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
         stop_all([*agents, bravo, alpha])
 
 
+
+
+REPLACED_LEGS = 6
+# drone02 waits where the route ends: at the spot where drone01 is replaced it is 24 m
+# from its home, drone01 36 m from its own, so one swap is enough.
+REPLACEMENT_SPAWNS = {"drone01": HOME, "drone02": destination(*HOME, REPLACED_LEGS * 10, 0),
+                      "drone03": destination(*HOME, 30, 90)}
+REPLACEMENT_SCRIPT = f'''d = assign(near(position({HOME[0]}, {HOME[1]})))  # drone01, by where it is: replaceable
+enable("replacement", drainage=0.02, min_battery=0.25)
+arm(d)
+takeoff(d, 6*m)
+turn(d, north)
+for leg in range({REPLACED_LEGS}):
+    move(d, forward=10*m)
+land(d)
+'''
+
+
+@pytest.mark.slow(60)
+async def test_a_replacement_under_way_goes_on_on_the_standby(tmp_path: Path) -> None:
+    """The replacement plugin swaps drone01 once its battery will not bring it home
+    (2 % a metre: past about 36 m north); alpha is killed as soon as its log says so,
+    while it sends drone01 home and claims drone02. On bravo the replay makes the same
+    decision from the same journalled telemetry (the journal went ahead of the log line
+    and of the commands: without that, bravo replayed to just before the decision, went
+    on live while drone01 flew home, and failed `cmd_exec` sending it a leg once it had
+    landed), the swap goes on with nothing started twice, and drone02 flies the
+    interrupted leg and the rest."""
+    alpha, bravo, agents = two_grounds_and_fleet(tmp_path, REPLACEMENT_SPAWNS, max_speed=8)
+    heard = Heard()
+    mesh: ZenohBus | None = None
+    try:
+        await alpha.ready()
+        await bravo.ready()
+        mesh = await listen(bravo, heard)
+        async with httpx.AsyncClient(base_url=alpha.url, timeout=10) as a, \
+                httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
+            for drone_id in REPLACEMENT_SPAWNS:
+                await wait_state(b, drone_id, "ready", 30)
+            await until(lambda: active(a, "alpha"), 20, "alpha active")
+            mission_id = await submit(a, REPLACEMENT_SCRIPT, "replaced")
+
+            async def deciding() -> bool:  # alpha is killed while it swaps
+                log = (await a.get(f"/mission/{mission_id}")).json()["log"]
+                return any("to fly home" in line["message"] for line in log)
+            await until(deciding, 90, "the replacement plugin deciding to swap drone01")
+            alpha.kill()
+            await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
+
+            taken = f"alpha-{mission_id}"
+            done = await ended(b, taken, 120)
+            log = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
+            assert (done["status"], done["cause"]) == ("finished", "success"), (done, log)
+            assert any(m.startswith("Journal taken again") for m in log), log
+            heard.each_run_once()
+            # One swap, made once: drone01 then drone02 took off, each once, and drone02
+            # flew the last leg to where the plan ends (60 m north of drone01's spawn).
+            took_off = [s.drone_id for ss in heard.statuses.values() for s in ss
+                        if s.command == "takeoff" and s.state == "start"]
+            assert took_off == ["drone01", "drone02"], took_off
+            legs = [s.coords for s in heard.started("drone02", "goto") if s.coords is not None]
+            spawn = REPLACEMENT_SPAWNS["drone01"]
+            assert legs and distance_m(spawn[0], spawn[1], legs[-1].lat, legs[-1].lon) == pytest.approx(
+                REPLACED_LEGS * 10, abs=3.0), legs
+    finally:
+        if mesh is not None:
+            await mesh.close()
+        stop_all([*agents, bravo, alpha])

@@ -16,6 +16,7 @@ import pytest
 
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.commands import CommandReply
+from dronefleet.schemas.keys import Keys
 from tests.harness import AgentProcess, GroundProcess, ended, submit, two_grounds, wait_state
 from tests.waiting import until
 
@@ -190,3 +191,35 @@ async def test_an_observer_sees_the_fleet_and_never_commands_even_ranked_highest
         agent.stop()
         post.stop()
         alpha.stop()
+
+
+@pytest.mark.slow(15)
+async def test_a_ground_token_nothing_answers_for_does_not_make_the_active_ground_stand_down(tmp_path: Path) -> None:
+    """A token `ground/alpha` with no ground behind it (what Zenoh's routers may keep
+    after the ground was lost: ADR 0016) would win the rule by its id. Bravo, alone and
+    active, asks it what it is until the mesh has had time to route, then leaves it
+    uncounted and stays active; its commands still go out."""
+    (tmp_path / "bravo").mkdir()
+    bravo = GroundProcess(tmp_path / "bravo", ground_id="bravo")
+    agent = AgentProcess("drone01", bravo.endpoint, tmp_path)
+    ghost: ZenohBus | None = None
+    try:
+        await bravo.ready()
+        async with httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
+            await wait_state(b, "drone01", "ready", 30)
+            await until(lambda: _active_is(b, "bravo"), 20, "bravo active")
+            ghost = await ZenohBus.open("client", connect=[bravo.endpoint], wait=True)
+            ghost.announce(Keys().ground("alpha"))
+            await until(lambda: "alpha: its token is on the mesh but nothing answers" in bravo.output(), 30,
+                        "bravo giving up on asking what alpha is")
+            assert await _active_is(b, "bravo"), await grounds(b)
+            assert (await b.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
+    finally:
+        if ghost is not None:
+            await ghost.close()
+        agent.stop()
+        bravo.stop()
+
+
+async def _active_is(http: httpx.AsyncClient, ground_id: str) -> bool:
+    return bool((await grounds(http)).get(ground_id, {}).get("active"))
