@@ -8,7 +8,8 @@ MAVSDK streams them) until offboard stops, and a pulled link shows as
 
 URL: `sim` or `sim://?lat=40.63&lon=-8.66&alt=8.2` for the spawn point; add
 `control=PORT` to accept faults (`fleet fault --control 127.0.0.1:PORT …`, e.g. an
-RC takeover) on a UDP control channel, as `fleet sim` does.
+RC takeover) on a UDP control channel, as `fleet sim` does, and PX4 parameters that
+tune the vehicle (`MPC_LAND_SPEED=1.2`, as `fleet sim --param`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import msgspec
 from dronefleet.agent.fc_port import FcRejected, FcState
 from dronefleet.bus.clock import Clock, until_next_tick_s
 from dronefleet.schemas.errors import ConfigError
+from dronefleet.sim import autopilot_params
 from dronefleet.sim.faults import FaultChannel, open_fault_channel
 from dronefleet.sim.vehicle import Vehicle
 
@@ -42,15 +44,19 @@ def parse_sim_url(url: str) -> tuple[Vehicle, int | None]:
     if url != "sim" and parts.scheme != "sim":
         raise ConfigError(f"not a sim URL: {url!r}")
     query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-    unknown = set(query) - {"lat", "lon", "alt", "control"}
+    unknown = set(query) - {"lat", "lon", "alt", "control"} - set(autopilot_params.PX4)
     if unknown:
-        raise ConfigError(f"fc {url!r}: unknown parameter(s) {', '.join(sorted(unknown))} (known: lat, lon, alt, control)")
+        raise ConfigError(f"fc {url!r}: unknown parameter(s) {', '.join(sorted(unknown))} "
+                          f"(known: lat, lon, alt, control, {', '.join(sorted(autopilot_params.PX4))})")
     try:
         lat, lon, alt = (float(query.get(k, d)) for k, d in zip(("lat", "lon", "alt"), DEFAULT_SPAWN, strict=True))
         control = int(query["control"]) if "control" in query else None
+        vehicle = Vehicle(lat, lon, alt)
+        for name in sorted(set(query) & set(autopilot_params.PX4)):
+            autopilot_params.tune(vehicle, autopilot_params.PX4, name, float(query[name]))
     except ValueError as exc:
         raise ConfigError(f"fc {url!r}: {exc}") from None
-    return Vehicle(lat, lon, alt), control
+    return vehicle, control
 
 
 class SimFlightController:

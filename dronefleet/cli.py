@@ -19,6 +19,7 @@ from dronefleet.cli_kit import (
     ENDPOINT,
     HOST_PORT,
     LIBRARIES,
+    NAME_VALUE,
     PKI_DIR_HELP,
     FleetGroup,
     checked_id,
@@ -133,8 +134,10 @@ def sub(keyexpr: str, connect: tuple[str, ...], count: int | None, pki_dir: Path
 @click.option("--radio", is_flag=True, help="Emulated radio: each drone in its own network namespace, loss following the distances (needs root).")
 @click.option("--ground-port", type=click.IntRange(1, 65535), default=7447, show_default=True, help="With --radio: the port of `fleet ground` the agents connect to at the laptop's radio address.")
 @click.option("--autopilot", "autopilots", help="px4 or ardupilot for every vehicle, or one per vehicle in order (px4,ardupilot,…); default: each drone's `autopilot` in the world file, else px4.")
+@click.option("--param", "params", multiple=True, type=NAME_VALUE, help="Set an autopilot parameter at start on every vehicle whose autopilot has it, as a ground station would (repeatable), e.g. MPC_LAND_SPEED=1.2 or LAND_SPEED=100.")
 def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str, ...], agent_config: Path | None, base_port: int,
-        outputs: tuple[tuple[str, int], ...], radio: bool, ground_port: int, autopilots: str | None) -> None:
+        outputs: tuple[tuple[str, int], ...], radio: bool, ground_port: int, autopilots: str | None,
+        params: tuple[tuple[str, float], ...]) -> None:
     """Run PX4-like or ArduCopter-like MAVLink vehicles (UDP 14540+i), optionally with their agents."""
     from dronefleet.sim.fleet_sim import run_sim
     from dronefleet.sim.world import load_world
@@ -145,6 +148,7 @@ def sim(world: Path | None, count: int | None, agents: bool, connect: tuple[str,
             loaded, count, base_port=base_port, agents=agents, connect=list(connect),
             agent_config=agent_config, extra_outputs=list(outputs), radio=radio, ground_port=ground_port,
             out=lambda line: click.echo(line), autopilots=[a.strip() for a in autopilots.split(",")] if autopilots else None,
+            params=dict(params),
         ))
     except OSError as exc:
         fail(f"cannot bind the simulator's ports: {exc}")

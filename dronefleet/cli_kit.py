@@ -141,6 +141,26 @@ class HostPortType(click.ParamType):
             self.fail(str(exc), param, ctx)
 
 
+class NameValueType(click.ParamType):
+    """NAME=VALUE with a number for VALUE (an autopilot parameter)."""
+
+    name = "NAME=VALUE"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> tuple[str, float]:
+        if isinstance(value, tuple):
+            return value
+        name, eq, number = str(value).partition("=")
+        try:
+            if not eq or not name.strip():
+                raise ValueError
+            return name.strip().upper(), float(number)
+        except ValueError:
+            self.fail(f"{value!r} is not NAME=VALUE with a number (e.g. MPC_LAND_SPEED=1.2)", param, ctx)
+
+
+NAME_VALUE = NameValueType()
+
+
 def checked_id(value: str, where: str) -> str:
     from dronefleet.schemas.errors import InvalidMessage
     from dronefleet.schemas.keys import check_id

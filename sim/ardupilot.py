@@ -72,6 +72,7 @@ def default_params(v: Vehicle) -> dict[str, Param]:
     return {
         "RTL_ALT": Param(round(p.rtl_min_alt_m * 100), mav.MAV_PARAM_TYPE_INT32),  # cm
         "WPNAV_SPEED": Param(p.cruise_speed_mps * 100),  # cm/s
+        "WPNAV_SPEED_DN": Param(p.descent_speed_mps * 100),  # cm/s
         "LAND_SPEED": Param(round(p.land_speed_mps * 100), mav.MAV_PARAM_TYPE_INT16),  # cm/s
         "DISARM_DELAY": Param(round(p.disarm_after_land_s), mav.MAV_PARAM_TYPE_INT8),
         "FS_GCS_ENABLE": Param(0, mav.MAV_PARAM_TYPE_INT8),

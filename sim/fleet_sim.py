@@ -30,7 +30,7 @@ from dronefleet.schemas.config_loading import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim.agent_command import agent_command, drone_agent_config, sensor_command, world_file
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
-from dronefleet.sim.mavlink_endpoint import AUTOPILOTS, MavlinkVehicle
+from dronefleet.sim.mavlink_endpoint import AUTOPILOTS, MavlinkVehicle, param_names
 from dronefleet.sim.radio import Spot3, spot_of
 from dronefleet.sim.radio_field import RadioField
 from dronefleet.sim.radio_net import die_with_parent, socket_in_netns
@@ -82,6 +82,15 @@ def autopilot_of(specs: list[DroneSpec], given: list[str] | None) -> dict[str, s
             for i, s in enumerate(specs)}
 
 
+def check_params(params: dict[str, float], autopilots: set[str]) -> None:
+    """`--param` names a parameter of at least one of the vehicles' autopilots."""
+    known = set().union(*(param_names(a) for a in autopilots))
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise ConfigError(f"--param {', '.join(unknown)}: no {' or '.join(sorted(autopilots))} vehicle here has it "
+                          f"(known: {', '.join(sorted(known))})")
+
+
 def status_line(v: SimVehicle) -> str:
     veh = v.endpoint.vehicle
     return (
@@ -105,12 +114,17 @@ async def run_sim(
     out: Callable[[str], None] = print,
     log_dir: Path | None = None,
     autopilots: list[str] | None = None,
+    params: dict[str, float] | None = None,
 ) -> None:
     """Run the world's vehicles (and with `agents`, an agent per vehicle, and with
     `radio`, each in its own namespace on the emulated radio) until cancelled. The
-    children's output goes to `log_dir/<name>.log` if given, else to ours."""
+    children's output goes to `log_dir/<name>.log` if given, else to ours. `params`
+    (`--param`) are set on every vehicle whose autopilot has them, as a ground station
+    would set them."""
     specs = world.spawn(n)
     makes = autopilot_of(specs, autopilots)
+    params = params or {}
+    check_params(params, set(makes.values()))
     vehicles: dict[str, SimVehicle] = {}
     tasks: list[asyncio.Task[None]] = []
     children: list[subprocess.Popen[bytes]] = []
@@ -138,6 +152,9 @@ async def run_sim(
 
             endpoint = MavlinkVehicle(vehicle, i + 1, [("127.0.0.1", port), *(extra_outputs or [])], on_change=on_change,
                                       autopilot=makes[spec.id])
+            for name, value in params.items():
+                if name in endpoint.params:
+                    endpoint.set_param(name, value)
             local = PX4_SITL_LOCAL + (0 if field else i) if base_port == PX4_SITL_BASE else 0
             sock = socket_in_netns(field.net.netns(spec.id)) if field else None
             await endpoint.start(("127.0.0.1", local), sock)

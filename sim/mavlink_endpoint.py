@@ -28,6 +28,7 @@ from pymavlink.dialects.v20 import common as mav
 
 from dronefleet.schemas.telemetry import MANUAL_MODES
 from dronefleet.sim import ardupilot
+from dronefleet.sim.autopilot_params import BY_AUTOPILOT, tune
 from dronefleet.sim.mission_protocol import MissionItem, MissionProtocol
 from dronefleet.sim.px4_params import default_params, param_name
 from dronefleet.sim.vehicle import Vehicle
@@ -72,6 +73,15 @@ DEFAULT_STREAMS: dict[int, float] = {
 @dataclass
 class EndpointStats:
     received: dict[str, int] = field(default_factory=dict)
+
+
+def param_names(autopilot: str) -> set[str]:
+    """The parameters a simulated `autopilot` keeps (a client may read and set them)."""
+    vehicle = Vehicle(0.0, 0.0, 0.0)
+    if autopilot == "ardupilot":
+        vehicle.params = ardupilot.tuned(vehicle.params)
+        return set(ardupilot.default_params(vehicle))
+    return set(default_params(vehicle))
 
 
 class MavlinkVehicle(asyncio.DatagramProtocol):
@@ -352,18 +362,17 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         self._apply_param(name, value)
         self._send_param(name)
 
+    def set_param(self, name: str, value: float) -> None:
+        """Set a parameter as a ground station's PARAM_SET would (`fleet sim --param`);
+        KeyError for a name this autopilot does not have."""
+        param = self.params[name]
+        param.value = float(round(value)) if param.kind != mav.MAV_PARAM_TYPE_REAL32 else value
+        self._apply_param(name, param.value)
+
     def _apply_param(self, name: str, value: float) -> None:
-        p = self.vehicle.params
-        if name == "MPC_XY_CRUISE":
-            self.vehicle.cruise_speed = value
-        elif name == "MIS_TAKEOFF_ALT":
-            p.takeoff_alt_m = value
-        elif name == "RTL_RETURN_ALT":
-            p.rtl_min_alt_m = value
-        elif name == "RTL_ALT":  # ArduCopter's, in centimetres
-            p.rtl_min_alt_m = value / 100
-        elif name == "WPNAV_SPEED":
-            self.vehicle.cruise_speed = value / 100
+        model = BY_AUTOPILOT["px4" if self.copter is None else "ardupilot"]
+        if name in model:
+            tune(self.vehicle, model, name, value)
         elif name == "FENCE_ENABLE":
             self.vehicle.fence = self._fence if value else []
 

@@ -37,7 +37,7 @@ NESTED = {
 async def test_flight_contract(
     agents: Callable[..., AgentProcess], operator: Callable[[str], Operator], flight_controller: str
 ) -> None:
-    agents("drone01", fc=flight_controller, return_altitude=10, acceptance_radius=0.5)
+    agents("drone01", fc=flight_controller, return_altitude=10, acceptance_radius=0.5, max_speed=10)
     op = operator("drone01")
 
     # Telemetry carries every SPEC field, at the configured 100 ms, once the flight
