@@ -15,8 +15,9 @@ fails with cause `security` and this side leaves its drones as a mission's end d
 memory, telemetry and the other missions are never at stake.
 
 The worker journals every frame it takes (mission.hosting.journal); this side keeps
-the journal in batches (`on_journal`), and a ground taking over from a lost one starts
-the worker with it (`resume`) so the mission goes on where it was (ADR 0017).
+the journal in batches (`on_journal`), and always before what the mission does goes
+out (write-ahead), and a ground taking over from a lost one starts the worker with it
+(`resume`) so the mission goes on where it was (ADR 0017).
 """
 
 from __future__ import annotations
