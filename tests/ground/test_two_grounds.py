@@ -223,4 +223,3 @@ async def test_a_ground_token_nothing_answers_for_does_not_make_the_active_groun
 
 async def _active_is(http: httpx.AsyncClient, ground_id: str) -> bool:
     return bool((await grounds(http)).get(ground_id, {}).get("active"))
-
