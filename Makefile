@@ -77,7 +77,7 @@ test: $(STAMP) sysdeps
 # Collected once first: the workers then find every test module's assertions rewritten
 # and every module the suite imports (1800, most of what a `fleet` process imports too)
 # compiled: each worker's collection takes 2.2 CPU-seconds instead of 4.2 in a fresh
-# clone. Two processes collect half the test folders each, on both cores (6 s instead of
+# clone. Two processes collect half the test folders each, on both cores (7 s instead of
 # 9 in a fresh clone; what both import is compiled twice at most). A collection error is
 # reported by the run that follows.
 pytest: $(STAMP)

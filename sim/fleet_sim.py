@@ -29,6 +29,7 @@ import msgspec
 from dronefleet.schemas.config_loading import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim.agent_command import agent_command, drone_agent_config, sensor_command, world_file
+from dronefleet.sim.autopilot_params import BY_AUTOPILOT, tune
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
 from dronefleet.sim.mavlink_endpoint import AUTOPILOTS, MavlinkVehicle, param_names
 from dronefleet.sim.radio import Spot3, spot_of
@@ -83,12 +84,21 @@ def autopilot_of(specs: list[DroneSpec], given: list[str] | None) -> dict[str, s
 
 
 def check_params(params: dict[str, float], autopilots: set[str]) -> None:
-    """`--param` names a parameter of at least one of the vehicles' autopilots."""
+    """`--param` names a parameter of at least one of the vehicles' autopilots, with a
+    value the vehicle can fly with."""
     known = set().union(*(param_names(a) for a in autopilots))
     unknown = sorted(set(params) - known)
     if unknown:
         raise ConfigError(f"--param {', '.join(unknown)}: no {' or '.join(sorted(autopilots))} vehicle here has it "
                           f"(known: {', '.join(sorted(known))})")
+    for name, value in params.items():
+        for autopilot in autopilots:
+            model = BY_AUTOPILOT[autopilot]
+            if name in model:
+                try:
+                    tune(Vehicle(0.0, 0.0, 0.0), model, name, value)
+                except ValueError as exc:
+                    raise ConfigError(f"--param {name}: {exc}") from None
 
 
 def status_line(v: SimVehicle) -> str:

@@ -358,16 +358,22 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
             value = float(struct.unpack("<i", struct.pack("<f", value))[0])
         elif param.kind != mav.MAV_PARAM_TYPE_REAL32:  # ArduPilot: the value cast to a float
             value = float(round(value))
-        param.value = value
-        self._apply_param(name, value)
+        try:
+            self._apply_param(name, value)
+        except ValueError as exc:  # kept as it was; the client reads the value back
+            log.warning("vehicle %d: PARAM_SET %s refused: %s", self.sysid, name, exc)
+        else:
+            param.value = value
         self._send_param(name)
 
     def set_param(self, name: str, value: float) -> None:
         """Set a parameter as a ground station's PARAM_SET would (`fleet sim --param`);
-        KeyError for a name this autopilot does not have."""
+        KeyError for a name this autopilot does not have, ValueError for a value the
+        vehicle cannot fly with."""
         param = self.params[name]
-        param.value = float(round(value)) if param.kind != mav.MAV_PARAM_TYPE_REAL32 else value
-        self._apply_param(name, param.value)
+        value = float(round(value)) if param.kind != mav.MAV_PARAM_TYPE_REAL32 else value
+        self._apply_param(name, value)
+        param.value = value
 
     def _apply_param(self, name: str, value: float) -> None:
         model = BY_AUTOPILOT["px4" if self.copter is None else "ardupilot"]

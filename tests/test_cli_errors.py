@@ -106,6 +106,8 @@ CASES = [
     ("sim: --param not NAME=VALUE", ["sim", "--param", "MPC_LAND_SPEED"], {2}, "NAME=VALUE"),
     ("sim: --param of another autopilot", ["sim", "-n", "1", "--param", "LAND_SPEED=100", "--base-port", "24540"], {2},
      "--param LAND_SPEED: no px4 vehicle"),
+    ("sim: --param speed not above 0", ["sim", "-n", "1", "--param", "MPC_LAND_SPEED=0", "--base-port", "24540"], {2},
+     "MPC_LAND_SPEED must be above 0"),
     ("agent: sim:// parameter not a number", ["agent", "--id", "d1", "--fc", "sim://?MPC_LAND_SPEED=fast"], {2}, "fast"),
     ("sensor: missing config", ["sensor", "temperature", "--drone", "d1", "--config", "{d}/missing.yml"], {2}, "missing.yml"),
     ("sensor simulate: no such field sensor", ["sensor", "simulate", "--world", "{d}/gas_world.yml", "--field", "gas99"], {2},

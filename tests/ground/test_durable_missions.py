@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -89,11 +92,21 @@ async def listen(bravo: GroundProcess, heard: Heard) -> ZenohBus:
     return mesh
 
 
-@pytest.mark.slow(60)
-async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed(tmp_path: Path) -> None:
-    alpha, bravo, agents = two_grounds_and_fleet(tmp_path, SPAWNS, max_speed=6)
+@dataclass
+class Rig:
+    alpha: GroundProcess  # to kill
+    a: httpx.AsyncClient  # alpha's API
+    b: httpx.AsyncClient  # bravo's
+    heard: Heard
+
+
+@asynccontextmanager
+async def two_grounds_ready(tmp_path: Path, spawns: dict[str, tuple[float, float]],
+                            max_speed: float) -> AsyncIterator[Rig]:
+    """Alpha active, bravo standby, a sim agent per spawn ready on both; every status
+    heard on the mesh. All stopped at the end, also on failure."""
+    alpha, bravo, agents = two_grounds_and_fleet(tmp_path, spawns, max_speed=max_speed)
     heard = Heard()
-    statuses = heard.statuses  # command id → what its drone said of it
     mesh: ZenohBus | None = None
     try:
         await alpha.ready()
@@ -101,54 +114,62 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
         mesh = await listen(bravo, heard)
         async with httpx.AsyncClient(base_url=alpha.url, timeout=10) as a, \
                 httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
-            for drone_id in SPAWNS:
+            for drone_id in spawns:
                 await wait_state(a, drone_id, "ready", 30)
                 await wait_state(b, drone_id, "ready", 30)
             await until(lambda: active(a, "alpha"), 20, "alpha active")
-            mission_id = await submit(a, SCRIPT, "durable")
-
-            def moved(drone_id: str) -> int:
-                return sum(1 for ss in statuses.values() for s in ss
-                           if s.drone_id == drone_id and s.command == "goto" and s.state == "finish")
-
-            await until(lambda: moved("drone01") >= 1, 60, "scout's first leg flown")
-
-            async def journal_copied() -> bool:  # the journal crosses the mesh as it is written
-                reply = await b.get(f"/ground/alpha/mission/{mission_id}")
-                return reply.status_code == 200 and reply.json()["status"] == "running"
-            await until(journal_copied, 10, "the running mission in bravo's copy")
-            killed = time.monotonic()
-            alpha.kill()
-            await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
-            took_s = time.monotonic() - killed
-            assert took_s < 5, f"bravo took {took_s:.1f} s to take over"
-
-            taken = f"alpha-{mission_id}"
-            done = await ended(b, taken, 120)
-            assert (done["status"], done["cause"]) == ("finished", "success"), done
-            messages = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
-            assert any(f"Mission {mission_id} of ground alpha goes on here as {taken}" in m for m in messages), messages
-            # The log as alpha wrote it, each line once: the replay writes alpha's lines
-            # again and bravo keeps only those its copy lacked.
-            for line in ("Mission started", "Assigned drone01 (drone 'drone01')", "Assigned drone02 (drone 'drone02')"):
-                assert messages.count(line) == 1, messages
-
-            # Each verb's command was run once: one end per command id, none started
-            # twice, and four legs each, as if alpha had never died.
-            heard.each_run_once()
-            assert moved("drone01") == LEGS and moved("drone02") == LEGS, dict(statuses)
-            for drone_id in ("drone01", "drone02"):
-                legs = [s.coords for s in heard.started(drone_id, "goto")]
-                assert len(legs) == LEGS and all(c is not None for c in legs), legs
-                start = SPAWNS[drone_id]
-                last = legs[-1]
-                assert last is not None
-                assert distance_m(start[0], start[1], last.lat, last.lon) == pytest.approx(LEGS * LEG_M, abs=2.0)
-            assert not [s for ss in statuses.values() for s in ss if s.drone_id == "drone03"], "drone03 was not asked"
+            yield Rig(alpha, a, b, heard)
     finally:
         if mesh is not None:
             await mesh.close()
         stop_all([*agents, bravo, alpha])
+
+
+@pytest.mark.slow(60)
+async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed(tmp_path: Path) -> None:
+    async with two_grounds_ready(tmp_path, SPAWNS, max_speed=6) as rig:
+        alpha, a, b, heard = rig.alpha, rig.a, rig.b, rig.heard
+        statuses = heard.statuses  # command id → what its drone said of it
+        mission_id = await submit(a, SCRIPT, "durable")
+
+        def moved(drone_id: str) -> int:
+            return sum(1 for ss in statuses.values() for s in ss
+                       if s.drone_id == drone_id and s.command == "goto" and s.state == "finish")
+
+        await until(lambda: moved("drone01") >= 1, 60, "scout's first leg flown")
+
+        async def journal_copied() -> bool:  # the journal crosses the mesh as it is written
+            reply = await b.get(f"/ground/alpha/mission/{mission_id}")
+            return reply.status_code == 200 and reply.json()["status"] == "running"
+        await until(journal_copied, 10, "the running mission in bravo's copy")
+        killed = time.monotonic()
+        alpha.kill()
+        await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
+        took_s = time.monotonic() - killed
+        assert took_s < 5, f"bravo took {took_s:.1f} s to take over"
+
+        taken = f"alpha-{mission_id}"
+        done = await ended(b, taken, 120)
+        assert (done["status"], done["cause"]) == ("finished", "success"), done
+        messages = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
+        assert any(f"Mission {mission_id} of ground alpha goes on here as {taken}" in m for m in messages), messages
+        # The log as alpha wrote it, each line once: the replay writes alpha's lines
+        # again and bravo keeps only those its copy lacked.
+        for line in ("Mission started", "Assigned drone01 (drone 'drone01')", "Assigned drone02 (drone 'drone02')"):
+            assert messages.count(line) == 1, messages
+
+        # Each verb's command was run once: one end per command id, none started
+        # twice, and four legs each, as if alpha had never died.
+        heard.each_run_once()
+        assert moved("drone01") == LEGS and moved("drone02") == LEGS, dict(statuses)
+        for drone_id in ("drone01", "drone02"):
+            legs = [s.coords for s in heard.started(drone_id, "goto")]
+            assert len(legs) == LEGS and all(c is not None for c in legs), legs
+            start = SPAWNS[drone_id]
+            last = legs[-1]
+            assert last is not None
+            assert distance_m(start[0], start[1], last.lat, last.lon) == pytest.approx(LEGS * LEG_M, abs=2.0)
+        assert not [s for ss in statuses.values() for s in ss if s.drone_id == "drone03"], "drone03 was not asked"
 
 
 
@@ -179,43 +200,29 @@ async def test_a_replacement_under_way_goes_on_on_the_standby(tmp_path: Path) ->
     on live while drone01 flew home, and failed `cmd_exec` sending it a leg once it had
     landed), the swap goes on with nothing started twice, and drone02 flies the
     interrupted leg and the rest."""
-    alpha, bravo, agents = two_grounds_and_fleet(tmp_path, REPLACEMENT_SPAWNS, max_speed=8)
-    heard = Heard()
-    mesh: ZenohBus | None = None
-    try:
-        await alpha.ready()
-        await bravo.ready()
-        mesh = await listen(bravo, heard)
-        async with httpx.AsyncClient(base_url=alpha.url, timeout=10) as a, \
-                httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
-            for drone_id in REPLACEMENT_SPAWNS:
-                await wait_state(b, drone_id, "ready", 30)
-            await until(lambda: active(a, "alpha"), 20, "alpha active")
-            mission_id = await submit(a, REPLACEMENT_SCRIPT, "replaced")
+    async with two_grounds_ready(tmp_path, REPLACEMENT_SPAWNS, max_speed=8) as rig:
+        alpha, a, b, heard = rig.alpha, rig.a, rig.b, rig.heard
+        mission_id = await submit(a, REPLACEMENT_SCRIPT, "replaced")
 
-            async def deciding() -> bool:  # alpha is killed while it swaps
-                log = (await a.get(f"/mission/{mission_id}")).json()["log"]
-                return any("to fly home" in line["message"] for line in log)
-            await until(deciding, 90, "the replacement plugin deciding to swap drone01")
-            alpha.kill()
-            await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
+        async def deciding() -> bool:  # alpha is killed while it swaps
+            log = (await a.get(f"/mission/{mission_id}")).json()["log"]
+            return any("to fly home" in line["message"] for line in log)
+        await until(deciding, 90, "the replacement plugin deciding to swap drone01")
+        alpha.kill()
+        await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
 
-            taken = f"alpha-{mission_id}"
-            done = await ended(b, taken, 120)
-            log = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
-            assert (done["status"], done["cause"]) == ("finished", "success"), (done, log)
-            assert any(m.startswith("Journal taken again") for m in log), log
-            heard.each_run_once()
-            # One swap, made once: drone01 then drone02 took off, each once, and drone02
-            # flew the last leg to where the plan ends (60 m north of drone01's spawn).
-            took_off = [s.drone_id for ss in heard.statuses.values() for s in ss
-                        if s.command == "takeoff" and s.state == "start"]
-            assert took_off == ["drone01", "drone02"], took_off
-            legs = [s.coords for s in heard.started("drone02", "goto") if s.coords is not None]
-            spawn = REPLACEMENT_SPAWNS["drone01"]
-            assert legs and distance_m(spawn[0], spawn[1], legs[-1].lat, legs[-1].lon) == pytest.approx(
-                REPLACED_LEGS * 10, abs=3.0), legs
-    finally:
-        if mesh is not None:
-            await mesh.close()
-        stop_all([*agents, bravo, alpha])
+        taken = f"alpha-{mission_id}"
+        done = await ended(b, taken, 120)
+        log = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
+        assert (done["status"], done["cause"]) == ("finished", "success"), (done, log)
+        assert any(m.startswith("Journal taken again") for m in log), log
+        heard.each_run_once()
+        # One swap, made once: drone01 then drone02 took off, each once, and drone02
+        # flew the last leg to where the plan ends (60 m north of drone01's spawn).
+        took_off = [s.drone_id for ss in heard.statuses.values() for s in ss
+                    if s.command == "takeoff" and s.state == "start"]
+        assert took_off == ["drone01", "drone02"], took_off
+        legs = [s.coords for s in heard.started("drone02", "goto") if s.coords is not None]
+        spawn = REPLACEMENT_SPAWNS["drone01"]
+        assert legs and distance_m(spawn[0], spawn[1], legs[-1].lat, legs[-1].lon) == pytest.approx(
+            REPLACED_LEGS * 10, abs=3.0), legs

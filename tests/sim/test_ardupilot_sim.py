@@ -4,7 +4,6 @@ sees it: the commands go over MAVLink, the vehicle model is stepped here (fast t
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import AsyncIterator
 
 import pytest
@@ -12,9 +11,7 @@ from pymavlink.dialects.v20 import common as mav2
 
 from dronefleet.sim import ardupilot
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
-from dronefleet.sim.vehicle import Vehicle
-from tests.mavlink_gcs import Gcs
-from tests.ports import free_udp_base
+from tests.mavlink_gcs import Gcs, answering_autopilot
 
 SPAWN = (40.633490, -8.660815, 8.2)
 
@@ -22,15 +19,8 @@ SPAWN = (40.633490, -8.660815, 8.2)
 @pytest.fixture
 async def copter() -> AsyncIterator[tuple[MavlinkVehicle, Gcs]]:
     """One simulated ArduCopter answering a ground station; nobody steps it but the test."""
-    endpoint = MavlinkVehicle(Vehicle(*SPAWN), 1, [("127.0.0.1", free_udp_base(1))], autopilot="ardupilot")
-    await endpoint.start(("127.0.0.1", 0))
-    transport, gcs = await asyncio.get_running_loop().create_datagram_endpoint(
-        Gcs, remote_addr=("127.0.0.1", endpoint.local_port))
-    try:
-        yield endpoint, gcs
-    finally:
-        transport.close()
-        endpoint.close()
+    async with answering_autopilot("ardupilot", SPAWN) as pair:
+        yield pair
 
 
 async def command(gcs: Gcs, cmd: int, *params: float) -> tuple[int, list[str]]:

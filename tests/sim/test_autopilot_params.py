@@ -4,7 +4,6 @@ sim's URL: the vehicle then flies as the real autopilot would with them."""
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import AsyncIterator
 
 import pytest
@@ -16,8 +15,7 @@ from dronefleet.sim import ardupilot
 from dronefleet.sim.fleet_sim import check_params
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.vehicle import Vehicle
-from tests.mavlink_gcs import Gcs
-from tests.ports import free_udp_base
+from tests.mavlink_gcs import Gcs, answering_autopilot
 
 SPAWN = (40.633490, -8.660815, 8.2)
 ACCEPTED = mav2.MAV_RESULT_ACCEPTED
@@ -25,16 +23,9 @@ ACCEPTED = mav2.MAV_RESULT_ACCEPTED
 
 @pytest.fixture(params=["px4", "ardupilot"])
 async def vehicle(request: pytest.FixtureRequest) -> AsyncIterator[tuple[MavlinkVehicle, Gcs]]:
-    """One simulated autopilot answering a ground station; nobody steps it but the test."""
-    endpoint = MavlinkVehicle(Vehicle(*SPAWN), 1, [("127.0.0.1", free_udp_base(1))], autopilot=request.param)
-    await endpoint.start(("127.0.0.1", 0))
-    transport, gcs = await asyncio.get_running_loop().create_datagram_endpoint(
-        Gcs, remote_addr=("127.0.0.1", endpoint.local_port))
-    try:
-        yield endpoint, gcs
-    finally:
-        transport.close()
-        endpoint.close()
+    """One simulated autopilot of each kind answering a ground station."""
+    async with answering_autopilot(request.param, SPAWN) as pair:
+        yield pair
 
 
 async def command(gcs: Gcs, cmd: int, *params: float) -> int:
@@ -99,3 +90,12 @@ def test_the_built_in_sims_url_takes_px4_parameters() -> None:
     assert vehicle.params.land_speed_mps == 1.4 and vehicle.cruise_speed == 8.0
     with pytest.raises(ConfigError, match="LAND_SPEED"):
         parse_sim_url("sim://?LAND_SPEED=140")
+
+
+async def test_a_speed_of_zero_set_over_mavlink_is_refused_and_read_back_unchanged(vehicle) -> None:
+    endpoint, gcs = vehicle
+    name = LANDING["px4" if endpoint.copter is None else "ardupilot"][0]
+    before = endpoint.params[name].value
+    set_to = gcs.mav.param_set_encode(1, 1, name.encode(), 0.0, endpoint.params[name].kind)
+    assert (await gcs.ask(set_to, "PARAM_VALUE")).param_value == pytest.approx(before)
+    assert endpoint.vehicle.params.land_speed_mps > 0
