@@ -86,8 +86,7 @@ def sim_and_agent(agents: Callable[..., AgentProcess], tmp_path: Path) -> Iterat
 async def test_simulator_killed_mid_flight_disconnects_then_reconnects(sim_and_agent, operator) -> None:
     sim, _ = sim_and_agent
     op = operator("drone01")
-    await airborne(op)
-    await op.system("connect", 5)
+    await airborne(op)  # connected: its first `connect` may have gone out before this operator listened
     sim.stop(signal.SIGKILL)
     await op.system("disconnect", 15)  # a liveness deadline: the agent notices the silence
     after_disconnect = len(op.status.items)
