@@ -41,12 +41,6 @@ def signal_and_wait(proc: subprocess.Popen[Any], sig: int, timeout_s: float, nam
         raise AssertionError(f"{name} did not stop within {timeout_s:g} s on {signal.Signals(sig).name}") from None
 
 
-def in_netns(netns: str | None, command: list[str]) -> list[str]:
-    """`command` run in network namespace `netns` (`ip netns exec` execs it: the child's
-    pid is the command's), or as it is."""
-    return command if netns is None else ["ip", "netns", "exec", netns, *command]
-
-
 def fleet_command(*args: str) -> list[str]:
     """`fleet …` through the installed console script next to this interpreter."""
     script = Path(sys.executable).with_name("fleet")
@@ -124,17 +118,14 @@ def stop_all(children: Iterable[ChildProcess]) -> None:
 class AgentProcess(ChildProcess):
     """`fleet agent` as a child process."""
 
-    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (),
-                 netns: str | None = None, **config: Any) -> None:
-        """`netns`: run it in that network namespace (`ip netns exec`)."""
+    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
         config.setdefault("listen", [f"{endpoint.split('/')[0]}/127.0.0.1:0"])  # tls/… on a secured mesh
         self.drone_id = self.name = drone_id
         cfg = tmp / f"{drone_id}.yml"
         # Each agent's own router on an ephemeral loopback port: several share this host.
         cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, "listen": ["tcp/127.0.0.1:0"], **config}))
         super().__init__(
-            in_netns(netns, fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc,
-                                          "--connect", endpoint, *extra_args)),
+            fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args),
             tmp / f"{drone_id}.log",
         )
 
@@ -232,10 +223,8 @@ class GroundProcess(ChildProcess):
 
     def __init__(
         self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), *,
-        zenoh_host: str = "127.0.0.1", scheme: str = "tcp", netns: str | None = None, **config: Any,
+        zenoh_host: str = "127.0.0.1", scheme: str = "tcp", **config: Any,
     ) -> None:
-        """`netns`: run it in that network namespace (its HTTP API is then on that
-        namespace's loopback)."""
         self.zenoh_port = free_port()
         self.http_port = free_port()
         self.endpoint = f"{scheme}/{zenoh_host}:{self.zenoh_port}"
@@ -247,10 +236,10 @@ class GroundProcess(ChildProcess):
         config = {**config, "mission": {"preflight": False, **config.get("mission", {})}}
         cfg.write_text(yaml.safe_dump(config))
         super().__init__(
-            in_netns(netns, fleet_command(
+            fleet_command(
                 "-v", "ground", "--config", str(cfg), "--listen", self.endpoint,
                 "--http-port", str(self.http_port), "--data-dir", str(self.data_dir), *extra_args,
-            )),
+            ),
             tmp / f"ground-{self.http_port}.log",
         )
 
