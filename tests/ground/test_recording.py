@@ -27,7 +27,7 @@ from dronefleet.compose import simulate
 from dronefleet.schemas.codec import encode
 from dronefleet.schemas.telemetry import Position, Telemetry
 from dronefleet.sim.world import load_world
-from tests.harness import ChildProcess, GroundFleet, GroundProcess, fleet_command
+from tests.harness import ChildProcess, GroundFleet, GroundProcess, fleet_command, stop_all
 from tests.waiting import until
 
 EXAMPLES = Path(__file__).parents[2] / "examples"
@@ -269,9 +269,10 @@ async def test_record_a_sim_flight_then_replay_it_into_a_fresh_ground(tmp_path: 
             assert again[drone_id]["info"] == original[drone_id]["info"] | {"mission": None}, drone_id
             assert again[drone_id]["telem"] == last_telem[drone_id]
     finally:
-        for process in reversed(started):
-            process.stop()
-        fleet.stop()
+        try:
+            stop_all(reversed(started))  # every one, also when one will not stop
+        finally:
+            fleet.stop()
 
 
 async def test_a_recorder_that_joins_a_running_recording_is_told_which_tokens_are_alive(tmp_path: Path) -> None:

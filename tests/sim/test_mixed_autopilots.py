@@ -70,5 +70,7 @@ async def test_a_px4_and_an_ardupilot_drone_fly_one_mission_with_a_channel_and_a
         log = (tmp_path / f"sim-{sim.base_port}.log").read_text()
         assert "(ardupilot)" in log  # drone02's status lines name ArduCopter's modes
     finally:
-        fleet.stop()
-        sim.stop()
+        try:
+            fleet.stop()
+        finally:  # the simulator too, also when an agent would not stop
+            sim.stop()
