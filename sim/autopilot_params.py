@@ -35,12 +35,19 @@ ARDUPILOT: Model = {
 BY_AUTOPILOT: dict[str, Model] = {"px4": PX4, "ardupilot": ARDUPILOT}
 
 
-def tune(vehicle: Vehicle, model: Model, name: str, value: float) -> None:
-    """Set the vehicle model's setting that parameter `name` of `model` stands for;
-    ValueError for a speed that is not above 0 (the vehicle would never get there)."""
-    field, unit = model[name]
+def check(model: Model, name: str, value: float) -> None:
+    """ValueError for a value of parameter `name` the vehicle cannot fly with: a speed
+    that is not above 0 (the vehicle would never get there)."""
+    field, _ = model[name]
     if field.endswith("_mps") and not value > 0:
         raise ValueError(f"{name} must be above 0, not {value:g}")
+
+
+def tune(vehicle: Vehicle, model: Model, name: str, value: float) -> None:
+    """Set the vehicle model's setting that parameter `name` of `model` stands for
+    (ValueError as `check`)."""
+    check(model, name, value)
+    field, unit = model[name]
     setattr(vehicle.params, field, value * unit)
     if field == "cruise_speed_mps":
         vehicle.cruise_speed = value * unit

@@ -29,7 +29,7 @@ import msgspec
 from dronefleet.schemas.config_loading import Security, read_yaml
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim.agent_command import agent_command, drone_agent_config, sensor_command, world_file
-from dronefleet.sim.autopilot_params import BY_AUTOPILOT, tune
+from dronefleet.sim.autopilot_params import BY_AUTOPILOT, check
 from dronefleet.sim.faults import FaultChannel, apply_fault, open_fault_channel
 from dronefleet.sim.mavlink_endpoint import AUTOPILOTS, MavlinkVehicle, param_names
 from dronefleet.sim.radio import Spot3, spot_of
@@ -93,10 +93,9 @@ def check_params(params: dict[str, float], autopilots: set[str]) -> None:
                           f"(known: {', '.join(sorted(known))})")
     for name, value in params.items():
         for autopilot in autopilots:
-            model = BY_AUTOPILOT[autopilot]
-            if name in model:
+            if name in BY_AUTOPILOT[autopilot]:
                 try:
-                    tune(Vehicle(0.0, 0.0, 0.0), model, name, value)
+                    check(BY_AUTOPILOT[autopilot], name, value)
                 except ValueError as exc:
                     raise ConfigError(f"--param {name}: {exc}") from None
 

@@ -356,20 +356,17 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         value = msg.param_value
         if param.kind == mav.MAV_PARAM_TYPE_INT32 and self.copter is None:  # PX4 bytewise encoding
             value = float(struct.unpack("<i", struct.pack("<f", value))[0])
-        elif param.kind != mav.MAV_PARAM_TYPE_REAL32:  # ArduPilot: the value cast to a float
-            value = float(round(value))
         try:
-            self._apply_param(name, value)
+            self.set_param(name, value)
         except ValueError as exc:  # kept as it was; the client reads the value back
             log.warning("vehicle %d: PARAM_SET %s refused: %s", self.sysid, name, exc)
-        else:
-            param.value = value
         self._send_param(name)
 
     def set_param(self, name: str, value: float) -> None:
-        """Set a parameter as a ground station's PARAM_SET would (`fleet sim --param`);
-        KeyError for a name this autopilot does not have, ValueError for a value the
-        vehicle cannot fly with."""
+        """Set a parameter as a ground station's PARAM_SET does (`fleet sim --param`);
+        an integer parameter takes the value rounded (ArduPilot casts it). KeyError for a
+        name this autopilot does not have, ValueError for a value the vehicle cannot fly
+        with (the parameter keeps its value)."""
         param = self.params[name]
         value = float(round(value)) if param.kind != mav.MAV_PARAM_TYPE_REAL32 else value
         self._apply_param(name, value)
