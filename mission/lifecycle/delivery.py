@@ -79,7 +79,7 @@ class MissionSide(Protocol):
     def fail(self, cause: str, message: str) -> MissionOver: ...
     def setback(self, cause: str, message: str) -> MissionOver: ...
     def check_assigned(self, drone_id: str) -> None: ...
-    def catch_up(self, pending: PendingBundle) -> None: ...
+    def catch_up(self, pending: PendingBundle, *, superseded: str | None = None) -> None: ...
     async def next_telemetry(self, drone_id: str) -> None: ...
 
 
@@ -214,7 +214,7 @@ class CommandDelivery:
         except (CommandRejected, InvalidMessage, Unreachable) as exc:
             log.info("mission %s: %s: a leg toward the chain's edge was not taken (%s)", self.mission.id, drone_id, exc)
             return False
-        self._bundles_ended_by(drone_id)
+        self._bundles_ended_by(drone_id, "goto")
         return True
 
     async def _execute_once(self, drone_id: str, name: str, body: dict[str, Any], *, wait: bool,
@@ -232,7 +232,7 @@ class CommandDelivery:
                 payload = json.dumps({**body, "command_id": command_id}).encode()
                 await self._deliver(drone_id, name, lambda: self.mission.station.command(drone_id, payload, self.mission.id), wait_clear,
                                     take_back)
-                self._bundles_ended_by(drone_id)
+                self._bundles_ended_by(drone_id, name)
                 if not wait:
                     return None
                 self.sent[command_id].accepted = self.clock.monotonic()
@@ -321,7 +321,7 @@ class CommandDelivery:
             with self._sending("push", drone_id):
                 payload = json.dumps({**body, "bundle_id": bundle_id}).encode()
                 reply = await self._deliver(drone_id, "push", lambda: self.mission.station.push(drone_id, payload, self.mission.id))
-                self._bundles_ended_by(drone_id, bundle_id)
+                self._bundles_ended_by(drone_id, "push", bundle_id)
                 if reply.reason:  # a push sent again that the agent had taken: its end may have gone by
                     self.mission.catch_up(pending)
                 overdue = asyncio.ensure_future(self._overdue(pending))
@@ -342,14 +342,18 @@ class CommandDelivery:
             self.mission.catch_up(pending)
             await self.clock.sleep(OVERDUE_RETRY_S)
 
-    def _bundles_ended_by(self, drone_id: str, newer: str | None = None) -> None:
-        """A command or bundle the drone accepted ends the bundle it was running (SPEC §6).
-        Its own end may have gone down with a link that dropped (a relay's duty bundle:
-        its routine waited for that end until the time limit): the agent's record of
-        every bundle of this mission still running there is read again."""
+    def _bundles_ended_by(self, drone_id: str, name: str, newer: str | None = None) -> None:
+        """A command (`name`) or bundle (`newer`) the drone accepted ends the bundle it was
+        running (SPEC §6). Its own end may have gone down with a link that dropped (a
+        relay's duty bundle: its routine waited for that end until the time limit): the
+        agent's record of every bundle of this mission still running there is read
+        again, and if it cannot be read, the bundle is known cancelled all the same (a
+        relay sent home across a flapping link: its duty bundle held the mission open
+        for its 420 s time limit)."""
+        why = f"superseded by bundle {newer}" if newer is not None else f"{name} from the ground"
         for pending in list(self.bundles.values()):
             if pending.drone_id == drone_id and pending.bundle_id != newer and not pending.done.done():
-                self.mission.catch_up(pending)
+                self.mission.catch_up(pending, superseded=why)
 
     @contextlib.contextmanager
     def _sending(self, name: str, drone_id: str) -> Iterator[None]:

@@ -294,9 +294,11 @@ class Mission:
         if pending is not None and status.ends_bundle:
             self.catch_up(pending, status)
 
-    def catch_up(self, pending: PendingBundle, status: BundleStatus | None = None) -> None:
+    def catch_up(self, pending: PendingBundle, status: BundleStatus | None = None, *, superseded: str | None = None) -> None:
         """Ask the agent for the bundle's record (its whole history); resolve the push
-        if the bundle has ended. Statuses sent while the link was down never arrived."""
+        if the bundle has ended. Statuses sent while the link was down never arrived.
+        An end known without its record (`status` heard, or `superseded`: the drone
+        accepted what ends it, and why) resolves the push once the record stays unread."""
         async def ask() -> None:
             for attempt in range(1, RECORD_TRIES + 1):
                 try:
@@ -308,6 +310,11 @@ class Mission:
                     if attempt < RECORD_TRIES:  # a route just back may carry statuses before queries
                         await self.clock.sleep(RECORD_RETRY_S)
                         continue
+                    if superseded is not None:
+                        self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} ({exc}); "
+                                         f"it was cancelled: {superseded}")
+                        record = BundleRecord(bundle_id=pending.bundle_id, state="cancelled", reason=superseded)
+                        break
                     if status is None:
                         self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
                         return

@@ -378,6 +378,37 @@ async def test_a_bundle_record_the_ground_cannot_read_yet_is_asked_again(failure
     assert len(calls) == min(failures + 1, 10)
 
 
+async def test_a_bundle_a_command_ended_returns_cancelled_though_its_end_and_record_were_lost() -> None:
+    """A relay sent home across a flapping link: the command that sent it home ended its
+    duty bundle, whose `cancel` went down with the link, and no query reached the drone
+    to read the record. The duty bundle's push held the mission open for its time
+    limit. The accepted command is the end: once the record stays unread, the push
+    returns the bundle cancelled and the log says why."""
+    buses: list[FaultyBus] = []
+
+    def bundle_end(key: str, payload: bytes) -> bool:
+        status = json.loads(payload)
+        return key.endswith("/status") and "bundle_id" in status and status.get("state") == "cancel"
+
+    def lossy(drone_id: str, bus: Bus) -> Bus:
+        buses.append(FaultyBus(bus, lose=bundle_end))
+        return buses[-1]
+
+    async def unreachable(original: Callable[[str, str], Awaitable[Any]], drone_id: str, bundle_id: str) -> Any:
+        raise Unreachable(f"no queryable answers drone/{drone_id}/bundle (test)")
+
+    script = ('d = assign("drone01")\narm(d)\ntakeoff(d, 10*m)\n'
+              'duty = run(lambda: push(d, [step.move(forward=5*m), step.wait(600*s)]))\n'
+              'sleep(10*s)\nhome(d)\nwait(duty)\nprint(f"duty: {duty.result.state}: {duty.result.reason}")\n')
+    record, _, lines = await fly(script, world_with(), max_s=300, agent_bus=lossy,
+                                 fleet_port=inject(bundle_record=unreachable))
+    assert sum(len(bus.lost) for bus in buses) == 1, "the scenario never lost the bundle's end"
+    assert cause(record) == ("finished", "success"), (record, lines)
+    assert "duty: cancelled: return from the ground" in lines, lines
+    assert any(line.startswith("drone01: could not read bundle ") and line.endswith("it was cancelled: return from the ground")
+               for line in lines), lines
+
+
 @pytest.mark.parametrize(("failures", "ends"), [(2, ("finished", "success")), (3, ("failed", "cmd_exec"))])
 async def test_an_unanswered_command_is_sent_again_once_the_drone_is_heard_not_at_once(
         failures: int, ends: tuple[str, str]) -> None:
