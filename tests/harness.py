@@ -8,7 +8,7 @@ import os
 import signal
 import subprocess
 import sys
-from collections.abc import AsyncIterator, Iterable, Sequence
+from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,12 @@ def signal_and_wait(proc: subprocess.Popen[Any], sig: int, timeout_s: float, nam
         proc.kill()
         proc.wait()
         raise AssertionError(f"{name} did not stop within {timeout_s:g} s on {signal.Signals(sig).name}") from None
+
+
+def in_netns(netns: str | None, command: list[str]) -> list[str]:
+    """`command` run in network namespace `netns` (`ip netns exec` execs it: the child's
+    pid is the command's), or as it is."""
+    return command if netns is None else ["ip", "netns", "exec", netns, *command]
 
 
 def fleet_command(*args: str) -> list[str]:
@@ -72,14 +78,16 @@ class ChildProcess:
 
     name = "process"
 
-    def __init__(self, args: list[str], log: Path) -> None:
+    def __init__(self, args: list[str], log: Path, env: Mapping[str, str] | None = None) -> None:
+        """`env`: variables set for the child on top of this process's environment."""
         self.args = args
         self.log = log
+        self.env = None if env is None else {**os.environ, **env}
         self.proc = self._spawn()
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         with open(self.log, "ab") as out:  # the child holds its own copy of the descriptor
-            return subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
+            return subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=REPO, env=self.env)
 
     def start(self) -> None:
         """Start it again (after a stop or a kill)."""
@@ -118,14 +126,17 @@ def stop_all(children: Iterable[ChildProcess]) -> None:
 class AgentProcess(ChildProcess):
     """`fleet agent` as a child process."""
 
-    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (), **config: Any) -> None:
+    def __init__(self, drone_id: str, endpoint: str, tmp: Path, fc: str = "sim", extra_args: Sequence[str] = (),
+                 netns: str | None = None, **config: Any) -> None:
+        """`netns`: run it in that network namespace (`ip netns exec`)."""
         config.setdefault("listen", [f"{endpoint.split('/')[0]}/127.0.0.1:0"])  # tls/… on a secured mesh
         self.drone_id = self.name = drone_id
         cfg = tmp / f"{drone_id}.yml"
         # Each agent's own router on an ephemeral loopback port: several share this host.
         cfg.write_text(yaml.safe_dump({"telemetry_rate_ms": 100, "listen": ["tcp/127.0.0.1:0"], **config}))
         super().__init__(
-            fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc, "--connect", endpoint, *extra_args),
+            in_netns(netns, fleet_command("-v", "agent", "--id", drone_id, "--config", str(cfg), "--fc", fc,
+                                          "--connect", endpoint, *extra_args)),
             tmp / f"{drone_id}.log",
         )
 
@@ -223,8 +234,11 @@ class GroundProcess(ChildProcess):
 
     def __init__(
         self, tmp: Path, data_dir: Path | None = None, extra_args: Sequence[str] = (), *,
-        zenoh_host: str = "127.0.0.1", scheme: str = "tcp", **config: Any,
+        zenoh_host: str = "127.0.0.1", scheme: str = "tcp", netns: str | None = None,
+        env: Mapping[str, str] | None = None, **config: Any,
     ) -> None:
+        """`netns`: run it in that network namespace (its HTTP API is then on that
+        namespace's loopback)."""
         self.zenoh_port = free_port()
         self.http_port = free_port()
         self.endpoint = f"{scheme}/{zenoh_host}:{self.zenoh_port}"
@@ -236,11 +250,12 @@ class GroundProcess(ChildProcess):
         config = {**config, "mission": {"preflight": False, **config.get("mission", {})}}
         cfg.write_text(yaml.safe_dump(config))
         super().__init__(
-            fleet_command(
+            in_netns(netns, fleet_command(
                 "-v", "ground", "--config", str(cfg), "--listen", self.endpoint,
                 "--http-port", str(self.http_port), "--data-dir", str(self.data_dir), *extra_args,
-            ),
+            )),
             tmp / f"ground-{self.http_port}.log",
+            env,
         )
 
     async def ready(self, timeout_s: float = 45) -> None:
