@@ -65,7 +65,7 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
           kind: str | None, roles: tuple[str, ...]) -> None:
     """Run the on-drone agent: flight controller <-> Zenoh mesh."""
     from dronefleet.agent.config import AgentConfig, default_state_dir
-    from dronefleet.agent.runtime import run_agent
+    from dronefleet.agent.runtime import STOP_GRACE_S, run_agent
     from dronefleet.schemas.config_loading import load_config
     config = load_config(
         AgentConfig, config_path,
@@ -77,7 +77,7 @@ def agent(drone_id: str, config_path: Path | None, fc: str | None, connect: tupl
         import msgspec
 
         config = msgspec.structs.replace(config, state_dir=default_state_dir(drone_id))
-    run_async(run_agent(drone_id, config))
+    run_async(run_agent(drone_id, config), stop_grace_s=STOP_GRACE_S)
 
 
 @main.command()

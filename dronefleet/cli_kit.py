@@ -5,6 +5,7 @@ coroutine until Ctrl-C, log levels, PKI options."""
 from __future__ import annotations
 
 import asyncio
+import faulthandler
 import signal
 import sys
 from collections.abc import Coroutine
@@ -66,16 +67,27 @@ def with_pki(f: Any) -> Any:
     return f
 
 
-def run_async(main: Coroutine[Any, Any, Any]) -> Any:
+def run_async(main: Coroutine[Any, Any, Any], stop_grace_s: float | None = None) -> Any:
     """Run `main` until done, Ctrl-C or SIGTERM; both cancel it so `finally` blocks run.
-    A loop blocked for over a second is logged with where it is (bus/loop_watch.py)."""
+    A loop blocked for over a second is logged with where it is (bus/loop_watch.py).
+
+    `stop_grace_s`: a process told to stop by SIGTERM that is still there this long
+    after prints every thread's stack and exits 1 (faulthandler's watchdog, a C thread:
+    it fires even if a thread holds the GIL or a native call never returns). A
+    supervisor's stop then ends the process, and says where its clean-up hung."""
     context = click.get_current_context(silent=True)
     name = context.command_path if context is not None else "fleet"
 
     async def wrapper() -> Any:
         task = asyncio.current_task()
         assert task is not None
-        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, task.cancel)
+
+        def stop() -> None:
+            if stop_grace_s is not None:
+                faulthandler.dump_traceback_later(stop_grace_s, exit=True)
+            task.cancel()
+
+        asyncio.get_running_loop().add_signal_handler(signal.SIGTERM, stop)
         watch = LoopWatch(name)
         try:
             return await main
