@@ -125,6 +125,32 @@ async def two_grounds_ready(tmp_path: Path, spawns: dict[str, tuple[float, float
         stop_all([*agents, bravo, alpha])
 
 
+async def finished_on_bravo_when_killed_at(rig: Rig, script: str, says: str, what: str) -> list[str]:
+    """Submit `script` to alpha, kill alpha as soon as the mission's log has a line
+    with `says` in it; the mission finishes on bravo from the journal, each command run
+    once. Bravo's log of it."""
+    mission_id = await submit(rig.a, script, "taken over")
+
+    async def said() -> bool:
+        log = (await rig.a.get(f"/mission/{mission_id}")).json()["log"]
+        return any(says in line["message"] for line in log)
+    await until(said, 90, what)
+    rig.alpha.kill()
+    await until(lambda: active(rig.b, "bravo"), 10, "bravo active after alpha died")
+    taken = f"alpha-{mission_id}"
+    done = await ended(rig.b, taken, 120)
+    log = [line["message"] for line in (await rig.b.get(f"/mission/{taken}")).json()["log"]]
+    assert (done["status"], done["cause"]) == ("finished", "success"), (done, log)
+    assert any(m.startswith("Journal taken again") for m in log), log
+    rig.heard.each_run_once()
+    return log
+
+
+def took_off(heard: Heard) -> list[str]:
+    """The drones that took off, in order, once per takeoff."""
+    return [s.drone_id for ss in heard.statuses.values() for s in ss if s.command == "takeoff" and s.state == "start"]
+
+
 @pytest.mark.slow(60)
 async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed(tmp_path: Path) -> None:
     async with two_grounds_ready(tmp_path, SPAWNS, max_speed=6) as rig:
@@ -201,28 +227,45 @@ async def test_a_replacement_under_way_goes_on_on_the_standby(tmp_path: Path) ->
     landed), the swap goes on with nothing started twice, and drone02 flies the
     interrupted leg and the rest."""
     async with two_grounds_ready(tmp_path, REPLACEMENT_SPAWNS, max_speed=8) as rig:
-        alpha, a, b, heard = rig.alpha, rig.a, rig.b, rig.heard
-        mission_id = await submit(a, REPLACEMENT_SCRIPT, "replaced")
-
-        async def deciding() -> bool:  # alpha is killed while it swaps
-            log = (await a.get(f"/mission/{mission_id}")).json()["log"]
-            return any("to fly home" in line["message"] for line in log)
-        await until(deciding, 90, "the replacement plugin deciding to swap drone01")
-        alpha.kill()
-        await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
-
-        taken = f"alpha-{mission_id}"
-        done = await ended(b, taken, 120)
-        log = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
-        assert (done["status"], done["cause"]) == ("finished", "success"), (done, log)
-        assert any(m.startswith("Journal taken again") for m in log), log
-        heard.each_run_once()
+        await finished_on_bravo_when_killed_at(rig, REPLACEMENT_SCRIPT, "to fly home",
+                                               "the replacement plugin deciding to swap drone01")
+        heard = rig.heard
         # One swap, made once: drone01 then drone02 took off, each once, and drone02
         # flew the last leg to where the plan ends (60 m north of drone01's spawn).
-        took_off = [s.drone_id for ss in heard.statuses.values() for s in ss
-                    if s.command == "takeoff" and s.state == "start"]
-        assert took_off == ["drone01", "drone02"], took_off
+        assert took_off(heard) == ["drone01", "drone02"], took_off(heard)
         legs = [s.coords for s in heard.started("drone02", "goto") if s.coords is not None]
         spawn = REPLACEMENT_SPAWNS["drone01"]
         assert legs and distance_m(spawn[0], spawn[1], legs[-1].lat, legs[-1].lon) == pytest.approx(
             REPLACED_LEGS * 10, abs=3.0), legs
+
+
+RELAY_SPAWNS = {"drone01": HOME, "drone02": destination(*HOME, 8, 90), "drone03": destination(*HOME, 16, 90)}
+RELAYED_SCRIPT = f'''enable("relay", mode="distance", target_dist=12*m, ground=[{HOME[0]}, {HOME[1]}])
+d = assign("drone01")
+arm(d)
+takeoff(d, 6*m)
+move(d, forward=24*m, speed=8*m/s)  # past target_dist: a relay follows it
+sleep(4*s)
+move(d, backward=24*m, speed=8*m/s)
+land(d)
+'''
+
+
+@pytest.mark.slow(60)
+async def test_a_relay_on_its_way_stays_one_relay_on_the_standby(tmp_path: Path) -> None:
+    """The relay plugin sends a relay after drone01 as it flies past `target_dist`
+    (distance mode: geometry alone, where loopback's perfect links would give the
+    other modes nothing to relay); alpha is killed as soon as its log names the relay.
+    On bravo the replay makes the same decision from the same journalled telemetry:
+    one relay, which takes off once, follows, and is sent home once, when drone01 is
+    back; nothing is started twice."""
+    async with two_grounds_ready(tmp_path, RELAY_SPAWNS, max_speed=8) as rig:
+        log = await finished_on_bravo_when_killed_at(rig, RELAYED_SCRIPT, "following drone01",
+                                                     "the relay plugin sending a relay after drone01")
+        heard = rig.heard
+        flown = took_off(heard)
+        assert len(flown) == 2 and flown[0] == "drone01" and flown[1] in ("drone02", "drone03"), flown
+        relay = flown[1]
+        assert sum(m.startswith(f"{relay}: following drone01") for m in log) == 1, log
+        assert sum(f"{relay}: relay no longer needed, returning" in m for m in log) == 1, log
+        assert len(heard.started(relay, "takeoff")) == 1 and len(heard.started(relay, "return")) == 1, dict(heard.statuses)
