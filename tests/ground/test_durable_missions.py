@@ -87,7 +87,7 @@ class Heard:
 
 
 async def listen(bravo: GroundProcess, heard: Heard) -> ZenohBus:
-    mesh = await ZenohBus.open("peer", connect=[bravo.endpoint], wait=True)  # a client on bravo hears nothing (see the closing note)
+    mesh = await ZenohBus.open("client", connect=[bravo.endpoint], wait=True)
     mesh.subscribe(Keys().status(), heard, maxsize=100_000)
     return mesh
 
