@@ -50,8 +50,8 @@ log = logging.getLogger(__name__)
 FC_CONNECT_TIMEOUT_S = 8.0
 # Told to stop (SIGTERM), the agent closes its Zenoh session (2 s at most, CLOSE_WAIT_S)
 # and its MAVSDK instance; still there after this long, it prints every thread's stack
-# and exits 1 (cli_kit.run_async). Twice in about 30 suites an agent outlived the
-# tests' 10 s wait with a log that ended normally.
+# and exits 1 (cli_kit.run_async): a clean-up stuck in a native call must not keep a
+# supervisor's stop waiting, and its stacks say where it is stuck.
 STOP_GRACE_S = 8.0
 LOST_LINK_TICK_S = 0.2
 # On the ground no failsafe or fence return is taken, only the link warning (then up to a
