@@ -238,11 +238,12 @@ class GroundProcess(ChildProcess):
         env: Mapping[str, str] | None = None, **config: Any,
     ) -> None:
         """`netns`: run it in that network namespace (its HTTP API is then on that
-        namespace's loopback)."""
+        namespace's loopback, unless config `http_host` puts it on an address this
+        namespace reaches)."""
         self.zenoh_port = free_port()
         self.http_port = free_port()
         self.endpoint = f"{scheme}/{zenoh_host}:{self.zenoh_port}"
-        self.url = f"http://127.0.0.1:{self.http_port}"
+        self.url = f"http://{config.get('http_host', '127.0.0.1')}:{self.http_port}"
         self.data_dir = data_dir or tmp / "ground-data"
         cfg = tmp / f"ground-{self.http_port}.yml"
         # Missions here are tested for how they fly; each submission's preflight (fast time
