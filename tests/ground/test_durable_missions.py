@@ -245,7 +245,7 @@ d = assign("drone01")
 arm(d)
 takeoff(d, 6*m)
 move(d, forward=24*m, speed=8*m/s)  # past target_dist: a relay follows it
-sleep(4*s)
+sleep(1*s)
 move(d, backward=24*m, speed=8*m/s)
 land(d)
 '''
