@@ -334,6 +334,21 @@ async def record(http: httpx.AsyncClient, mission_id: str) -> dict[str, Any]:
     return dict(response.json())
 
 
+async def grounds(http: httpx.AsyncClient) -> dict[str, dict[str, Any]]:
+    """The grounds a ground has heard (`GET /ground`, SPEC §14), by ground id."""
+    return {g["ground_id"]: g for g in (await http.get("/ground")).json()}
+
+
+async def ground_active(http: httpx.AsyncClient, ground_id: str) -> bool:
+    """Whether the ground behind `http` holds `ground_id` for the active one."""
+    return bool((await grounds(http)).get(ground_id, {}).get("active"))
+
+
+async def event_log(http: httpx.AsyncClient) -> list[str]:
+    """The ground's event log (`GET /drone/logs`), a line each."""
+    return (await http.get("/drone/logs")).text.splitlines()
+
+
 async def ended(http: httpx.AsyncClient, mission_id: str, timeout_s: float) -> dict[str, Any]:
     async def done() -> dict[str, Any] | None:
         r = await record(http, mission_id)

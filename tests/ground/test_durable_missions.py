@@ -24,7 +24,7 @@ from dronefleet.schemas.codec import decode_status
 from dronefleet.schemas.geo import destination, distance_m
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.status import CommandStatus
-from tests.harness import GroundProcess, ended, stop_all, submit, two_grounds_and_fleet, wait_state
+from tests.harness import GroundProcess, ended, ground_active, stop_all, submit, two_grounds_and_fleet, wait_state
 from tests.waiting import until
 
 pytestmark = pytest.mark.integration
@@ -55,10 +55,6 @@ a = run(scout, d1)
 b = run(follow, d2)
 wait(a, b)
 '''
-
-
-async def active(http: httpx.AsyncClient, ground_id: str) -> bool:
-    return any(g["ground_id"] == ground_id and g["active"] for g in (await http.get("/ground")).json())
 
 
 class Heard:
@@ -117,7 +113,7 @@ async def two_grounds_ready(tmp_path: Path, spawns: dict[str, tuple[float, float
             for drone_id in spawns:
                 await wait_state(a, drone_id, "ready", 30)
                 await wait_state(b, drone_id, "ready", 30)
-            await until(lambda: active(a, "alpha"), 20, "alpha active")
+            await until(lambda: ground_active(a, "alpha"), 20, "alpha active")
             yield Rig(alpha, a, b, heard)
     finally:
         if mesh is not None:
@@ -136,7 +132,7 @@ async def finished_on_bravo_when_killed_at(rig: Rig, script: str, says: str, wha
         return any(says in line["message"] for line in log)
     await until(said, 90, what)
     rig.alpha.kill()
-    await until(lambda: active(rig.b, "bravo"), 10, "bravo active after alpha died")
+    await until(lambda: ground_active(rig.b, "bravo"), 10, "bravo active after alpha died")
     taken = f"alpha-{mission_id}"
     done = await ended(rig.b, taken, 120)
     log = [line["message"] for line in (await rig.b.get(f"/mission/{taken}")).json()["log"]]
@@ -170,7 +166,7 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
         await until(journal_copied, 10, "the running mission in bravo's copy")
         killed = time.monotonic()
         alpha.kill()
-        await until(lambda: active(b, "bravo"), 10, "bravo active after alpha died")
+        await until(lambda: ground_active(b, "bravo"), 10, "bravo active after alpha died")
         took_s = time.monotonic() - killed
         assert took_s < 5, f"bravo took {took_s:.1f} s to take over"
 

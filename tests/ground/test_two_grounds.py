@@ -17,18 +17,20 @@ import pytest
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.keys import Keys
-from tests.harness import AgentProcess, GroundProcess, ended, submit, two_grounds, wait_state
+from tests.harness import (
+    AgentProcess,
+    GroundProcess,
+    ended,
+    event_log,
+    ground_active,
+    grounds,
+    submit,
+    two_grounds,
+    wait_state,
+)
 from tests.waiting import until
 
 pytestmark = pytest.mark.integration
-
-
-async def grounds(http: httpx.AsyncClient) -> dict[str, dict[str, object]]:
-    return {g["ground_id"]: g for g in (await http.get("/ground")).json()}
-
-
-async def log_lines(http: httpx.AsyncClient) -> list[str]:
-    return (await http.get("/drone/logs")).text.splitlines()
 
 
 @pytest.mark.slow(30)
@@ -83,7 +85,7 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
                 return (await grounds(b)).get("bravo", {}).get("active") is True
             await until(bravo_active, 30, "bravo active after alpha died")
             assert (await grounds(b))["bravo"]["epoch"] == 2
-            assert any("Ground bravo is active (epoch 2)" in line for line in await log_lines(b))
+            assert any("Ground bravo is active (epoch 2)" in line for line in await event_log(b))
             reply = await b.post("/drone/drone01/cmd", json={"cmd": "disarm"})
             assert reply.status_code == 200, reply.text
 
@@ -110,7 +112,7 @@ async def test_a_standby_ground_refuses_commands_then_takes_over_with_a_newer_ep
             # Above bravo's: learnt from bravo, or (back alone, its data said 1, so it took 2
             # as bravo had) from the agent, which refuses an epoch another ground holds.
             assert (await grounds(a))["alpha"]["epoch"] == 3
-            assert any("Ground bravo is standby" in line for line in await log_lines(b))
+            assert any("Ground bravo is standby" in line for line in await event_log(b))
     finally:
         agent.stop()
         bravo.stop()
@@ -207,19 +209,15 @@ async def test_a_ground_token_nothing_answers_for_does_not_make_the_active_groun
         await bravo.ready()
         async with httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
             await wait_state(b, "drone01", "ready", 30)
-            await until(lambda: _active_is(b, "bravo"), 20, "bravo active")
+            await until(lambda: ground_active(b, "bravo"), 20, "bravo active")
             ghost = await ZenohBus.open("client", connect=[bravo.endpoint], wait=True)
             ghost.announce(Keys().ground("alpha"))
             await until(lambda: "alpha: its token is on the mesh but nothing answers" in bravo.output(), 30,
                         "bravo giving up on asking what alpha is")
-            assert await _active_is(b, "bravo"), await grounds(b)
+            assert await ground_active(b, "bravo"), await grounds(b)
             assert (await b.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
     finally:
         if ghost is not None:
             await ghost.close()
         agent.stop()
         bravo.stop()
-
-
-async def _active_is(http: httpx.AsyncClient, ground_id: str) -> bool:
-    return bool((await grounds(http)).get(ground_id, {}).get("active"))

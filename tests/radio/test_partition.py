@@ -16,7 +16,16 @@ from dronefleet.agent.remote import send_command
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.sim.radio import GROUND, RadioModel
 from dronefleet.sim.radio_net import RadioNet
-from tests.harness import AgentProcess, ChildProcess, GroundProcess, stop_all, wait_state
+from tests.harness import (
+    AgentProcess,
+    ChildProcess,
+    GroundProcess,
+    event_log,
+    ground_active,
+    grounds,
+    stop_all,
+    wait_state,
+)
 from tests.radio.emulated import RADIO_A
 from tests.waiting import until
 
@@ -33,18 +42,6 @@ def story(child: ChildProcess) -> str:
     """What a ground said about its links and its role, without the rest of its log."""
     lines = [_ANSI.sub("", line)[:300] for line in child.output().splitlines() if any(s in line for s in _STORY)]
     return f"--- {child.log.parent.name} ({child.name}):\n" + "\n".join(lines[-150:])
-
-
-async def grounds(http: httpx.AsyncClient) -> dict[str, dict[str, object]]:
-    return {g["ground_id"]: g for g in (await http.get("/ground")).json()}
-
-
-async def _active_is(http: httpx.AsyncClient, ground_id: str) -> bool:
-    return bool((await grounds(http)).get(ground_id, {}).get("active"))
-
-
-async def log_lines(http: httpx.AsyncClient) -> list[str]:
-    return (await http.get("/drone/logs")).text.splitlines()
 
 
 @RADIO_A
@@ -83,7 +80,7 @@ async def test_a_partition_gives_each_side_its_ground_and_its_heal_leaves_one_ab
                 httpx.AsyncClient(base_url=bravo.url, timeout=10) as b:
             for drone_id in ("drone01", "drone02", "drone03"):
                 await wait_state(a, drone_id, "ready", 45)
-            await until(lambda: _active_is(a, "alpha"), 20, "alpha active")
+            await until(lambda: ground_active(a, "alpha"), 20, "alpha active")
 
             async def bravo_standby_under_epoch_1() -> bool:  # it has heard alpha's epoch: the cut may come
                 g = await grounds(b)
@@ -97,14 +94,14 @@ async def test_a_partition_gives_each_side_its_ground_and_its_heal_leaves_one_ab
                         "bravo active on its side of the cut")
             drone03 = next(c for c in children if c.name == "drone03")
             await until(lambda: "ground bravo is active (epoch 2)" in drone03.output(), 10, "drone03 following bravo")
-            assert await _active_is(a, "alpha")  # each side has its ground
+            assert await ground_active(a, "alpha")  # each side has its ground
             assert (await a.post("/drone/drone01/cmd", json={"cmd": "arm"})).status_code == 200
 
             net.apply({})
 
             async def alpha_above_both() -> bool:
                 g = await grounds(a)
-                return bool(g.get("alpha", {}).get("active")) and int(str(g["alpha"]["epoch"])) >= 3
+                return bool(g.get("alpha", {}).get("active")) and g["alpha"]["epoch"] >= 3
             await until(alpha_above_both, 30, "alpha active again above both epochs")
 
             async def bravo_standby_again() -> bool:
@@ -112,7 +109,7 @@ async def test_a_partition_gives_each_side_its_ground_and_its_heal_leaves_one_ab
                 return g.get("bravo", {}).get("active") is False and bool(g.get("alpha", {}).get("active"))
             await until(bravo_standby_again, 20, "bravo standing down after the heal")
             assert "Ground bravo is standby" in bravo.output().split("Ground bravo is active (epoch 2)")[-1]  # and says so
-            lines = "\n".join(await log_lines(a))  # alpha says why it took a newer epoch
+            lines = "\n".join(await event_log(a))  # alpha says why it took a newer epoch
             assert "Ground alpha is active (epoch 3): " in lines, lines
 
             mesh = await ZenohBus.open("client", connect=[alpha.endpoint], wait=True)
