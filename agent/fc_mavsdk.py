@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from typing import Any
 from urllib.parse import urlsplit
 
-from dronefleet.agent.fc_port import FcRejected, FcState, FcUnavailable
+from dronefleet.agent.fc_port import Changes, FcRejected, FcState, FcUnavailable, Listener
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.geo import normalize_deg
 from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, VelocityNed
@@ -145,6 +145,16 @@ class MavsdkFlightController:
         self.autopilot = AUTOPILOTS["px4"]
         self._offboard = False  # our offboard stream flies it (GUIDED autopilots: not told by the mode)
         self._takeoff_to: float | None = None  # a takeoff's altitude above home while it climbs
+        self._changes = Changes()
+
+    def watch(self, listener: Listener) -> None:
+        self._changes.watch(listener)
+
+    def _changed(self) -> None:
+        """The cache changed in a way that may move connection, arming, mode or landed
+        state: tell the listeners now, not at their next poll."""
+        self._snapshot = None
+        self._changes.offer(self.state())
 
     async def start(self) -> None:
         from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
@@ -204,12 +214,17 @@ class MavsdkFlightController:
             pass
 
     def _watch(self, name: str, subscribe: Callable[[], AsyncIterator[Any]]) -> None:
+        edges = name in ("armed", "flight_mode", "landed_state")
+
         async def pump() -> None:
             async for value in subscribe():
                 self._cache[name] = value
                 self._snapshot = None
                 if name == "flight_mode":
                     self._mode_seen.set()
+                # A GUIDED takeoff's reported mode turns on its altitude (`_mode`).
+                if edges or (name == "position" and self._takeoff_to is not None):
+                    self._changes.offer(self.state())
 
         self._tasks.append(asyncio.get_running_loop().create_task(pump(), name=f"mavsdk {name}"))
 
@@ -219,7 +234,7 @@ class MavsdkFlightController:
             if connected != self._cache["connected"]:
                 log.warning("flight controller %s", "connected" if connected else "lost")
                 self._cache["connected"] = connected
-                self._snapshot = None
+                self._changed()
             await asyncio.sleep(CONNECTED_POLL_S)
 
     def state(self) -> FcState:
@@ -340,7 +355,8 @@ class MavsdkFlightController:
     async def takeoff(self, alt_m: float) -> None:
         await self._call("takeoff altitude", self.action.set_takeoff_altitude(alt_m))
         await self._call("takeoff", self.action.takeoff())
-        self._takeoff_to, self._snapshot = alt_m, None
+        self._takeoff_to = alt_m
+        self._changed()
 
     async def land(self) -> None:
         await self._call("land", self.action.land())
@@ -348,7 +364,8 @@ class MavsdkFlightController:
     async def goto(self, lat: float, lon: float, alt_amsl: float, yaw_deg: float | None, speed_mps: float | None) -> None:
         yaw = float("nan") if yaw_deg is None else yaw_deg
         await self._call("goto", self.action.goto_location(lat, lon, alt_amsl, yaw))
-        self._takeoff_to = self._snapshot = None
+        self._takeoff_to = None
+        self._changed()
         if yaw_deg is not None and self.autopilot.yaw_command:
             await self._command_long("yaw", 115, yaw_deg, 0.0, 0.0, 0.0)  # MAV_CMD_CONDITION_YAW, absolute
         if speed_mps is not None:
@@ -365,18 +382,22 @@ class MavsdkFlightController:
             except FcRejected as exc:
                 log.warning("flight controller: %s (%s) not set, returning at the autopilot's own: %s", name, alt_m, exc)
         await self._call("return", self.action.return_to_launch())
-        self._takeoff_to = self._snapshot = None
+        self._takeoff_to = None
+        self._changed()
 
     async def hold(self) -> None:
         await self._call("hold", self.action.hold())
-        self._takeoff_to = self._snapshot = None
+        self._takeoff_to = None
+        self._changed()
 
     async def start_offboard(self) -> None:
         await self._call("start offboard", self.offboard.start())
-        self._offboard, self._takeoff_to, self._snapshot = True, None, None
+        self._offboard, self._takeoff_to = True, None
+        self._changed()
 
     async def stop_offboard(self) -> None:
-        self._offboard, self._snapshot = False, None
+        self._offboard = False
+        self._changed()
         await self._call("stop offboard", self.offboard.stop())
 
     async def set_setpoint(self, kind: str, values: dict[str, float | None]) -> None:

@@ -9,6 +9,7 @@ latest snapshot, which may lag a command by up to one heartbeat on real hardware
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Protocol
 
 import msgspec
@@ -44,11 +45,40 @@ class FcState(msgspec.Struct, frozen=True, kw_only=True):
     local_ned: tuple[float, float, float] | None = None  # m from the autopilot's local origin
 
 
+Listener = Callable[[FcState], None]
+
+
+class Changes:
+    """An adapter's listeners: each is called with every snapshot whose connection,
+    arming, flight mode or landed state differs from the one offered before, in the
+    order the adapter received them (`FlightController.watch`)."""
+
+    def __init__(self) -> None:
+        self._listeners: list[Listener] = []
+        self._last: tuple[bool, bool, str, str] | None = None
+
+    def watch(self, listener: Listener) -> None:
+        self._listeners.append(listener)
+
+    def offer(self, state: FcState) -> None:
+        key = (state.connected, state.armed, state.flight_mode, state.landed_state)
+        if key == self._last:
+            return
+        self._last = key
+        for listener in self._listeners:
+            listener(state)
+
+
 class FlightController(Protocol):
     async def start(self) -> None:
         """Connect; raise FcUnavailable when the autopilot does not answer in time."""
 
     def state(self) -> FcState: ...
+
+    def watch(self, listener: Listener) -> None:
+        """Call `listener` with the new snapshot at once whenever the connection,
+        arming, flight mode or landed state changes: every edge, however short, in the
+        order the autopilot reported them (a poll's phase could hide one)."""
 
     async def arm(self) -> None: ...
 

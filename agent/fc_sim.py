@@ -20,7 +20,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import msgspec
 
-from dronefleet.agent.fc_port import FcRejected, FcState
+from dronefleet.agent.fc_port import Changes, FcRejected, FcState, Listener
 from dronefleet.bus.clock import Clock, until_next_tick_s
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim import autopilot_params
@@ -69,9 +69,17 @@ class SimFlightController:
         self._setpoint: tuple[str, dict[str, float | None]] | None = None
         self._last_sent = 0.0
         self._snapshot = FcState()
+        self._changes = Changes()
+
+    def watch(self, listener: Listener) -> None:
+        self._changes.watch(listener)
+
+    def _refresh(self) -> None:
+        self._snapshot = self._read()
+        self._changes.offer(self._snapshot)
 
     async def start(self) -> None:
-        self._snapshot = self._read()
+        self._refresh()
         if self._control_port is not None:
             try:
                 self._control = await open_fault_channel(self._control_port, FaultChannel(
@@ -95,7 +103,7 @@ class SimFlightController:
             last = now
             if self._setpoint and self.vehicle.mode != "offboard" and now - self._last_sent > 3.0:
                 self._setpoint = None  # MAVSDK gives up streaming when offboard never shows
-            self._snapshot = self._read()
+            self._refresh()
             self.vehicle.events.clear()
 
     def _send_setpoint(self, now: float) -> None:
@@ -136,7 +144,7 @@ class SimFlightController:
         result = call(*args)
         if result is not None:
             raise FcRejected(result)
-        self._snapshot = self._read()
+        self._refresh()
 
     async def arm(self) -> None:
         self._command(self.vehicle.arm)

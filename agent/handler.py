@@ -3,9 +3,12 @@ through the flight-controller port, and status tracking. Shared by every adapter
 
 `submit` decides at once (that decision is the queryable's reply) and queues the
 accepted command; one worker executes accepted commands in arrival order, so an
-`arm` followed at once by a `takeoff` reaches the autopilot in that order. The
-tracking loop polls the autopilot's snapshot, reports completion, interruption and
-unrequested system events. Statuses go out through the `emit` callback.
+`arm` followed at once by a `takeoff` reaches the autopilot in that order. Every
+change of the autopilot's connection, arming, mode or landed state reaches `track`
+as the adapter receives it (`FlightController.watch`), so no poll's phase can hide
+an edge; the tracking loop polls only for goals reached. Arming is one view
+(agent/arming.py): the reported edges and the arm or disarm not reported yet.
+Statuses go out through the `emit` callback. The invariants are ADR 0018's.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from dataclasses import dataclass, field
 import msgspec
 from msgspec import UNSET
 
+from dronefleet.agent.arming import EFFECT_LAG_S, Arming
 from dronefleet.agent.fc_port import FcError, FcState, FlightController
 from dronefleet.agent.priority import INSTANT, Active, Situation, decide, end_state
 from dronefleet.agent.tracker import Goal, finished, interrupted, system_events
@@ -31,13 +35,11 @@ from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, Comma
 log = logging.getLogger(__name__)
 
 POLL_S = 0.05
-IDLE_POLL_S = 0.5  # with no command running, only the system events (arming, mode, failsafes) are tracked
-# How long an accepted command's effects are expected to show in telemetry (one
-# heartbeat on PX4, plus margin): within it, those effects are not "system" events.
-EFFECT_LAG_S = 3.0
+IDLE_POLL_S = 0.5  # with no command running there is no goal to watch: edges come through `watch`
 REPLIES_REMEMBERED = 64  # command ids answered (a retry of one is not run twice)
 RETURN_MIN_ALT_M = 10.0
 NEEDS_POSITION = frozenset({"goto", "move", "turn"})
+ENDS_DISARMED = frozenset({"land", "return"})  # a disarm on the ground is how these end, not an interruption
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,7 @@ class FlightSettings:
 @dataclass(eq=False)
 class _Job:
     cmd: Command
+    seen: FcState  # the autopilot's state when the command was accepted
     goal: Goal | None = None
     started: bool = False
     ended: bool = False
@@ -84,8 +87,9 @@ class CommandHandler:
         self._work: asyncio.Queue[_Job] = asyncio.Queue()
         self._accepted_at: dict[str, float] = {}
         self._replies: dict[str, CommandReply] = {}  # command id → the answer given, oldest first
-        self._armed_belief: tuple[bool, float] | None = None
+        self._arming = Arming()
         self._prev = FcState()
+        fc.watch(self.track)
 
     @property
     def running(self) -> str | None:
@@ -122,7 +126,8 @@ class CommandHandler:
         else:  # whatever path the command came by (SPEC §11)
             reason = refusal(self._settings.geofence, cmd, state.position, state.heading, self._settings.takeoff_altitude)
         if reason is None:
-            decision = decide(name, Situation(self._armed(state), self._active(self._running), self._active(self._queued)))
+            armed = self._arming.armed(now)
+            decision = decide(name, Situation(armed, self._active(self._running), self._active(self._queued)))
             reason = decision.reason
         if reason is not None:
             self._status(cmd, "failure", reason=reason)
@@ -134,10 +139,10 @@ class CommandHandler:
             if job is not None:
                 by = f"{FAILSAFE_REASON}: " if cmd.command_id.startswith(FAILSAFE_ID_PREFIX) else ""
                 self._end(job, end_state(job.name), f"{by}superseded by {name}")
-        job = _Job(cmd)
+        job = _Job(cmd, seen=state)
         self._accepted_at[name] = now
         if name in ("arm", "disarm"):
-            self._armed_belief = (name == "arm", now + EFFECT_LAG_S)
+            self._arming.requested(cmd.command_id, name == "arm", now)
         if decision.verdict == "queue":
             self._queued = job
             self._status(cmd, "queued", **self._queued_target(cmd, state))
@@ -146,12 +151,6 @@ class CommandHandler:
                 self._running = job
             self._work.put_nowait(job)
         return CommandReply(command_id=cmd.command_id, accepted=True)
-
-    def _armed(self, state: FcState) -> bool:
-        # An arm the autopilot accepted shows in telemetry up to a heartbeat later.
-        if self._armed_belief and self._clock.monotonic() < self._armed_belief[1]:
-            return self._armed_belief[0]
-        return state.armed
 
     @staticmethod
     def _active(job: _Job | None) -> Active | None:
@@ -188,8 +187,10 @@ class CommandHandler:
         match cmd:
             case c.Arm():
                 await fc.arm()
+                self._arming.acknowledged(cmd.command_id, self._clock.monotonic())
             case c.Disarm():
                 await fc.disarm()
+                self._arming.acknowledged(cmd.command_id, self._clock.monotonic())
             case c.Takeoff():
                 alt = cmd.alt if cmd.alt is not None else st.takeoff_altitude
                 job.goal, extra = Goal("altitude", rel_alt=alt), {"altitude": alt}
@@ -236,6 +237,8 @@ class CommandHandler:
         else:
             job.started = True
             self._status(cmd, "start", **extra)
+            # What changed while the autopilot was answering applies to it from the start.
+            self._check(job, job.seen, self._fc.state())
 
     def _queued_target(self, cmd: Command, s: FcState) -> dict[str, object]:
         """Where a goto queued behind a takeoff will fly, as far as known now: with no
@@ -277,16 +280,27 @@ class CommandHandler:
             await self._clock.sleep(POLL_S if self._running is not None else IDLE_POLL_S)
 
     def track(self, s: FcState) -> None:
+        """One snapshot of the autopilot: every edge the adapter reports comes here, in
+        order, and the tracking loop's polls besides."""
         prev, self._prev = self._prev, s
         now = self._clock.monotonic()
         recent = frozenset(n for n, t in self._accepted_at.items() if now - t < EFFECT_LAG_S)
-        for event in system_events(prev, s, recent):
+        edge = self._arming.report(s.armed, now) if s.connected else None
+        for event in system_events(prev, s, recent, disarmed_alone=edge == "unrequested" and not s.armed):
             self._emit(SystemStatus(drone_id=self.drone_id, timestamp=self._clock.time_ms(), component="system", state=event))  # type: ignore[arg-type]
             log.info("%s system %s", self.drone_id, event)
         job = self._running
-        if job is None or not job.started or job.ended or not s.connected:
+        if job is not None and job.started and not job.ended:
+            self._check(job, prev, s)
+
+    def _check(self, job: _Job, prev: FcState, s: FcState) -> None:
+        """End the running job if the autopilot left it between `prev` and `s`, or
+        finish it if `s` reached its goal."""
+        if not s.connected:
             return
         reason = interrupted(job.name, prev, s)
+        if reason is None and job.name not in ENDS_DISARMED and not self._arming.armed(self._clock.monotonic()):
+            reason = "disarmed"
         if reason is not None:
             self._end(job, end_state(job.name), reason)
         elif job.goal is not None and finished(job.goal, s, self._settings.acceptance_radius):
@@ -313,7 +327,7 @@ class CommandHandler:
     def _fail(self, job: _Job, reason: str) -> None:
         log.warning("%s %s failed: %s", self.drone_id, job.name, reason)
         if job.name in ("arm", "disarm"):
-            self._armed_belief = None
+            self._arming.refused(job.cmd.command_id)
         if job is self._running:
             self._end(job, "failure", reason)
         else:

@@ -61,11 +61,8 @@ def finished(goal: Goal, s: FcState, radius_m: float) -> bool:
 
 
 def interrupted(command: str, prev: FcState, now: FcState) -> str | None:
-    """Why the autopilot abandoned `command` between two snapshots, if it did."""
-    if now.flight_mode == prev.flight_mode and now.armed == prev.armed:
-        return None
-    if prev.armed and not now.armed and command not in ("land", "return"):
-        return "disarmed"
+    """Why the autopilot's mode left `command` between two snapshots, if it did. (A
+    disarm is judged on the handler's one view of arming, agent/arming.py.)"""
     if now.flight_mode == prev.flight_mode:
         return None
     if now.flight_mode in MANUAL_MODES:
@@ -79,15 +76,16 @@ def interrupted(command: str, prev: FcState, now: FcState) -> str | None:
     return None
 
 
-def system_events(prev: FcState, now: FcState, recent: frozenset[str]) -> list[str]:
+def system_events(prev: FcState, now: FcState, recent: frozenset[str], disarmed_alone: bool = False) -> list[str]:
     """Unrequested events between two snapshots. `recent` names the commands the
-    agent itself accepted within the last few seconds (their effects are not events)."""
+    agent itself accepted within the last few seconds (their effects are not events);
+    `disarmed_alone`: the arming view saw an unrequested disarm edge (agent/arming.py)."""
     events: list[str] = []
     if now.connected != prev.connected:
         events.append("connect" if now.connected else "disconnect")
     if not now.connected:
         return events
-    if prev.armed and not now.armed and "disarm" not in recent:
+    if disarmed_alone:
         events.append("disarm")
     mode_changed = now.flight_mode != prev.flight_mode
     if mode_changed and now.flight_mode == "return_to_launch" and "return" not in recent:

@@ -78,16 +78,17 @@ class ChildProcess:
 
     name = "process"
 
-    def __init__(self, args: list[str], log: Path, env: Mapping[str, str] | None = None) -> None:
+    def __init__(self, args: list[str], log: Path, env: Mapping[str, str] | None = None, cwd: Path = REPO) -> None:
         """`env`: variables set for the child on top of this process's environment."""
         self.args = args
         self.log = log
         self.env = None if env is None else {**os.environ, **env}
+        self.cwd = cwd
         self.proc = self._spawn()
 
     def _spawn(self) -> subprocess.Popen[bytes]:
         with open(self.log, "ab") as out:  # the child holds its own copy of the descriptor
-            return subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=REPO, env=self.env)
+            return subprocess.Popen(self.args, stdout=out, stderr=subprocess.STDOUT, cwd=self.cwd, env=self.env)
 
     def start(self) -> None:
         """Start it again (after a stop or a kill)."""
