@@ -12,7 +12,9 @@ outbound; heartbeat-driven fields lag a command by up to a second.
 The heartbeat says which autopilot it is; where ArduCopter differs
 (shared/notes/ardupilot-facts.md) the adapter follows `AUTOPILOTS[make]`, one small
 table, with the same calls otherwise:
-- ArduPilot streams no position, battery, GPS or home until asked: the rates are asked for;
+- ArduPilot streams no position, battery, GPS, home, sensor health (SYS_STATUS) or
+  estimator flags until asked: the rates are asked for; its global position counts as
+  good once the estimator has an absolute position (EKF_STATUS_REPORT), as GUIDED needs;
 - takeoff, goto and offboard fly in GUIDED, which MAVSDK reports as `offboard`: the
   state says `takeoff` while a takeoff climbs, `offboard` only while our setpoints fly
   it, `hold` otherwise (a PX4 drone says the same at those moments);
@@ -23,6 +25,10 @@ table, with the same calls otherwise:
 - the return altitude is the integer parameter RTL_ALT in centimetres;
 - a goto's yaw is ignored (ArduCopter 4.5): the heading follows as CONDITION_YAW;
 - an uploaded fence acts only with FENCE_ENABLE = 1: the upload sets it.
+
+PX4 flies a reposition (a goto) in HOLD itself: a switch to HOLD then changes nothing and
+the drone flies on to the goto's target (seen on PX4 1.16 SITL), so a hold in the air is
+also a reposition to where the drone is.
 """
 
 from __future__ import annotations
@@ -53,6 +59,10 @@ _HEALTH = {
     "is_global_position_ok": "global_position",
     "is_home_position_ok": "home_position",
 }
+SYS_STATUS = 1  # the MAVLink message the sensors' health comes in
+EKF_STATUS_REPORT = 193  # ArduPilot's estimator flags
+EKF_POS_HORIZ_ABS = 16  # its flag for an absolute horizontal position
+SET_MESSAGE_INTERVAL = 511  # MAV_CMD_SET_MESSAGE_INTERVAL
 
 
 @dataclass(frozen=True)
@@ -61,24 +71,34 @@ class Autopilot:
 
     name: str
     rates_hz: dict[str, float] = field(default_factory=dict)  # telemetry.set_rate_<name>(hz) at the start
+    # MAVLink message id → Hz, asked for at the start where MAVSDK has no rate call for it
+    message_rates_hz: dict[int, float] = field(default_factory=dict)
     guided: bool = False  # takeoff, goto and offboard share one mode (GUIDED), reported `offboard` by MAVSDK
     idle_modes: frozenset[str] = frozenset()  # modes a disarmed drone idles in (not a pilot's)
     arm_from_mode: int | None = None  # custom mode to switch to before arming, unless in it already
     return_alt_param: tuple[str, float] | None = None  # integer parameter and its unit in metres (None: MAVSDK's)
     yaw_command: bool = False  # a goto's yaw is ignored: the heading is sent as CONDITION_YAW after it
     fence_enable_param: str | None = None  # an uploaded fence acts only once this integer parameter is 1
+    # A reposition flies in the hold mode itself, so switching to hold changes nothing and
+    # the drone flies on: a hold in the air is also a reposition to where the drone is.
+    hold_repositions: bool = False
+    # Its health report says the global position is good ≈ 20 s before its EKF has an
+    # absolute position (ArduCopter refuses to arm in GUIDED until then: "Need Position
+    # Estimate"): the position counts as good only once EKF_STATUS_REPORT says so.
+    position_from_ekf: bool = False
 
 
 GUIDED_MODE = 4  # ArduCopter's GUIDED custom mode
 AUTOPILOTS = {
-    "px4": Autopilot("px4"),
+    "px4": Autopilot("px4", hold_repositions=True),
     "ardupilot": Autopilot(
         "ardupilot",
         rates_hz={"position": 10.0, "position_velocity_ned": 10.0, "velocity_ned": 10.0, "attitude_euler": 10.0,
                   "gps_info": 2.0, "battery": 1.0, "home": 1.0, "landed_state": 2.0},
+        message_rates_hz={SYS_STATUS: 1.0, EKF_STATUS_REPORT: 1.0},
         guided=True, idle_modes=frozenset({"stabilized", "altctl", "posctl", "acro", "manual"}),
         arm_from_mode=GUIDED_MODE, return_alt_param=("RTL_ALT", 0.01), yaw_command=True,
-        fence_enable_param="FENCE_ENABLE",
+        fence_enable_param="FENCE_ENABLE", position_from_ekf=True,
     ),
 }
 
@@ -208,6 +228,13 @@ class MavsdkFlightController:
                 await getattr(t, f"set_rate_{name}")(hz)
             except Exception as exc:  # noqa: BLE001 - the stream may come anyway; say so and go on
                 log.warning("flight controller: telemetry rate %s %g Hz not set: %s", name, hz, exc)
+        for message, hz in self.autopilot.message_rates_hz.items():
+            try:
+                await self._command_long(f"message {message} rate", SET_MESSAGE_INTERVAL, message, 1e6 / hz)
+            except FcRejected as exc:
+                log.warning("flight controller: %s", exc)
+        if self.autopilot.position_from_ekf:
+            self._tasks.append(asyncio.get_running_loop().create_task(self._watch_ekf(), name="mavsdk ekf"))
         try:  # `subscribe_home` yields only on new messages: seed it from the cache
             self._cache["home"] = await t.home()
         except Exception:
@@ -227,6 +254,15 @@ class MavsdkFlightController:
                     self._changes.offer(self.state())
 
         self._tasks.append(asyncio.get_running_loop().create_task(pump(), name=f"mavsdk {name}"))
+
+    async def _watch_ekf(self) -> None:
+        import json
+
+        async for message in self._mavlink_direct().subscribe_message("EKF_STATUS_REPORT"):
+            position = bool(json.loads(message.fields_json or "{}").get("flags", 0) & EKF_POS_HORIZ_ABS)
+            if position != self._cache.get("ekf_position"):
+                self._cache["ekf_position"] = position
+                self._snapshot = None
 
     async def _poll_connection(self) -> None:
         while True:
@@ -270,11 +306,17 @@ class MavsdkFlightController:
             # Unknown health is not good health: until MAVSDK has a health report (about
             # 2 s after discovery; its first ones read all False) every check counts as
             # failing, so the drone is not `ready` before the autopilot would arm.
-            health_failures=tuple(n for attr, n in _HEALTH.items() if health is None or not getattr(health, attr)),
+            health_failures=self._health_failures(health),
             local_ned=(
                 (local.position.north_m, local.position.east_m, local.position.down_m) if local is not None else None
             ),
         )
+
+    def _health_failures(self, health: Any) -> tuple[str, ...]:
+        failing = [n for attr, n in _HEALTH.items() if health is None or not getattr(health, attr)]
+        if self.autopilot.position_from_ekf and not self._cache.get("ekf_position") and "global_position" not in failing:
+            failing.append("global_position")
+        return tuple(failing)
 
     def _mode(self, reported: str, armed: bool, position: Position | None) -> str:
         """Fleet's name for what the autopilot is doing (see the module's docstring)."""
@@ -332,17 +374,14 @@ class MavsdkFlightController:
         """A COMMAND_LONG MAVSDK has no call for, answered by the autopilot's COMMAND_ACK."""
         import json
 
-        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
         from mavsdk.plugins.mavlink_direct import MavlinkMessage
 
-        if self._direct is None:
-            self._direct = MavlinkDirectAsync(self._system)
         sysid = await self._system.get_system_id()
         values = [*params, *[0.0] * (7 - len(params))]
         fields = {"target_system": sysid, "target_component": 1, "command": command, "confirmation": 0,
                   **{f"param{i}": float(v) for i, v in enumerate(values, 1)}}
         try:
-            ack = await self._direct.send_command(MavlinkMessage("COMMAND_LONG", 0, 0, sysid, 1, json.dumps(fields)))
+            ack = await self._mavlink_direct().send_command(MavlinkMessage("COMMAND_LONG", 0, 0, sysid, 1, json.dumps(fields)))
         except Exception as exc:
             raise FcRejected(f"{what}: {exc}") from None
         result = json.loads(ack.fields_json or "{}").get("result")
@@ -387,6 +426,9 @@ class MavsdkFlightController:
 
     async def hold(self) -> None:
         await self._call("hold", self.action.hold())
+        here = self.state().position
+        if self.autopilot.hold_repositions and here is not None and self._cache.get("armed"):
+            await self._call("hold", self.action.goto_location(here.lat, here.lon, here.alt, float("nan")))
         self._takeoff_to = None
         self._changed()
 
@@ -433,6 +475,13 @@ class MavsdkFlightController:
         await self._call("fence", self._geofence.upload_geofence(data))
         if self.autopilot.fence_enable_param is not None:
             await self._call("fence enable", self._params().set_param_int(self.autopilot.fence_enable_param, 1 if polygon else 0))
+
+    def _mavlink_direct(self) -> Any:
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
+
+        if self._direct is None:
+            self._direct = MavlinkDirectAsync(self._system)
+        return self._direct
 
     def _params(self) -> Any:
         from mavsdk.asyncio.plugins.param import ParamAsync

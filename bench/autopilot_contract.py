@@ -35,6 +35,8 @@ from contextlib import AsyncExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import msgspec
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
@@ -104,8 +106,12 @@ class Flight:
         """A sample taken once the drone holds still: under 0.5 m/s across and 0.3 m/s up
         or down, in two samples a second apart (a real autopilot's hover wanders)."""
         first = await self.op.next_telemetry(still, 30, "holding still")
-        return await self.op.next_telemetry(lambda t: still(t) and t.timestamp >= first.timestamp + 1000, 30,
+        last = await self.op.next_telemetry(lambda t: still(t) and t.timestamp >= first.timestamp + 1000, 30,
                                             "holding still a second later")
+        second = [at(t) for t in self.op.telem.items if first.timestamp <= t.timestamp <= last.timestamp]
+        # the median of a second's positions: PX4's SIH altitude jumps a metre or more in single samples
+        middle = Position(**{k: statistics.median(getattr(p, k) for p in second) for k in ("lat", "lon", "alt", "rel_alt")})
+        return msgspec.structs.replace(last, position=middle)
 
     async def arm(self) -> None:
         await self.expect(await self.accepted("arm"), "success")

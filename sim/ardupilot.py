@@ -7,8 +7,9 @@ every command and for the heartbeat's mode; what it leaves alone is handled as P
 What differs, and how it is played here:
 - the heartbeat says ARDUPILOTMEGA and carries ArduCopter's mode numbers (GUIDED 4,
   BRAKE 17, RTL 6, LAND 9, STABILIZE 0, …); the vehicle starts in STABILIZE;
-- nothing but the heartbeat (and SYS_STATUS: armed, mode and health reach a client)
-  streams until SET_MESSAGE_INTERVAL asks for it (`STREAMS`);
+- nothing but the heartbeat (armed and mode) streams until SET_MESSAGE_INTERVAL asks
+  for it (`STREAMS`): not even SYS_STATUS, so a client that does not ask never hears the
+  sensors healthy (seen on ArduCopter 4.5.7 SITL on serial0);
 - takeoff, goto and offboard fly in GUIDED, and the mode stays GUIDED throughout (no
   TAKEOFF → HOLD step); NAV_TAKEOFF's param7 is the altitude above home; a takeoff
   disarmed is FAILED, leaving the GUIDED the client switched to;
@@ -20,6 +21,8 @@ What differs, and how it is played here:
 - after a landing (LAND or RTL) the vehicle disarms by itself and the mode stays what
   it was; landing is slower (1.5 m/s, 0.5 m/s in the last 10 m), takeoff too;
 - mission item 0 is home: an uploaded item 0 is replaced by it;
+- EKF_STATUS_REPORT (when asked for) has the absolute-position flag only with a 3D fix
+  and healthy position checks: GUIDED arms only then;
 - parameters have ArduPilot's names and a cast (not bytewise) encoding of integers.
 """
 
@@ -29,6 +32,7 @@ import math
 from collections.abc import Callable
 from dataclasses import replace
 
+from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mav
 
 from dronefleet.schemas.telemetry import MANUAL_MODES
@@ -48,14 +52,25 @@ REPOSITION_CHANGE_MODE = 1  # MAV_DO_REPOSITION_FLAGS_CHANGE_MODE
 # Streams and their period (s) before anyone asks: the rest are 0 until SET_MESSAGE_INTERVAL.
 STREAMS: dict[int, float] = {
     mav.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
-    mav.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
 }
+
+EKF_STATUS_REPORT = apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT
+# attitude, velocities, relative and absolute horizontal position, absolute vertical, predicted
+_EKF_GOOD = 1 | 2 | 4 | 8 | 16 | 32 | 256 | 512
+_EKF_ABSOLUTE = 16 | 512
 
 ACCEPTED, FAILED, UNSUPPORTED = mav.MAV_RESULT_ACCEPTED, mav.MAV_RESULT_FAILED, mav.MAV_RESULT_UNSUPPORTED
 
 # (result, a STATUSTEXT to send with it or None)
 Answer = tuple[int, str | None]
 Reposition = Callable[[list[float], "int | None"], int]  # the endpoint flies a DO_REPOSITION, returns its MAV_RESULT
+
+
+def ekf_status_report(v: Vehicle) -> mav.MAVLink_message:
+    absolute = v.fix_type not in ("no_gps", "no_fix", "fix_2d") and not (
+        {"global_position", "local_position"} & set(v.health_failures))
+    flags = _EKF_GOOD if absolute else _EKF_GOOD & ~_EKF_ABSOLUTE
+    return apm.MAVLink_ekf_status_report_message(flags, 0.1, 0.1, 0.1, 0.1, 0.0, 0.0)
 
 
 def tuned(params: VehicleParams) -> VehicleParams:

@@ -300,6 +300,8 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         if mode == "hold":
             if v.mode in MANUAL_MODES:
                 v.inject_manual(False)
+            if v.mode == "hold":
+                return ACCEPTED  # PX4 flies a reposition in HOLD: switching to it changes nothing
             return self._result(v.hold())
         if mode == "return_to_launch":
             return self._result(v.return_to_launch(self.params["RTL_RETURN_ALT"].value))
@@ -483,6 +485,12 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
             round(battery.remaining_percent * 100), 0, 0, 0, 0, 0, 0,
         )
 
+    def ekf_status_report(self) -> mav.MAVLink_message | None:
+        """ArduPilot's estimator flags (an ardupilotmega message: PX4 has none)."""
+        if self.copter is None:
+            return None
+        return ardupilot.ekf_status_report(self.vehicle)
+
     def battery_status(self) -> mav.MAVLink_message:
         battery = self.vehicle.battery_state()
         cells = self.vehicle.params.battery_cells
@@ -514,7 +522,7 @@ class MavlinkVehicle(asyncio.DatagramProtocol):
         )
 
 
-_BUILDERS: dict[int, Callable[[MavlinkVehicle], mav.MAVLink_message]] = {
+_BUILDERS: dict[int, Callable[[MavlinkVehicle], mav.MAVLink_message | None]] = {
     mav.MAVLINK_MSG_ID_HEARTBEAT: MavlinkVehicle.heartbeat,
     mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: MavlinkVehicle.global_position_int,
     mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED: MavlinkVehicle.local_position_ned,
@@ -525,6 +533,7 @@ _BUILDERS: dict[int, Callable[[MavlinkVehicle], mav.MAVLink_message]] = {
     mav.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: MavlinkVehicle.extended_sys_state,
     mav.MAVLINK_MSG_ID_HOME_POSITION: MavlinkVehicle.home_position,
     mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION: MavlinkVehicle.autopilot_version,
+    ardupilot.EKF_STATUS_REPORT: MavlinkVehicle.ekf_status_report,
 }
 
 
