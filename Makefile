@@ -105,6 +105,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/agent_install.py
 	$(BIN)/python bench/agent_cpu.py
 	$(BIN)/python bench/agent_mavsdk.py
+	$(BIN)/python bench/autopilot_contract.py --autopilot sim-px4 --runs 1  # FLEET_PX4_BUILD / FLEET_ARDUCOPTER: real SITLs
 	$(BIN)/python bench/ground_fanin.py
 	$(BIN)/python bench/ground_command.py
 	$(BIN)/python bench/bundles.py

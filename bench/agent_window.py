@@ -68,8 +68,18 @@ async def measure_agent(fc_url: str, seconds: float) -> tuple[float, Usage]:
         await router.close()
 
 
-def report(title: str, rate: float, usage: Usage) -> None:
+# An agent at rest on the ground (issue 80): at most this much of a core and memory.
+CPU_BAR_PERCENT = 2.0
+RSS_BAR_MIB = 50.0
+
+
+def report(title: str, rate: float, usage: Usage, rss_bar_mib: float | None = RSS_BAR_MIB) -> None:
+    """Print the figures; exit 1 (after printing) over the CPU bar, or over `rss_bar_mib`."""
     print(f"{title}, telemetry 100 ms, {usage.window_s:.1f} s window")
     print(f"  telemetry received : {rate:.2f} msg/s")
-    print(f"  agent CPU          : {usage.cpu_percent:.2f} % of one core")
-    print(f"  agent RSS          : {usage.rss_mib:.1f} MiB")
+    print(f"  agent CPU          : {usage.cpu_percent:.2f} % of one core (bar {CPU_BAR_PERCENT:g} %)")
+    print(f"  agent RSS          : {usage.rss_mib:.1f} MiB" + (f" (bar {rss_bar_mib:g} MiB)" if rss_bar_mib else ""))
+    if usage.cpu_percent > CPU_BAR_PERCENT:
+        raise ScenarioFailed(f"the agent at rest took {usage.cpu_percent:.2f} % of a core, over {CPU_BAR_PERCENT:g} %")
+    if rss_bar_mib is not None and usage.rss_mib > rss_bar_mib:
+        raise ScenarioFailed(f"the agent at rest held {usage.rss_mib:.1f} MiB, over {rss_bar_mib:g} MiB")
