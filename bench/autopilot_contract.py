@@ -61,6 +61,7 @@ NESTED = {
 # the agent's acceptance radius and the bench's tolerances allow for it.
 ACCEPTANCE_RADIUS_M = 1.0
 TAKEOFF_ALT_M = 8.0
+TAKEOFF_TOLERANCE_M = 2.0
 LOST_LINK = {"timeout_s": 2, "action": "hold", "return_after_s": 4}
 # The agent's own limits on a default-parameter flight: PX4 lands at 0.7 m/s below
 # 10 m (MPC_LAND_SPEED), ArduCopter at 0.5 m/s (LAND_SPEED).
@@ -162,7 +163,9 @@ async def step_takeoff(f: Flight) -> None:
     check(getattr(start, "altitude", None) == TAKEOFF_ALT_M, f"takeoff start {start}")
     await f.expect(takeoff, "finish", 60)
     t = await f.settle()
-    check(abs(at(t).rel_alt - TAKEOFF_ALT_M) <= 1.5, f"took off to {at(t).rel_alt:.1f} m")
+    # PX4 SIH's altitude above home carries an offset of up to 1.5 m from the arming on,
+    # besides its jumps (its takeoff to 8 m reads 6.3-7.5 m in some runs): 2 m allowed
+    check(abs(at(t).rel_alt - TAKEOFF_ALT_M) <= TAKEOFF_TOLERANCE_M, f"took off to {at(t).rel_alt:.1f} m")
 
 
 async def step_goto(f: Flight) -> None:

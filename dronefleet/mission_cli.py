@@ -239,8 +239,12 @@ def check(script: Path, plugins_dir: Path | None) -> None:
 @click.option("--radio/--no-radio", default=None,
               help="Fly on the radio model (SPEC §8: links lost with distance, relayed by drones). "
                    "Default: on if the world file has `radio:`.")
+@click.option("--limit-memory-mb", type=click.IntRange(16), hidden=True,
+              help="As a mission's sandbox: the memory the run may allocate beyond its own (the ground's preflight).")
+@click.option("--limit-cpu-s", type=click.FloatRange(1), hidden=True, help="As a mission's sandbox: CPU seconds in all.")
 def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int | None, seed: int, out_dir: Path | None,
-             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, no_plots: bool, radio: bool | None) -> None:
+             max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, no_plots: bool, radio: bool | None,
+             limit_memory_mb: int | None, limit_cpu_s: float | None) -> None:
     """Run SCRIPT against simulated drones in fast time; exit with its outcome.
 
     Plugin inputs go with --enable in one word (--enable 'replacement drainage=0.0015')
@@ -283,6 +287,16 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         writable_dir(out_dir, "--out")  # before the run, not after it
     if radio is not None:
         field = msgspec.structs.replace(field, radio=field.radio_model if radio else None)
+    if limit_memory_mb is not None or limit_cpu_s is not None:
+        import faulthandler
+        import signal
+
+        from dronefleet.mission.hosting.worker import limit_self
+
+        # SIGUSR1 prints every thread's stack, even from inside a C call: the line a
+        # script had reached when its bound ended it (ground/planning.py).
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
+        limit_self(limit_memory_mb or 1_048_576, limit_cpu_s or 1e9)
     started = time.perf_counter()
     try:
         result = asyncio.run(run(

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import re
 from collections.abc import AsyncIterator, Awaitable
 from typing import Annotated, Any, Literal
@@ -49,7 +50,7 @@ from dronefleet.ground.plan_routes import (
     plugin_verbs,
     simulate_mission,
 )
-from dronefleet.ground.preflight import Preflight, PreflightUnavailable, run_preflight
+from dronefleet.ground.preflight import Preflight, PreflightBusy, PreflightUnavailable, run_preflight
 from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation
 from dronefleet.ground.tile_archive import TileArchive
@@ -282,6 +283,12 @@ async def submit_mission(
     if preflight and station.config.mission.preflight:
         try:
             report = await run_preflight(station, planner, source)
+        except PreflightBusy as busy:
+            refusal = _error(503, f"the ground is running {planner.slots} preflights (mission.preflight_concurrency); "
+                                  f"try again in {math.ceil(busy.retry_after_s)} s, or submit with --no-preflight / "
+                                  "?preflight=false", {"retry_after_s": math.ceil(busy.retry_after_s)})
+            refusal.headers["Retry-After"] = str(math.ceil(busy.retry_after_s))
+            return refusal  # type: ignore[return-value]
         except PreflightUnavailable as exc:
             return _error(422, f"preflight could not run: {exc} (submit with --no-preflight / ?preflight=false "  # type: ignore[return-value]
                                "to fly it anyway)")
@@ -524,7 +531,7 @@ def create_app(station: GroundStation, missions: MissionManager, tiles: TileArch
     """The HTTP API and the dashboard; `tiles`: the archive `dashboard.tiles` names, opened."""
     assets = DashboardAssets.load()
     tile_source = TileSource(tiles)
-    planner = Planner()
+    planner = Planner(station.config.mission.preflight_concurrency)
     tokens = station.config.api.all_tokens()
     return Litestar(
         [

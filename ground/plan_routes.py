@@ -4,14 +4,24 @@ before anything flies (ground/planning.py does the work)."""
 
 from __future__ import annotations
 
-import asyncio
+import contextlib
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 from litestar import Request, Response, post
 
 from dronefleet.ground.api_error import error_response, error_specs, json_operation, text_operation
-from dronefleet.ground.planning import ExportBody, Prediction, SimulateBody, decode_body, live_world, predict
+from dronefleet.ground.planning import (
+    Bounds,
+    ExportBody,
+    Prediction,
+    SimulateBody,
+    SimulationBound,
+    decode_body,
+    live_world,
+    predict,
+)
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager
 from dronefleet.mission.script.checks import check_script, first_problem
@@ -24,11 +34,24 @@ MAX_BODY_BYTES = 256 * 1024
 
 
 class Planner:
-    """One prediction at a time: each takes a core of the ground's machine for seconds
-    (the planner's are refused while one runs; a submission's preflight waits its turn)."""
+    """Slots for predictions (preflights and the planner's simulations), each a child
+    process taking a core for seconds: up to `slots` side by side, the next refused
+    (503) rather than queued behind a slow one."""
 
-    def __init__(self) -> None:
-        self.lock = asyncio.Lock()
+    def __init__(self, slots: int = 2) -> None:
+        self.slots = slots
+        self.running = 0
+
+    def free(self) -> bool:
+        return self.running < self.slots
+
+    @contextlib.asynccontextmanager
+    async def slot(self) -> AsyncIterator[None]:
+        self.running += 1
+        try:
+            yield
+        finally:
+            self.running -= 1
 
 
 def plugin_verbs(missions: MissionManager) -> frozenset[str]:
@@ -71,12 +94,13 @@ async def simulate_mission(station: GroundStation, planner: Planner, missions: M
         return error_response(400, str(exc), exc.detail())  # type: ignore[return-value]
     except InvalidMessage as exc:
         return error_response(400, exc.reason, {"field": exc.field})  # type: ignore[return-value]
-    if planner.lock.locked():
-        return error_response(503, "another simulation is running on the ground; try again when it ends")  # type: ignore[return-value]
-    async with planner.lock:
+    if not planner.free():
+        return error_response(503, f"{planner.slots} simulations are running on the ground; try again when one ends")  # type: ignore[return-value]
+    async with planner.slot():
         try:
-            return Response(await predict(wanted.source, world, wanted.max_s, plugins_dir(station)))
-        except (TimeoutError, InvalidMessage) as exc:
+            bounds = Bounds(memory_mb=station.config.mission.max_memory_mb)
+            return Response(await predict(wanted.source, world, wanted.max_s, plugins_dir(station), bounds))
+        except (SimulationBound, InvalidMessage) as exc:
             return error_response(503, str(exc))  # type: ignore[return-value]
 
 

@@ -13,12 +13,15 @@ altitude), its battery, kind, roles and sensor types; the ground's geofence; no 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import re
+import signal
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
@@ -138,10 +141,55 @@ def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -
                       duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:])
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """What one prediction's child process may take: wall seconds on the ground's machine,
+    and, as a mission's sandbox, memory beyond its own and CPU seconds."""
+
+    wall_s: float = SIMULATION_WALL_S
+    memory_mb: int | None = None
+    cpu_s: float | None = None
+
+
+class SimulationBound(Exception):
+    """The wall bound ended a simulation before the mission did: `line` is the script's
+    line it was computing at then (None: the simulation itself was still flying),
+    `simulated_s` how far it got."""
+
+    def __init__(self, wall_s: float, line: int | None, simulated_s: float | None) -> None:
+        self.wall_s, self.line, self.simulated_s = wall_s, line, simulated_s
+        where = f"still computing at line {line} of the script" if line is not None else "still flying"
+        reached = f", {simulated_s:g} s simulated" if simulated_s is not None else ""
+        super().__init__(f"the simulation was {where} when its bound of {wall_s:g} s on the ground's machine "
+                         f"ended it{reached}")
+
+
+_SCRIPT_FRAME = re.compile(r'File "<mission [^>]*>", line (\d+)')
+_ECHOED_T = re.compile(r"^\[\s*([0-9.]+) s\]")
+DUMP_WAIT_S = 1.0  # for the child's stack dump after SIGUSR1
+
+
+def _stuck_line(output: str) -> int | None:
+    """The script's innermost line in the stacks the child dumped, if the script was on
+    one (a script waiting on its drones is on none: its frames are suspended)."""
+    start = output.find("(most recent call first):")
+    found = _SCRIPT_FRAME.search(output, start) if start >= 0 else None
+    return int(found.group(1)) if found else None
+
+
+def _simulated_s(lines: list[str]) -> float | None:
+    for line in reversed(lines):
+        found = _ECHOED_T.match(line)
+        if found:
+            return float(found.group(1))
+    return None
+
+
 async def predict(source: str, world: World, max_s: float, plugins_dir: Path | None = None,
-                  wall_s: float = SIMULATION_WALL_S) -> Prediction:
+                  bounds: Bounds = Bounds()) -> Prediction:
     """Run `fleet mission simulate` on `source` in `world` in a child process, with the
-    bundled plugins and those in `plugins_dir`."""
+    bundled plugins and those in `plugins_dir`, within `bounds` (SimulationBound past
+    its wall time; a memory or CPU limit ends the mission as the sandbox does)."""
     import yaml
 
     with tempfile.TemporaryDirectory(prefix="fleet-predict-") as tmp:
@@ -150,23 +198,40 @@ async def predict(source: str, world: World, max_s: float, plugins_dir: Path | N
         (d / "world.yml").write_text(yaml.safe_dump(msgspec.to_builtins(world)), encoding="utf-8")
         args = [sys.executable, "-m", "dronefleet", "mission", "simulate", str(d / "plan.py"), "--world", str(d / "world.yml"),
                 "--out", str(d / "out"), "--max-time", str(max_s), "--no-plots",
-                *(["--plugins-dir", str(plugins_dir)] if plugins_dir is not None else [])]
+                *(["--plugins-dir", str(plugins_dir)] if plugins_dir is not None else []),
+                *(["--limit-memory-mb", str(bounds.memory_mb)] if bounds.memory_mb is not None else []),
+                *(["--limit-cpu-s", str(bounds.cpu_s)] if bounds.cpu_s is not None else [])]
         started = time.monotonic()
         proc = await asyncio.create_subprocess_exec(*args, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
                                                     stderr=asyncio.subprocess.STDOUT)
+        out = bytearray()
+
+        async def read() -> None:
+            assert proc.stdout is not None
+            while chunk := await proc.stdout.read(65536):
+                out.extend(chunk)
+
+        reading = asyncio.get_running_loop().create_task(read())
         try:
-            out, _ = await asyncio.wait_for(proc.communicate(), wall_s)
-        except TimeoutError:
-            proc.kill()
-            await proc.wait()
-            raise TimeoutError(f"the simulation took longer than {wall_s:g} s on the ground's machine") from None
-        except asyncio.CancelledError:  # the client went: so does the child
-            proc.kill()
-            await proc.wait()
-            raise
+            try:
+                await asyncio.wait_for(proc.wait(), bounds.wall_s)
+            except TimeoutError:
+                proc.send_signal(signal.SIGUSR1)  # its stack: where the script was
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(asyncio.shield(reading), DUMP_WAIT_S)
+                text = out.decode("utf-8", "replace")
+                raise SimulationBound(bounds.wall_s, _stuck_line(text), _simulated_s(text.splitlines())) from None
+            await reading
+        finally:  # the bound, or the client went: so does the child
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
+            reading.cancel()
         lines = out.decode("utf-8", "replace").splitlines()
         result_file = d / "out" / "result.json"
         if not result_file.exists():  # it did not get to run the mission: say why
+            if proc.returncode == -signal.SIGXCPU:
+                raise InvalidMessage(f"the simulation used more than its {bounds.cpu_s:g} s of CPU")
             raise InvalidMessage("the simulation did not run: " + (" / ".join(lines[-3:]) or f"exit {proc.returncode}"))
         result = json.loads(result_file.read_text())
         return prediction_of(result, time.monotonic() - started, lines)

@@ -10,6 +10,12 @@ sensor crossing a threshold, a field sensor's alarm) says what it was still wait
 for. `?preflight=false` (`fleet mission submit --no-preflight`) skips it on purpose,
 logged with who asked.
 
+A preflight is bounded as a mission is: its child process has the sandbox's memory limit
+(`mission.max_memory_mb`) and a wall bound (`mission.preflight_wall_s`); at the bound a
+script computing at its own line is refused naming the line, one whose simulation was
+still flying passes, judged as far as it got. Up to `mission.preflight_concurrency`
+preflights run side by side; one more is answered 503 with Retry-After, never queued.
+
 What a preflight cannot see: the radio (links are not simulated), other missions'
 drones (a drone another mission holds is free in the copy), and wind, GPS or an
 autopilot that refuses what the simulator accepts.
@@ -22,7 +28,7 @@ import re
 import msgspec
 
 from dronefleet.ground.plan_routes import Planner, live_world_of, plugins_dir
-from dronefleet.ground.planning import Prediction, predict
+from dronefleet.ground.planning import DUMP_WAIT_S, Bounds, Prediction, SimulationBound, predict
 from dronefleet.ground.station import GroundStation
 from dronefleet.schemas.errors import InvalidMessage
 
@@ -75,15 +81,48 @@ class PreflightUnavailable(Exception):
     """The preflight could not run (no drone with a position, the simulation overran)."""
 
 
+class PreflightBusy(Exception):
+    """Every preflight slot is taken (`mission.preflight_concurrency`): try again after
+    `retry_after_s`, at most one preflight's wall bound."""
+
+    def __init__(self, retry_after_s: float) -> None:
+        self.retry_after_s = retry_after_s
+        super().__init__(f"every preflight slot is busy; try again in {retry_after_s:g} s")
+
+
+def bounded(bound: SimulationBound, max_s: float) -> Preflight:
+    """The verdict on a simulation its wall bound ended. A script computing at its own line
+    then would never give the drones a command again: refused, naming the line and the
+    bound. One whose simulation was still flying passes, judged as far as it got."""
+    limit = f"the preflight's bound of {bound.wall_s:g} s on the ground (mission.preflight_wall_s)"
+    t_s = bound.simulated_s or 0.0
+    if bound.line is not None:
+        return Preflight(passed=False, status="failed", cause="security", line=bound.line, t_s=t_s, wall_s=bound.wall_s,
+                         message=f"line {bound.line}: the script was still computing there, never waiting on a drone, "
+                                 f"when {limit} ended it", battery_left={}, flying_s={})
+    return Preflight(passed=True, status="running", cause="wall_bound", line=None, t_s=t_s, wall_s=bound.wall_s,
+                     message=f"judged up to {t_s:g} s of {max_s:g} s simulated: {limit} came first",
+                     battery_left={}, flying_s={})
+
+
 async def run_preflight(station: GroundStation, planner: Planner, source: str) -> Preflight:
-    """Fly `source` in fast time against the live fleet; waits for any other prediction."""
+    """Fly `source` in fast time against the live fleet, in one of the planner's slots
+    (PreflightBusy if none is free), within the mission sandbox's memory limit and the
+    preflight's wall bound."""
+    settings = station.config.mission
     try:
         world = live_world_of(station)
     except InvalidMessage as exc:
         raise PreflightUnavailable(exc.reason) from None
-    async with planner.lock:
+    bounds = Bounds(wall_s=settings.preflight_wall_s, memory_mb=settings.max_memory_mb,
+                    cpu_s=min(settings.max_cpu_s, settings.preflight_wall_s + 5))
+    if not planner.free():
+        raise PreflightBusy(settings.preflight_wall_s + DUMP_WAIT_S)
+    async with planner.slot():
         try:
-            prediction = await predict(source, world, station.config.mission.preflight_max_s, plugins_dir(station))
+            prediction = await predict(source, world, settings.preflight_max_s, plugins_dir(station), bounds)
+        except SimulationBound as bound:
+            return bounded(bound, settings.preflight_max_s)
         except (TimeoutError, InvalidMessage) as exc:
             raise PreflightUnavailable(str(exc)) from None
     return judge(prediction)

@@ -34,6 +34,12 @@ class MissionSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     # fleet (ground/preflight.py); one that fails is refused (422). Simulated seconds it may run.
     preflight: bool = True
     preflight_max_s: Annotated[float, Meta(ge=10, le=86_400)] = 1800.0
+    # Wall seconds a preflight may take on the ground's machine (its child process also has
+    # the script's memory limit): a script still computing at its own line then is refused,
+    # one whose simulation was still flying passes, judged as far as it got.
+    preflight_wall_s: Annotated[float, Meta(ge=1, le=600)] = 5.0
+    # Preflights (and the planner's simulations) that run side by side; one more is 503.
+    preflight_concurrency: Annotated[int, Meta(ge=1, le=64)] = 2
     # What a predicted flight drains from a battery, a fraction per second in the air (the
     # preflight's and the planner's; 0.0008: a full pack lasts about 20 minutes of flight).
     flight_drain_per_s: Annotated[float, Meta(ge=0, le=0.1)] = 0.0008

@@ -8,6 +8,7 @@ channel and the replacement plugin passes, reports its prediction and flies."""
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -25,6 +26,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("module-fleets")]
 
 DRONES = ("drone01", "drone02", "drone03")
 DRAIN_PER_S = 0.004  # the ground's flight_drain_per_s here: a pack lasts about 4 minutes in the air
+BOUND_S = 15.0  # mission.preflight_wall_s here
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +34,9 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
     fcs = {d: f"sim://?lat=40.633400&lon={-8.660810 + 0.00013 * i:.6f}&alt=8.2" for i, d in enumerate(DRONES)}
     fleet = GroundFleet(tmp_path_factory.mktemp("preflight"), fcs,
                         {"telemetry_rate_ms": 200}, per_agent={"drone03": {"sensors": [{"type": "camera"}]}},
-                        mission={"preflight": True, "flight_drain_per_s": DRAIN_PER_S, "preflight_max_s": 900})
+                        mission={"preflight": True, "flight_drain_per_s": DRAIN_PER_S, "preflight_max_s": 900,
+                                 # one preflight at a time, bounded well above what the valid ones take here
+                                 "preflight_wall_s": BOUND_S, "preflight_concurrency": 1})
     yield fleet
     fleet.stop()
 
@@ -130,3 +134,45 @@ wait(run(first), run(second))
 async def _all_ready(http: httpx.AsyncClient) -> bool:
     views = (await http.get("/drone")).json()
     return {v["info"]["drone_id"] for v in views if v["info"]["state"] == "ready"} >= set(DRONES)
+
+
+@pytest.mark.slow(30)
+async def test_a_script_that_never_waits_is_refused_at_its_bound_and_holds_up_no_one(http: httpx.AsyncClient) -> None:
+    """The preflight's wall bound (mission.preflight_wall_s) ends a script that spins
+    without ever waiting on a drone, naming the line it had reached; meanwhile a second
+    preflight finds the one slot taken and is answered 503 with Retry-After at once,
+    and a submission without a preflight is taken while the spinning one still runs."""
+    await until(lambda: _all_ready(http), 45, "three drones ready")
+    spin = b"d = assign()\nx = 0\nwhile True:\n    x += 1\n"
+
+    def submit_spinning() -> asyncio.Task[httpx.Response]:
+        return asyncio.get_running_loop().create_task(
+            http.post("/mission", content=spin, params={"name": "refused"}, timeout=BOUND_S + 30))
+
+    spinning = submit_spinning()
+
+    async def turned_away() -> httpx.Response | None:
+        """A second preflight, until it finds the slot the spinning one holds (422 while
+        it has not taken it yet; if the second came first, the spinning one is sent again)."""
+        nonlocal spinning
+        response = await http.post("/mission", content=b"d = assign()\nx = [1][5]\n", params={"name": "refused"})
+        if spinning.done() and spinning.result().status_code == 503:
+            spinning = submit_spinning()
+            return None
+        return response if response.status_code == 503 else None
+
+    busy = await until(turned_away, BOUND_S, "a second preflight answered 503")
+    assert busy.headers["Retry-After"] == str(int(BOUND_S + 1)), busy.headers
+    assert "mission.preflight_concurrency" in busy.json()["error"], busy.text
+    unchecked = await http.post("/mission", content=b"d = assign()\nprint('no preflight')\n",
+                                params={"name": "unchecked", "preflight": "false"})
+    assert unchecked.status_code == 201 and unchecked.json()["preflight"] is None, unchecked.text
+    assert not spinning.done(), "the spinning preflight ended before the unchecked submission was taken"
+    assert (await ended(http, unchecked.json()["mission_id"], 30))["status"] == "finished"
+
+    refused = await spinning
+    assert refused.status_code == 422, refused.text
+    detail = refused.json()["detail"]
+    assert detail["line"] in (3, 4) and detail["cause"] == "security", detail
+    assert "mission.preflight_wall_s" in refused.json()["error"], refused.text
+    await _never_armed(http)
