@@ -114,8 +114,11 @@ def live_world_of(station: GroundStation) -> World:
     """The world of a prediction: the fleet as the ground knows it now."""
     reg = station.registry
     gs = station.config.dashboard.ground_station
+    readings = [r for d in reg.ids() for r in reg.sensor_readings(d)] + reg.field.readings()
+    field_sensors = [info for i in reg.field.ids() if (info := reg.field.get(i)) is not None]
     return live_world([(reg.info(d), reg.telemetry(d)) for d in reg.ids()], station.config.geofence,
-                      (gs.lat, gs.lon) if gs is not None else None, station.config.mission.flight_drain_per_s)
+                      (gs.lat, gs.lon) if gs is not None else None, station.config.mission.flight_drain_per_s,
+                      readings, field_sensors)
 
 
 @post("/mission/plan/export", status_code=200, responses=error_specs(400, 413),

@@ -21,6 +21,7 @@ import signal
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
@@ -28,14 +29,17 @@ from typing import Annotated, Any, Literal, get_args
 import msgspec
 from msgspec import Meta
 
-from dronefleet.schemas.about import Role
+from dronefleet.schemas.about import Role, SensorDeclaration
 from dronefleet.schemas.errors import InvalidMessage
-from dronefleet.sim.world import BatteryModel, DroneSpec, Spot, World
+from dronefleet.schemas.telemetry import SensorReading
+from dronefleet.sim.world import BatteryModel, DroneSpec, FieldSensorSpec, Spot, World
+from dronefleet.sim.world_fields import FieldModel
 
 log = logging.getLogger(__name__)
 SIMULATION_WALL_S = 180.0  # a prediction that takes longer on this machine is stopped
 PATH_POINTS = 600  # per drone at most: the map draws them, the chart the battery
 ROLES = frozenset(get_args(Role))
+DEFAULT_TEMP_C = World().environment_temp  # the world's, where no temperature was heard
 
 
 class _Body(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -92,10 +96,16 @@ def decode_body(body: bytes, kind: type[Any], what: str) -> Any:
 
 
 def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float, float] | None,
-               drain_per_s: float = BatteryModel().drain_per_s) -> World:
+               drain_per_s: float = BatteryModel().drain_per_s, readings: Sequence[SensorReading] = (),
+               field_sensors: Sequence[Any] = ()) -> World:
     """The world of a prediction from (DroneInfo, Telemetry) pairs: drones without a
     position are left out (nothing to fly from). Batteries drain `drain_per_s` in flight
-    down to empty (no floor: a real pack runs out)."""
+    down to empty (no floor: a real pack runs out). Sensors read what the ground last
+    heard of their type (`readings`, the drones' and the field sensors'), everywhere:
+    a numeric field as a field of that value, a temperature as the environment's; what
+    was never heard is not invented. Field sensors (FieldSensorInfo) with a position
+    stand where they are, with the types of theirs the world can read."""
+    fields, temperature = _last_fields(readings)
     specs = []
     for info, telem in drones:
         pos = telem.position if telem is not None else None
@@ -104,16 +114,38 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
         ground_alt = telem.home.alt if telem.home is not None else pos.alt - pos.rel_alt
         battery = telem.battery.remaining_percent if telem.battery is not None else None
         roles = [r for r in (info.roles or []) if r in ROLES]
+        # The sensors the ground has heard from (a mission assigns by those), as declared
+        declared = {d.type: d for d in getattr(info, "sensors_declared", None) or []}
+        sensors: list[str | SensorDeclaration] = [declared.get(t, t) for t in info.sensors]
         specs.append(DroneSpec(id=info.drone_id, lat=pos.lat, lon=pos.lon, alt=ground_alt,
-                               sensors=list(info.sensors), kind=info.kind, roles=roles or None,
+                               sensors=sensors, kind=info.kind, roles=roles or None,
                                battery=None if battery is None else min(1.0, max(0.0, battery))))
     if not specs:
         raise InvalidMessage("no drone with a position to simulate: the ground has heard none yet")
+    standing = [FieldSensorSpec(id=f.sensor_id, type=t, lat=f.position.lat, lon=f.position.lon, alt=f.position.alt)
+                for f in field_sensors if f.position is not None
+                for t in f.types if t in fields or (t == "temperature" and temperature is not None)]
     origin = Spot(lat=specs[0].lat or 0.0, lon=specs[0].lon or 0.0, alt=specs[0].alt or 0.0)
     station = Spot(lat=ground[0], lon=ground[1]) if ground else None
     fence = geofence if geofence is not None and (geofence.polygon or geofence.max_alt_m is not None) else None
-    return World(origin=origin, ground_station=station, drones=specs, geofence=fence,
+    return World(origin=origin, ground_station=station, drones=specs, geofence=fence, fields=fields,
+                 field_sensors=standing, environment_temp=DEFAULT_TEMP_C if temperature is None else temperature,
                  battery=BatteryModel(drain_per_s=drain_per_s, floor=0.0))
+
+
+def _last_fields(readings: Sequence[SensorReading]) -> tuple[dict[str, dict[str, FieldModel]], float | None]:
+    """Per sensor type, each numeric field at its latest value; the latest temperature."""
+    fields: dict[str, dict[str, FieldModel]] = {}
+    temperature: float | None = None
+    for reading in sorted(readings, key=lambda r: r.timestamp):
+        if reading.fields:
+            numbers = {k: FieldModel(background=float(v)) for k, v in reading.fields.items()
+                       if isinstance(v, int | float) and not isinstance(v, bool)}
+            if numbers:
+                fields[reading.type] = {**fields.get(reading.type, {}), **numbers}
+        elif reading.type == "temperature" and isinstance(reading.value, int | float) and not isinstance(reading.value, bool):
+            temperature = float(reading.value)
+    return fields, temperature
 
 
 def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -> Prediction:

@@ -10,12 +10,17 @@ from __future__ import annotations
 
 import asyncio
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
 
+from dronefleet.bus.zenoh_bus import ZenohBus
+from dronefleet.schemas.codec import encode
+from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.telemetry import Position, SensorReading
 from tests.harness import GroundFleet, ended, fleet_command
 from tests.waiting import until
 
@@ -27,13 +32,15 @@ pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("module-fleets")]
 DRONES = ("drone01", "drone02", "drone03")
 DRAIN_PER_S = 0.004  # the ground's flight_drain_per_s here: a pack lasts about 4 minutes in the air
 BOUND_S = 15.0  # mission.preflight_wall_s here
+GAS = {"type": "gas", "fields": {"co_ppm": {"unit": "ppm", "min": 0, "max": 1000}}}
+FIELD_SPOT = (40.6341, -8.6609, 8.0)
 
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[GroundFleet]:
     fcs = {d: f"sim://?lat=40.633400&lon={-8.660810 + 0.00013 * i:.6f}&alt=8.2" for i, d in enumerate(DRONES)}
     fleet = GroundFleet(tmp_path_factory.mktemp("preflight"), fcs,
-                        {"telemetry_rate_ms": 200}, per_agent={"drone03": {"sensors": [{"type": "camera"}]}},
+                        {"telemetry_rate_ms": 200}, per_agent={"drone03": {"sensors": [{"type": "camera"}]}, "drone01": {"sensors": [GAS]}},
                         mission={"preflight": True, "flight_drain_per_s": DRAIN_PER_S, "preflight_max_s": 900,
                                  # one preflight at a time, bounded well above what the valid ones take here
                                  "preflight_wall_s": BOUND_S, "preflight_concurrency": 1})
@@ -176,3 +183,46 @@ async def test_a_script_that_never_waits_is_refused_at_its_bound_and_holds_up_no
     assert detail["line"] in (3, 4) and detail["cause"] == "security", detail
     assert "mission.preflight_wall_s" in refused.json()["error"], refused.text
     await _never_armed(http)
+
+
+@pytest.mark.slow(30)
+async def test_a_mission_reading_what_the_ground_has_heard_passes_its_preflight_and_flies(
+        http: httpx.AsyncClient, fleet: GroundFleet) -> None:
+    """The preflight's world holds what the ground has heard: drone01's gas sensor reads
+    42 ppm and a field sensor gas07 stands at its spot reading 40; a mission that reads
+    both passes its preflight and flies, printing what the drones read."""
+    await until(lambda: _all_ready(http), 45, "three drones ready")
+    keys = Keys()
+    bus = await ZenohBus.open("client", connect=[fleet.ground.endpoint])
+    token = bus.announce(keys.field_sensor_alive("gas07"))
+
+    async def publish() -> None:
+        while True:
+            now = int(time.time() * 1000)
+            bus.publish(keys.sensor("drone01", "gas"), encode(SensorReading(
+                drone_id="drone01", timestamp=now, type="gas", fields={"co_ppm": 42.0})))
+            bus.publish(keys.field_sensor("gas07", "gas"), encode(SensorReading(
+                timestamp=now, type="gas", fields={"co_ppm": 40.0}, sensor_id="gas07",
+                position=Position(lat=FIELD_SPOT[0], lon=FIELD_SPOT[1], alt=FIELD_SPOT[2], rel_alt=0.0))))
+            await asyncio.sleep(0.5)  # a sensor's own rate, not a wait in the test
+
+    publishing = asyncio.get_running_loop().create_task(publish())
+    try:
+        async def heard() -> bool:
+            drone = (await http.get("/drone/drone01", params={"data": "sensors"})).json()
+            field = await http.get("/sensor/gas07")
+            return "42" in str(drone) and field.status_code == 200
+        await until(heard, 15, "both readings at the ground")
+        source = ('d = assign("drone01")\nwait(d)\nprint("co", d.sensor.gas.co_ppm)\n'
+                  'ss = field_sensors(type="gas")\ns = ss[0]\nprint("field", s.id, s.fields.co_ppm)\n')
+        response = await http.post("/mission", content=source.encode(), params={"name": "sensors"}, timeout=60)
+        assert response.status_code == 201, response.text
+        assert response.json()["preflight"]["passed"] is True, response.text
+        record = await ended(http, response.json()["mission_id"], 60)
+        lines = [line["message"] for line in record["log"]]
+        assert (record["status"], record["cause"]) == ("finished", "success"), record
+        assert "co 42.0" in lines and "field gas07 40.0" in lines, lines
+    finally:
+        publishing.cancel()
+        token.close()
+        await bus.close()
