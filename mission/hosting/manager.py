@@ -332,7 +332,7 @@ class MissionManager:
             if self.store.get(mission_id) is not None:
                 continue
             start, entries = self.store.copied_journal(origin, copied.mission_id, upto)
-            record = msgspec.structs.replace(copied, mission_id=mission_id)
+            record = msgspec.structs.replace(copied, mission_id=mission_id, submitted_as=copied.submitted_as or copied.mission_id)
             source = start.source if start is not None else ""
             self.store.create(record, source)
             copied_log = self.store.copied_log(origin, copied.mission_id)
@@ -366,6 +366,7 @@ class MissionManager:
             )
 
     def cancel(self, mission_id: str, cause: str = "user", message: str | None = None) -> MissionRecord:
+        mission_id = self.resolve(mission_id)
         entry = self._running.get(mission_id)
         # A record with its end has ended, even while its task finishes (a mission's own
         # process reports the end before it exits).
@@ -376,7 +377,16 @@ class MissionManager:
         entry[0].end(cause, message)
         return msgspec.structs.replace(entry[0].record)
 
+    def resolve(self, mission_id: str) -> str:
+        """The id a mission runs under here: `mission_id` itself, or the mission taken over
+        from a lost ground that was submitted there as `mission_id` (the newest such)."""
+        if mission_id in self._running or self.store.get(mission_id) is not None:
+            return mission_id
+        taken = [r.mission_id for r in self.store.all() if r.submitted_as == mission_id]
+        return taken[-1] if taken else mission_id
+
     def get(self, mission_id: str) -> MissionRecord:
+        mission_id = self.resolve(mission_id)
         entry = self._running.get(mission_id)
         if entry is not None:
             return msgspec.structs.replace(entry[0].record)
@@ -389,8 +399,8 @@ class MissionManager:
         return [self.get(r.mission_id) if r.mission_id in self._running else r for r in self.store.all()]
 
     def log(self, mission_id: str) -> builtins.list[MissionLogLine]:
-        self.get(mission_id)
-        return self.store.log(mission_id)
+        record = self.get(mission_id)
+        return self.store.log(record.mission_id)
 
     async def wait(self, mission_id: str) -> MissionRecord:
         entry = self._running.get(mission_id)

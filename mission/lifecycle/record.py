@@ -55,6 +55,9 @@ class MissionRecord(msgspec.Struct, kw_only=True):
     active_drones: list[str] = msgspec.field(default_factory=list)
     used_drones: list[str] = msgspec.field(default_factory=list)
     submitted_by: str | None = None  # the API token's holder (SPEC §9), when tokens are on
+    # A mission taken over from a lost ground runs as `<origin>-<id>`: the id its client
+    # was given there, by which this ground finds it too (SPEC §14)
+    submitted_as: str | None = None
 
 
 class MissionLogLine(msgspec.Struct, frozen=True, kw_only=True):

@@ -171,6 +171,11 @@ async def test_a_mission_goes_on_on_the_standby_when_the_active_ground_is_killed
         assert took_s < 5, f"bravo took {took_s:.1f} s to take over"
 
         taken = f"alpha-{mission_id}"
+        # The id the client holds reaches it on bravo too, and the listing shows both names.
+        held = (await b.get(f"/mission/{mission_id}")).json()
+        assert (held["mission_id"], held["submitted_as"]) == (taken, mission_id), held
+        listed = {m["mission_id"]: m for m in (await b.get("/mission")).json()}
+        assert listed[taken]["submitted_as"] == mission_id, listed
         done = await ended(b, taken, 120)
         assert (done["status"], done["cause"]) == ("finished", "success"), done
         messages = [line["message"] for line in (await b.get(f"/mission/{taken}")).json()["log"]]
