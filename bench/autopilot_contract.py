@@ -326,36 +326,32 @@ STEPS: list[tuple[str, Callable[[Flight], Awaitable[None]]]] = [
 # ----- the autopilots ----------------------------------------------------------------
 
 class Autopilot:
-    """Something that speaks MAVLink to the agent on `fc_url`; started and stopped per run."""
+    """Something that speaks MAVLink to the agent on `fc_url`; started (as `proc`, a child
+    process, if it is ours) and stopped per run."""
 
     name = "autopilot"
     fc_url = ""
+    proc: ChildProcess | None = None
 
     def start(self, workdir: Path) -> None: ...
 
-    def stop(self) -> None: ...
+    def stop(self) -> None:
+        if self.proc is not None:
+            self.proc.stop(timeout_s=15)
 
     def alive(self) -> bool:
-        return True
+        return self.proc is None or self.proc.proc.poll() is None
 
 
 class FleetSim(Autopilot):
     def __init__(self, personality: str, params: list[str]) -> None:
         self.personality, self.params = personality, params
         self.name = f"fleet sim --autopilot {personality}" + "".join(f" --param {p}" for p in params)
-        self.proc: SimProcess | None = None
 
     def start(self, workdir: Path) -> None:
         self.proc = SimProcess(workdir, extra_args=["--autopilot", self.personality,
                                                     *[f"--param={p}" for p in self.params]])
         self.fc_url = self.proc.fc_url()
-
-    def stop(self) -> None:
-        if self.proc is not None:
-            self.proc.stop()
-
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.proc.poll() is None
 
 
 class Px4Sitl(Autopilot):
@@ -366,7 +362,6 @@ class Px4Sitl(Autopilot):
         self.build, self.instance = build, instance
         self.name = f"PX4 SITL (SIH quad) {build / 'bin' / 'px4'} -i {instance}"
         self.fc_url = f"udpin://127.0.0.1:{14540 + instance}"
-        self.proc: ChildProcess | None = None
 
     def start(self, workdir: Path) -> None:
         rootfs = self.build / "rootfs"
@@ -376,13 +371,6 @@ class Px4Sitl(Autopilot):
         env = {"PX4_SIM_MODEL": "sihsim_quadx", "PX4_SIMULATOR": "sihsim"}
         self.proc = ChildProcess([str(self.build / "bin" / "px4"), "-i", str(self.instance), "-d"],
                                  workdir / "px4.log", env=env, cwd=rootfs)
-
-    def stop(self) -> None:
-        if self.proc is not None:
-            self.proc.stop(timeout_s=15)
-
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.proc.poll() is None
 
 
 class ArduCopterSitl(Autopilot):
@@ -394,7 +382,6 @@ class ArduCopterSitl(Autopilot):
     def __init__(self, binary: Path, instance: int) -> None:
         self.binary, self.instance = binary, instance
         self.name = f"ArduCopter SITL {binary} -I{instance}"
-        self.proc: ChildProcess | None = None
 
     def start(self, workdir: Path) -> None:
         port = free_udp_base(1)
@@ -404,13 +391,6 @@ class ArduCopterSitl(Autopilot):
             [str(self.binary), "--model", "quad", "--speedup", "1", "--defaults", str(parm), f"-I{self.instance}",
              "--home", self.HOME, "--wipe", "--serial0", f"udpclient:127.0.0.1:{port}"],
             workdir / "arducopter.log", cwd=workdir)
-
-    def stop(self) -> None:
-        if self.proc is not None:
-            self.proc.stop(timeout_s=15)
-
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.proc.poll() is None
 
 
 class Given(Autopilot):
