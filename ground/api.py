@@ -43,13 +43,8 @@ from dronefleet.ground.dashboard_routes import (
 )
 from dronefleet.ground.describe import Level
 from dronefleet.ground.eventlog import format_line
-from dronefleet.ground.plan_routes import (
-    Planner,
-    check_mission_script,
-    export_mission_plan,
-    plugin_verbs,
-    simulate_mission,
-)
+from dronefleet.ground.plan_routes import check_mission_script, export_mission_plan, plugin_verbs, simulate_mission
+from dronefleet.ground.planner import Planner
 from dronefleet.ground.preflight import Preflight, PreflightBusy, PreflightUnavailable, run_preflight
 from dronefleet.ground.sensor_routes import list_field_sensors, show_field_sensor
 from dronefleet.ground.station import GroundStation

@@ -4,14 +4,12 @@ before anything flies (ground/planning.py does the work)."""
 
 from __future__ import annotations
 
-import contextlib
-from collections.abc import AsyncIterator
-from pathlib import Path
 from typing import Any
 
 from litestar import Request, Response, post
 
 from dronefleet.ground.api_error import error_response, error_specs, json_operation, text_operation
+from dronefleet.ground.planner import Planner, live_world_of, plugins_dir
 from dronefleet.ground.planning import (
     Bounds,
     ExportBody,
@@ -19,7 +17,6 @@ from dronefleet.ground.planning import (
     SimulateBody,
     SimulationBound,
     decode_body,
-    live_world,
     predict,
 )
 from dronefleet.ground.station import GroundStation
@@ -28,30 +25,8 @@ from dronefleet.mission.script.checks import check_script, first_problem
 from dronefleet.mission.script.qgc_plan import Waypoint, export_plan
 from dronefleet.mission.script.sandbox import ScriptError
 from dronefleet.schemas.errors import InvalidMessage
-from dronefleet.sim.world import World
 
 MAX_BODY_BYTES = 256 * 1024
-
-
-class Planner:
-    """Slots for predictions (preflights and the planner's simulations), each a child
-    process taking a core for seconds: up to `slots` side by side, the next refused
-    (503) rather than queued behind a slow one."""
-
-    def __init__(self, slots: int = 2) -> None:
-        self.slots = slots
-        self.running = 0
-
-    def free(self) -> bool:
-        return self.running < self.slots
-
-    @contextlib.asynccontextmanager
-    async def slot(self) -> AsyncIterator[None]:
-        self.running += 1
-        try:
-            yield
-        finally:
-            self.running -= 1
 
 
 def plugin_verbs(missions: MissionManager) -> frozenset[str]:
@@ -102,23 +77,6 @@ async def simulate_mission(station: GroundStation, planner: Planner, missions: M
             return Response(await predict(wanted.source, world, wanted.max_s, plugins_dir(station), bounds))
         except (SimulationBound, InvalidMessage) as exc:
             return error_response(503, str(exc))  # type: ignore[return-value]
-
-
-def plugins_dir(station: GroundStation) -> Path | None:
-    """The ground's own plugins (besides the bundled ones), for a prediction to load too."""
-    path = station.config.plugins_path.expanduser()
-    return path if path.is_dir() else None
-
-
-def live_world_of(station: GroundStation) -> World:
-    """The world of a prediction: the fleet as the ground knows it now."""
-    reg = station.registry
-    gs = station.config.dashboard.ground_station
-    readings = [r for d in reg.ids() for r in reg.sensor_readings(d)] + reg.field.readings()
-    field_sensors = [info for i in reg.field.ids() if (info := reg.field.get(i)) is not None]
-    return live_world([(reg.info(d), reg.telemetry(d)) for d in reg.ids()], station.config.geofence,
-                      (gs.lat, gs.lon) if gs is not None else None, station.config.mission.flight_drain_per_s,
-                      readings, field_sensors)
 
 
 @post("/mission/plan/export", status_code=200, responses=error_specs(400, 413),

@@ -78,6 +78,7 @@ class Prediction(msgspec.Struct, frozen=True, kw_only=True):
     status: str
     cause: str | None
     message: str
+    line: int | None = None  # the script's line an error ended it at
     duration_s: float  # simulated, from start to end of the mission
     wall_s: float
     drones: dict[str, PredictedDrone]  # the drones the mission used
@@ -170,6 +171,7 @@ def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -
             flying_s=round(len(flying) * period, 1),
         )
     return Prediction(status=record["status"], cause=record.get("cause"), message=record.get("message") or "",
+                      line=record.get("line"),
                       duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:])
 
 

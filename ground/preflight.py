@@ -23,16 +23,12 @@ autopilot that refuses what the simulator accepts.
 
 from __future__ import annotations
 
-import re
-
 import msgspec
 
-from dronefleet.ground.plan_routes import Planner, live_world_of, plugins_dir
+from dronefleet.ground.planner import Planner, live_world_of, plugins_dir
 from dronefleet.ground.planning import DUMP_WAIT_S, Bounds, Prediction, SimulationBound, predict
 from dronefleet.ground.station import GroundStation
 from dronefleet.schemas.errors import InvalidMessage
-
-_LINE = re.compile(r"\bline (\d+)\b")
 
 
 class Preflight(msgspec.Struct, frozen=True, kw_only=True):
@@ -68,10 +64,9 @@ def judge(prediction: Prediction) -> Preflight:
     """Passed: the mission finished, or was still running at the bound (it waits on the
     world); anything else failed."""
     passed = prediction.status == "finished" or prediction.cause == "time_limit"
-    found = _LINE.search(prediction.message or "")
     return Preflight(
         passed=passed, status=prediction.status, cause=prediction.cause, message=prediction.message,
-        line=int(found.group(1)) if found and not passed else None, t_s=prediction.duration_s, wall_s=prediction.wall_s,
+        line=prediction.line if not passed else None, t_s=prediction.duration_s, wall_s=prediction.wall_s,
         battery_left={d: p.battery_end for d, p in prediction.drones.items()},
         flying_s={d: p.flying_s for d, p in prediction.drones.items()},
     )

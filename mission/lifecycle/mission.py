@@ -236,6 +236,8 @@ class Mission:
         filename, where = script_frame(exc)
         in_plugin = filename.startswith("<plugin") or sub.name.startswith("plugin ")
         prefix = (f"{filename.strip('<>')} " if in_plugin else "") + (f"line {where}: " if where else "")
+        if not in_plugin and where is not None:
+            self.record.line = where
         if isinstance(exc, SecurityViolation):
             self.end("security", f"{prefix}{exc}")
         elif isinstance(exc, MemoryError):  # a mission's process is limited by mission.max_memory_mb

@@ -58,6 +58,7 @@ class MissionRecord(msgspec.Struct, kw_only=True):
     # A mission taken over from a lost ground runs as `<origin>-<id>`: the id its client
     # was given there, by which this ground finds it too (SPEC §14)
     submitted_as: str | None = None
+    line: int | None = None  # the script's line its error ended it at (a plugin's errors name no line)
 
 
 class MissionLogLine(msgspec.Struct, frozen=True, kw_only=True):
