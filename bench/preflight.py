@@ -32,6 +32,7 @@ import httpx
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.verdict import ScenarioFailed  # noqa: E402
+from dronefleet.agent.config import AgentConfig  # noqa: E402
 from dronefleet.sim.vehicle import VehicleParams  # noqa: E402
 from tests.harness import GroundFleet  # noqa: E402
 from tests.waiting import until
@@ -85,8 +86,9 @@ async def main() -> None:
     errors: list[float] = []
     with tempfile.TemporaryDirectory() as tmp:
         fcs = {f"drone{i + 1:02d}": f"sim://?lat=40.6334&lon={-8.66081 + 0.00013 * i:.6f}&alt=8.2" for i in range(4)}
-        # The prediction drains batteries as the simulated vehicles do, and drones come home at a mission's end.
-        fleet = GroundFleet(Path(tmp), fcs, {"telemetry_rate_ms": 200},
+        # The agents at their default telemetry rate (as the prediction's are), the prediction
+        # draining batteries as the simulated vehicles do, drones home at a mission's end.
+        fleet = GroundFleet(Path(tmp), fcs, {"telemetry_rate_ms": AgentConfig().telemetry_rate_ms},
                             mission={"preflight": True, "flight_drain_per_s": VEHICLE_DRAIN_PER_S, "end_action": "return"})
         try:
             async with fleet.client() as http:
