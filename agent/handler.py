@@ -55,6 +55,7 @@ class FlightSettings:
 class _Job:
     cmd: Command
     seen: FcState  # the autopilot's state when the command was accepted
+    accepted_s: float  # when (the handler's clock)
     goal: Goal | None = None
     started: bool = False
     ended: bool = False
@@ -139,7 +140,7 @@ class CommandHandler:
             if job is not None:
                 by = f"{FAILSAFE_REASON}: " if cmd.command_id.startswith(FAILSAFE_ID_PREFIX) else ""
                 self._end(job, end_state(job.name), f"{by}superseded by {name}")
-        job = _Job(cmd, seen=state)
+        job = _Job(cmd, seen=state, accepted_s=now)
         self._accepted_at[name] = now
         if name in ("arm", "disarm"):
             self._arming.requested(cmd.command_id, name == "arm", now)
@@ -291,15 +292,19 @@ class CommandHandler:
             log.info("%s system %s", self.drone_id, event)
         job = self._running
         if job is not None and job.started and not job.ended:
-            self._check(job, prev, s)
+            self._check(job, prev, s, disarm_edge=edge is not None and not s.armed)
 
-    def _check(self, job: _Job, prev: FcState, s: FcState) -> None:
+    def _check(self, job: _Job, prev: FcState, s: FcState, disarm_edge: bool = False) -> None:
         """End the running job if the autopilot left it between `prev` and `s`, or
-        finish it if `s` reached its goal."""
+        finish it if `s` reached its goal. A disarm ends it on its edge (reported after
+        the job began), or once no arm is expected and the job is old enough that the
+        report read is newer than the job (a heartbeat comes within EFFECT_LAG_S)."""
         if not s.connected:
             return
+        now = self._clock.monotonic()
         reason = interrupted(job.name, prev, s)
-        if reason is None and job.name not in ENDS_DISARMED and not self._arming.armed(self._clock.monotonic()):
+        if (reason is None and job.name not in ENDS_DISARMED and not self._arming.armed(now)
+                and (disarm_edge or now - job.accepted_s >= EFFECT_LAG_S)):
             reason = "disarmed"
         if reason is not None:
             self._end(job, end_state(job.name), reason)

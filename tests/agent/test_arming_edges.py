@@ -160,7 +160,7 @@ async def play(r: Rig, steps: list[tuple[float, str]]) -> None:
         elif action == "arm_on_disarm":  # the operator who arms as soon as telemetry shows disarmed
             if r.ap.landed != "on_ground":
                 continue
-            await r.until(lambda: not r.ap.reports[-1].state.armed, 15)
+            await r.until(lambda: not r.ap.reports[-1].state.armed, 15, step_s=0.05)
             r.send("arm")
             r.send("takeoff", alt=6.0)
         elif action == "goto":
@@ -169,7 +169,7 @@ async def play(r: Rig, steps: list[tuple[float, str]]) -> None:
             r.send("takeoff", alt=6.0)
         else:
             r.send(action)
-    await r.clock.advance(30.0)  # everything the autopilot does settles
+    await r.clock.advance(15.0)  # everything the autopilot does settles (its longest timer: 10 s)
 
 
 def check_properties(r: Rig) -> None:
@@ -202,15 +202,15 @@ def check_properties(r: Rig) -> None:
         #    follows a report, sent after the command was accepted, that says disarmed.
         for end in ends:
             if "disarmed" in (end.reason or ""):
-                t_end = (end.timestamp - r.clock.epoch_ms) / 1000
-                assert any(sent.at_s <= rep.t <= t_end and not rep.state.armed for rep in reports), \
+                t_end = (end.timestamp - r.clock.epoch_ms) / 1000  # to the ms: a report within it counts
+                assert any(sent.at_s <= rep.t <= t_end + 0.001 and not rep.state.armed for rep in reports), \
                     f"{sent.cmd.name} ended {end.reason} at {t_end:.2f} on a state from before {sent.at_s:.2f}"
         # 5. Every accepted command ends: none is left hanging once the autopilot settled.
         if sent.accepted and sent.cmd.name not in INSTANT:
             assert ends, f"{sent.cmd.name} accepted at {sent.at_s:.2f} never ended: {r.states(sent)}"
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenarios())
 def test_arming_and_modes_are_read_from_every_edge(scenario: tuple[float, float, list[tuple[float, str]]]) -> None:
     phase, handler_after, steps = scenario

@@ -13,7 +13,7 @@ from dronefleet.sim.world import DroneSpec, Spot, World
 pytestmark = pytest.mark.integration
 
 WORLD = World(origin=Spot(lat=40.6334, lon=-8.6608, alt=8.2), drones=[DroneSpec(id="drone01", lat=40.6334, lon=-8.6608, alt=8.2)])
-BOUNDS = Bounds(wall_s=4.0, memory_mb=512, cpu_s=10.0)
+BOUNDS = Bounds(wall_s=2.5, memory_mb=512, cpu_s=10.0)
 
 
 @pytest.mark.parametrize(("source", "line"), [
