@@ -31,21 +31,17 @@ from dronefleet.bus.mesh_policy import RETRANSMITTED_MS
 from dronefleet.bus.port import Bus, BusError
 from dronefleet.schemas.codec import encode
 from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.probe import Ping, ping_decoder
 from dronefleet.schemas.telemetry import GROUND_PEER, LinkQuality
 
 log = logging.getLogger(__name__)
-
-
-class Ping(msgspec.Struct, frozen=True, kw_only=True):
-    drone_id: str  # who probes
-    timestamp: int
-    seq: int
 
 
 class LinkProber:
     def __init__(
         self, drone_id: str, bus: Bus, keys: Keys, clock: Clock, period_s: float,
         on_ground_contact: Callable[[float], None], window: int = WINDOW, echo: EchoPort | None = None,
+        on_unrouted: Callable[[], None] = lambda: None,
     ) -> None:
         self.drone_id = drone_id
         self.bus = bus
@@ -53,6 +49,7 @@ class LinkProber:
         self.clock = clock
         self.period_s = period_s
         self.on_ground_contact = on_ground_contact
+        self.on_unrouted = on_unrouted  # the ground hears this drone but cannot reach its commands
         self.window = window
         self.windows: dict[str, LinkWindow] = {GROUND_PEER: LinkWindow(window)}
         self.echo = echo
@@ -170,7 +167,7 @@ class LinkProber:
         if peer == GROUND_PEER:
             self._ground_sent = sent
         try:
-            _, direct = await self.bus.query_linked(key, encode(ping), timeout_s=self.period_s)
+            answer, direct = await self.bus.query_linked(key, encode(ping), timeout_s=self.period_s)
         except (BusError, TimeoutError):
             return None, None
         finally:
@@ -179,4 +176,13 @@ class LinkProber:
         now = self.clock.monotonic()
         if peer == GROUND_PEER:
             self.on_ground_contact(now)
+            if _asks_redeclare(answer):
+                self.on_unrouted()
         return (now - sent) * 1000.0, direct
+
+
+def _asks_redeclare(answer: bytes) -> bool:
+    try:
+        return ping_decoder.decode(answer).redeclare
+    except msgspec.MsgspecError:  # a plain echo from some other ground: nothing asked
+        return False

@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -61,6 +62,9 @@ JOIN_WAIT_S = 2.0  # at start, how long to wait for the ground before serving wi
 # A contact gap this long may have been a link closing and the mesh routing the drone
 # another way: its command and bundle queryables are declared afresh (ADR 0003).
 REDECLARE_AFTER_S = 2.0
+# The ground says it hears the drone but holds no route to its commands (issue 76): they
+# are declared afresh, at most this often, so that each declaration has time to cross.
+REDECLARE_ASKED_MIN_S = 2.0
 FAILSAFE_COMMANDS = {"hold": Cancel, "return": Return, "land": Land}
 GEOFENCE_ID_PREFIX = "geofence-"
 
@@ -107,7 +111,9 @@ class Agent:
         self.prober = LinkProber(
             self.drone_id, bus, self.keys, clock, config.probe_period_ms / 1000,
             on_ground_contact=self._on_ground_contact, window=config.probe_window, echo=echo,
+            on_unrouted=self._on_unrouted,
         )
+        self._redeclared_at = -math.inf
 
     def _system(self, state: str, reason: str | None = None) -> None:
         self._publish_status(SystemStatus(
@@ -140,12 +146,25 @@ class Agent:
         if contact.gap_ms is not None and contact.gap_ms >= REDECLARE_AFTER_S * 1000 and self._served:
             log.info("%s: the ground answers again after %.1f s; declaring its command queryables afresh",
                      self.drone_id, contact.gap_ms / 1000)
-            for served in self._served:
-                served.refresh()
+            self._redeclare()
         for repeat in contact.repeats:
             log.info("%s: repeating %d %s", self.drone_id, len(repeat.statuses), repeat.why)
             for status in repeat.statuses:
                 self.bus.publish(self.keys.status(self.drone_id), encode(status), reliable=True)
+
+    def _on_unrouted(self) -> None:
+        """The ground's answer to a probe: it hears this drone, but its router holds no
+        route to the command queryable (a declaration that did not cross when the mesh
+        routed the drone another way, ADR 0003)."""
+        if self._served and self.clock.monotonic() - self._redeclared_at >= REDECLARE_ASKED_MIN_S:
+            log.info("%s: the ground hears it but cannot reach its commands; declaring its command queryables afresh",
+                     self.drone_id)
+            self._redeclare()
+
+    def _redeclare(self) -> None:
+        self._redeclared_at = self.clock.monotonic()
+        for served in self._served:
+            served.refresh()
 
     def _signed_by_the_ground(self) -> None:
         """A command or bundle that passed the ground's signature is contact (SPEC §8), as an

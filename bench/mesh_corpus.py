@@ -7,20 +7,24 @@ beyond a failing neighbour, reachable only through it — and each failing neigh
 fails in a random way: flying out past the edge and back (a task bundle, twice),
 flapping across the edge (short legs, four times), a loss ramp set directly on its
 radio (0 to 90 % of packets dropped over 20 s where it stands, held 5 s, then cleared;
-nftables in its namespace, whatever the distance says), or frozen (its agent and sensors
-SIGSTOPped for 20 s). The laptop is the real `fleet ground`; the drones are `fleet sim
+nftables in its namespace, whatever the distance says), frozen (its agent and sensors
+SIGSTOPped for 20 s), or out of range and back: every packet of its radio dropped
+for 3-12 s, twice (its links close: the lease is 2 s), which a drone beyond it shares. The laptop is the real `fleet ground`; the drones are `fleet sim
 WORLD --agents --radio`.
 
 For every healthy drone it measures, at the ground: the longest telemetry gap (5 Hz),
 liveliness token losses, `Link lost` lines and `unknown` states. For every drone, a
 command (`arm`) sent as soon as it first appears in `GET /drone` must be answered by
-its agent within 3 s (through neighbours too). Needs CAP_NET_ADMIN (root).
+its agent within 3 s (through neighbours too), and so must the first query to its
+agent each time the ground lists it ready, hold or active again after `unknown` or
+`unreachable` (a read of a bundle record, which changes nothing: 200 or the agent's
+404 is an answer, 504 is none). Needs CAP_NET_ADMIN (root).
 
     .venv/bin/python bench/mesh_corpus.py [--scenarios 50] [--seed 0] [--keep DIR]
 
 Prints one line per scenario and the rates; exits 1 if any healthy drone went 1.5 s
-unheard, lost its token, was logged `Link lost` or shown `unknown`, or any first
-command was not answered within 3 s.
+unheard, lost its token, was logged `Link lost` or shown `unknown` or `unreachable`, or any first
+command, at registration or back, was not answered within 3 s.
 """
 
 from __future__ import annotations
@@ -58,7 +62,8 @@ from tests.radio.emulated import GROUND, RadioSim  # noqa: E402
 
 GAP_S = 1.5
 COMMAND_S = 3.0
-FAILURES = ("flyout", "flapping", "ramp", "frozen")
+FAILURES = ("flyout", "flapping", "ramp", "frozen", "outage")
+OUTAGE_S = (3.0, 12.0)  # how long an outage drops every packet of the drone's radio
 RAMP = (20.0, 900, 5.0)  # seconds to ramp, loss at the top (1/1000ths), seconds held there
 FROZEN_S = 20.0
 WATCH_S = 45.0  # at most this long for the failures to play out
@@ -121,6 +126,7 @@ class Outcome:
     link_lost: dict[str, int]
     unknown: dict[str, int]
     first_command_s: dict[str, float | None]  # every drone: how long its first command took (None: not answered)
+    back_s: list[tuple[str, float | None]]  # each time a drone was listed commandable again: its first answer (s)
     arrivals: dict[str, list[tuple[float, float]]]  # healthy drones: each sample's arrival (s into the watch), s on its way
 
 
@@ -131,6 +137,7 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
     tokens: dict[str, int] = dict.fromkeys(healthy, 0)
     unknown: dict[str, int] = dict.fromkeys(healthy, 0)
     first: dict[str, float | None] = {}
+    back: list[tuple[str, float | None]] = []
     try:
         ground = GroundProcess(tmp, zenoh_host="0.0.0.0")
         started.append(ground)
@@ -149,7 +156,7 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
             async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
                 await _first_commands(http, [d.id for d in sc.drones], first, deadline_s=90)
                 start = time.monotonic()
-                poll = asyncio.ensure_future(_watch_states(http, healthy, unknown))
+                poll = asyncio.ensure_future(_watch_states(http, healthy, unknown, [d.id for d in sc.drones], back))
                 try:
                     await _fail(http, sim, sc)
                 finally:
@@ -165,7 +172,7 @@ async def run(sc: Scenario, tmp: Path) -> Outcome:
         during = [(start, 0.0), *((t, w) for t, w in heard[d] if start <= t <= end), (end, 0.0)]
         gaps[d], gap_at[d], gap_transit[d] = max((b - a, a - start, w) for (a, _), (b, w) in itertools.pairwise(during))
     arrivals = {d: [(round(t - start, 3), round(w, 3)) for t, w in heard[d]] for d in healthy}
-    return Outcome(gaps, gap_at, gap_transit, tokens, lost, unknown, first, arrivals)
+    return Outcome(gaps, gap_at, gap_transit, tokens, lost, unknown, first, back, arrivals)
 
 
 def _arrived(times: list[tuple[float, float]], sample: Sample) -> None:
@@ -189,18 +196,50 @@ async def _lines(http: httpx.AsyncClient, drone_id: str) -> list[str]:
     return (await http.get("/drone/logs", params={"drone_id": drone_id})).text.splitlines()
 
 
-async def _watch_states(http: httpx.AsyncClient, ids: list[str], unknown: dict[str, int]) -> None:
-    """Count each drone's flips to `unknown` at the ground (twice a second)."""
+async def _watch_states(http: httpx.AsyncClient, ids: list[str], unknown: dict[str, int], everyone: list[str],
+                        back: list[tuple[str, float | None]]) -> None:
+    """Count each healthy drone's flips to `unknown` or `unreachable` at the ground (twice a second), and
+    each time any drone is listed commandable again after `unknown` or `unreachable`,
+    time the first answer of its agent."""
     was = dict.fromkeys(ids, False)
-    while True:
-        for view in (await http.get("/drone")).json():
-            info = view.get("info") or {}
-            d = info.get("drone_id")
-            if d in was:
-                now = info.get("state") == "unknown"
-                unknown[d] += now and not was[d]
-                was[d] = now
-        await asyncio.sleep(0.5)
+    away = dict.fromkeys(everyone, False)
+    probes: set[asyncio.Task[None]] = set()
+    try:
+        while True:
+            for view in (await http.get("/drone")).json():
+                info = view.get("info") or {}
+                d, state = info.get("drone_id"), info.get("state")
+                if d in was:
+                    now = state in ("unknown", "unreachable")
+                    unknown[d] += now and not was[d]
+                    was[d] = now
+                if d in away:
+                    if state in ("unknown", "unreachable"):
+                        away[d] = True
+                    elif away[d] and state in COMMANDABLE:
+                        away[d] = False
+                        probe = asyncio.ensure_future(_answered_back(http, d, back))
+                        probes.add(probe)
+                        probe.add_done_callback(probes.discard)
+            await asyncio.sleep(0.5)
+    finally:
+        if probes:
+            await asyncio.wait(probes, timeout=COMMAND_S + 2)
+
+
+COMMANDABLE = ("ready", "hold", "active")
+
+
+async def _answered_back(http: httpx.AsyncClient, d: str, back: list[tuple[str, float | None]]) -> None:
+    """The drone is listed commandable again: a query to its agent that changes nothing
+    (a bundle record it never had), timed. The agent's 404 is an answer; 504 is none."""
+    sent = time.monotonic()
+    r = await http.get(f"/drone/{d}/bundle/reach-probe")
+    took = time.monotonic() - sent
+    answered = r.status_code == 200 or (r.status_code == 404 and "registered" not in r.text)
+    back.append((d, took if answered else None))
+    if not answered:
+        print(f"  {d} listed commandable again; its agent: {r.status_code} after {took:.1f} s: {r.text}", flush=True)
 
 
 async def _first_commands(http: httpx.AsyncClient, ids: list[str], first: dict[str, float | None],
@@ -249,6 +288,12 @@ async def _one(http: httpx.AsyncClient, sim: RadioSim, sc: Scenario, d: Drone) -
     if d.failure == "ramp":
         await _ramp(sim.netns(d.id))
         return
+    if d.failure == "outage":
+        rng = random.Random(f"{sc.seed} {d.id}")
+        for _ in range(2):
+            await _outage(sim.netns(d.id), rng.uniform(*OUTAGE_S))
+            await asyncio.sleep(8)  # back: listed again, and its first answer timed
+        return
     if d.failure == "flyout":
         out = [d.spot(sc.radio.lost_m * 0.95), d.spot()] * 2
     else:  # flapping: short legs across the edge of good range
@@ -292,6 +337,17 @@ async def _ramp(netns: str) -> None:
     await asyncio.sleep(5)
 
 
+async def _outage(netns: str, seconds: float) -> None:
+    """Drop every packet in and out of the drone's radio for `seconds`, then clear it."""
+    subprocess.run(["ip", "netns", "exec", netns, "nft", "-f", "-"], check=True, text=True, input=(
+        "table inet fleet_outage {\n chain in { type filter hook input priority 0; policy accept; iifname \"radio0\" drop; }\n"
+        " chain out { type filter hook output priority 0; policy accept; oifname \"radio0\" drop; }\n}\n"))
+    try:
+        await asyncio.sleep(seconds)
+    finally:
+        subprocess.run(["ip", "netns", "exec", netns, "nft", "delete", "table", "inet", "fleet_outage"], check=True)
+
+
 async def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenarios", type=int, default=50)
@@ -302,7 +358,7 @@ async def main() -> int:
     args = parser.parse_args()
     if not has_net_admin():
         raise ScenarioFailed("the emulated radio needs CAP_NET_ADMIN (run as root)")
-    healthy_ok = healthy_all = commands_ok = commands_all = 0
+    healthy_ok = healthy_all = commands_ok = commands_all = back_ok = back_all = 0
     worst_gap = 0.0
     for seed in range(args.seed, args.seed + args.scenarios):
         sc = scenario(seed)
@@ -316,8 +372,9 @@ async def main() -> int:
             out = await run(sc, kept)
         bad = [d for d in out.gaps if out.gaps[d] >= GAP_S or out.token_losses[d] or out.link_lost[d] or out.unknown[d]]
         slow = [d for d, s in out.first_command_s.items() if s is None or s > COMMAND_S]
+        slow_back = [(d, s) for d, s in out.back_s if s is None or s > COMMAND_S]
         if args.keep is not None:
-            if bad or slow:
+            if bad or slow or slow_back:
                 (kept / "arrivals.json").write_text(json.dumps(out.arrivals))
                 print(f"  kept in {kept}", flush=True)
             else:
@@ -326,6 +383,8 @@ async def main() -> int:
         healthy_ok += len(out.gaps) - len(bad)
         commands_all += len(out.first_command_s)
         commands_ok += len(out.first_command_s) - len(slow)
+        back_all += len(out.back_s)
+        back_ok += len(out.back_s) - len(slow_back)
         worst_gap = max([worst_gap, *out.gaps.values()])
         gaps = ", ".join(f"{d} {g:.2f} s (at {out.gap_at[d]:.0f} s, the next {out.gap_transit[d]:.2f} s on its way)"
                          for d, g in out.gaps.items())
@@ -333,11 +392,13 @@ async def main() -> int:
                               for d in slow)
         print(f"seed {seed}: {sc.describe()}; healthy gaps {gaps}; "
               f"{'ok' if not bad else 'FAILED ' + ', '.join(bad)}; first commands "
-              f"{'ok' if not slow else 'SLOW ' + slow_text}", flush=True)
-    print(f"healthy drones kept heard (gap < {GAP_S:g} s, no token lost, no Link lost, never unknown): "
+              f"{'ok' if not slow else 'SLOW ' + slow_text}; back and commandable {len(out.back_s)}: "
+              f"{'ok' if not slow_back else 'SLOW ' + str(slow_back)}", flush=True)
+    print(f"healthy drones kept heard (gap < {GAP_S:g} s, no token lost, no Link lost, never unknown or unreachable): "
           f"{healthy_ok} of {healthy_all}; longest gap {worst_gap:.2f} s; first commands answered within "
-          f"{COMMAND_S:g} s: {commands_ok} of {commands_all}", flush=True)
-    return 0 if healthy_ok == healthy_all and commands_ok == commands_all else 1
+          f"{COMMAND_S:g} s: {commands_ok} of {commands_all}; first answers once listed commandable again within "
+          f"{COMMAND_S:g} s: {back_ok} of {back_all}", flush=True)
+    return 0 if healthy_ok == healthy_all and commands_ok == commands_all and back_ok == back_all else 1
 
 
 if __name__ == "__main__":

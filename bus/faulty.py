@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from dronefleet.bus.port import Bus, Declaration, LivelinessHandler, QueryHandler, SampleHandler
+from dronefleet.bus.port import Bus, Declaration, LivelinessHandler, QueryHandler, RouteHandler, SampleHandler
 
 
 class FaultyBus:
@@ -43,6 +43,9 @@ class FaultyBus:
 
     def watch_liveliness(self, keyexpr: str, handler: LivelinessHandler) -> Declaration:
         return self.inner.watch_liveliness(keyexpr, handler)
+
+    def watch_route(self, key: str, handler: RouteHandler) -> Declaration:
+        return self.inner.watch_route(key, handler)
 
     def watch_links(self, on_closed: Callable[[], None]) -> Declaration:
         return self.inner.watch_links(on_closed)

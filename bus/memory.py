@@ -30,6 +30,7 @@ from dronefleet.bus.port import (
     QueryHandler,
     QueryRefused,
     QueryTimeout,
+    RouteHandler,
     Sample,
     SampleHandler,
 )
@@ -83,12 +84,22 @@ class MemoryNetwork:
     queryables: list[tuple[_Decl, QueryHandler]] = field(default_factory=list)
     tokens: list[_Decl] = field(default_factory=list)
     watchers: list[tuple[_Decl, Inbox[tuple[str, bool]]]] = field(default_factory=list)
+    routes: list[Callable[[], None]] = field(default_factory=list)  # each route watch's check
     # The tokens each watcher has been told are alive (what it sees of the mesh).
     _seen: dict[_Decl, set[_Decl]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.medium is not None:
             self.medium.on_change(self._reconsider_tokens)
+            self.medium.on_change(self.reconsider_routes)
+
+    def routed(self, node: str, key: str) -> bool:
+        """Whether a query on `key` from `node` finds a queryable (as `query` looks)."""
+        return any(intersects(d.keyexpr, key) and self.reachable(node, d.owner.node) for d, _ in self.queryables)
+
+    def reconsider_routes(self) -> None:
+        for check in list(self.routes):
+            check()
 
     def reachable(self, src: str, dst: str) -> bool:
         return self.medium is None or src == dst or self.medium.reachable(src, dst)
@@ -180,9 +191,31 @@ class MemoryBus:
 
     def serve(self, keyexpr: str, handler: QueryHandler) -> _Decl:
         entry: tuple[_Decl, QueryHandler]
-        entry = (self._declare(keyexpr, lambda: self._net.queryables.remove(entry)), handler)
+
+        def close() -> None:
+            self._net.queryables.remove(entry)
+            self._net.reconsider_routes()
+
+        entry = (self._declare(keyexpr, close), handler)
         self._net.queryables.append(entry)
+        self._net.reconsider_routes()
         return entry[0]
+
+    def watch_route(self, key: str, handler: RouteHandler) -> _Decl:
+        loop = asyncio.get_running_loop()
+        told = self._net.routed(self.node, key)
+
+        def check() -> None:
+            nonlocal told
+            routed = self._net.routed(self.node, key)
+            if routed != told:
+                told = routed
+                loop.call_soon(lambda: None if decl.closed else handler(routed))
+
+        decl = self._declare(key, lambda: self._net.routes.remove(check))
+        self._net.routes.append(check)
+        handler(told)
+        return decl
 
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
         return (await self.query_linked(selector, payload, timeout_s=timeout_s))[0]

@@ -25,6 +25,7 @@ class Sample:
 SampleHandler = Callable[[Sample], None]
 QueryHandler = Callable[[str, bytes], Awaitable[bytes]]
 LivelinessHandler = Callable[[str, bool], None]
+RouteHandler = Callable[[bool], None]
 
 
 async def echo(key: str, payload: bytes) -> bytes:
@@ -82,6 +83,12 @@ class Bus(Protocol):
 
     def watch_liveliness(self, keyexpr: str, handler: LivelinessHandler) -> Declaration:
         """handler(key, alive) for current tokens, then for every appearance/loss."""
+
+    def watch_route(self, key: str, handler: RouteHandler) -> Declaration:
+        """handler(routed): whether a query on `key` from here finds a queryable, told
+        at once (in this call) and then on every change (on the event loop). This node's
+        own routing table answers, so it costs no traffic: a drone heard here whose
+        command queryable's declaration has not reached this node is not routed."""
 
     def watch_links(self, on_closed: Callable[[], None]) -> Declaration:
         """on_closed() (on the event loop) each time a link of this session's node to

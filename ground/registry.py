@@ -21,6 +21,8 @@ from dronefleet.schemas.about import About, reading_fault, relay_disagreement
 from dronefleet.schemas.bundles import BundleRecord, BundleStatus
 from dronefleet.schemas.errors import STATE_UNKNOWN
 from dronefleet.schemas.fleet import (
+    COMMANDS_REACH,
+    COMMANDS_UNREACHABLE,
     CRITICAL_BATTERY,
     FC_DISCONNECTED,
     HEALTH_FAILING,
@@ -71,6 +73,11 @@ class _Sensor:
 
 COMMANDS_KEPT = 32  # command statuses kept per drone (Registry.command_statuses)
 
+# A drone heard this long with no route to its commands is logged so: a route usually
+# follows its first telemetry within a few tenths of a second.
+UNREACHABLE_TOLD_AFTER_MS = 1000
+
+
 @dataclass
 class _Drone:
     drone_id: str
@@ -93,6 +100,8 @@ class _Drone:
     commands: list[CommandStatus] = field(default_factory=list)  # its latest command statuses, oldest first
     dropping: dict[str, tuple[int, int]] = field(default_factory=dict)  # sensor type → (logged at ms, dropped since)
     health_failing_since_ms: int | None = None  # the first sample of the current run of failing health checks
+    unrouted_since_ms: int | None = None  # heard, but no route here to its command queryable since (None: routed)
+    unreachable_told: bool = False  # the log says so
 
 
 def describe_about(about: About) -> str:
@@ -114,6 +123,7 @@ class Registry:
         self.config = config
         self._drones: dict[str, _Drone] = {}
         self._abouts: dict[str, About] = {}  # heard per drone, also before its first telemetry
+        self._routed: dict[str, bool] = {}  # whether its command queryable is routed here, also before registering
         self.field = FieldSensors(config.sensor_timeout_ms)  # sensors that are not on a drone (SPEC §2)
         self.relays = relays  # on a secured mesh, the drones that may relay; None: every drone
 
@@ -179,6 +189,8 @@ class Registry:
         if d is None:
             d = self._drones[telem.drone_id] = _Drone(telem.drone_id, telem, now_ms)
             out.append(self._line(now_ms, "info", d, "Registered"))
+            if not self._routed.get(d.drone_id, False):
+                d.unrouted_since_ms = now_ms
             if d.drone_id in self._abouts:
                 out += self._about_lines(d, None, now_ms)
             before_errors: list[str] = []
@@ -198,6 +210,8 @@ class Registry:
                                       "telemetry decides its link until the token is back"))
             reconnected, first = d.unknown, False
             d.telem, d.last_telem_ms, d.unknown = telem, now_ms, False
+            if reconnected and d.unrouted_since_ms is not None:  # heard again: unreachable counts from now
+                d.unrouted_since_ms = now_ms
             if d.current is not None and d.current.command in ("return", "land") \
                     and telem.landed_state == "on_ground" and not telem.armed:
                 # Landed and disarmed: that return or landing is over, also when its end
@@ -405,6 +419,33 @@ class Registry:
                                   + (f", rtt {quality.rtt_ms:.0f} ms" if quality.rtt_ms is not None else "")))
         return out + self._publish(d, info)
 
+    def on_route(self, drone_id: str, routed: bool, now_ms: int) -> list[Event]:
+        """Whether a query from here finds the drone's command queryable (told by the
+        bus, heard or not): a drone whose commands cannot reach it is not `ready`, and
+        the line says why (issue 76)."""
+        self._routed[drone_id] = routed
+        d = self._drones.get(drone_id)
+        if d is None:
+            return []
+        return self._route_changed(d, now_ms)
+
+    def _route_changed(self, d: _Drone, now_ms: int) -> list[Event]:
+        out: list[Event] = []
+        if self._routed.get(d.drone_id, False):
+            if d.unrouted_since_ms is not None and d.unreachable_told:
+                out.append(self._line(now_ms, "info", d, f"{COMMANDS_REACH} after {(now_ms - d.unrouted_since_ms) / 1000:.1f} s"))
+            d.unrouted_since_ms, d.unreachable_told = None, False
+        elif d.unrouted_since_ms is None:
+            d.unrouted_since_ms = now_ms
+        return out + self._publish(d, self._derive(d))
+
+    def unrouted_for_ms(self, drone_id: str, now_ms: int) -> int | None:
+        """How long the drone has been heard with no route to its commands; None: routed."""
+        d = self._drones.get(drone_id)
+        if d is None or d.unrouted_since_ms is None:
+            return None
+        return now_ms - d.unrouted_since_ms
+
     def on_liveliness(self, drone_id: str, alive: bool, now_ms: int) -> list[Event]:
         d = self._drones.get(drone_id)
         if d is None:
@@ -422,6 +463,11 @@ class Registry:
         for d in self._drones.values():
             if not d.unknown and now_ms - d.last_telem_ms > self.config.drone_timeout_ms:
                 out += self._lose(d, now_ms, f"{LINK_LOST}: stopped receiving messages from drone")
+            if (not d.unknown and not d.unreachable_told and d.unrouted_since_ms is not None
+                    and now_ms - d.unrouted_since_ms >= UNREACHABLE_TOLD_AFTER_MS):
+                d.unreachable_told = True
+                out.append(self._line(now_ms, "warn", d, f"{COMMANDS_UNREACHABLE}: heard, but no route here to its command "
+                                                         f"queryable for {(now_ms - d.unrouted_since_ms) / 1000:.1f} s"))
             for kind, sensor in list(d.sensors.items()):
                 limit = self.config.sensor_timeout_ms.get(kind, 0)
                 if limit and now_ms - sensor.received_ms > limit:
@@ -481,6 +527,8 @@ class Registry:
             state = "error"
         elif t.flight_mode in MANUAL_MODES:
             state = "manual"
+        elif d.unrouted_since_ms is not None:
+            state = "unreachable"
         elif d.current is not None:
             state = "active"
         elif t.armed and t.landed_state != "on_ground":

@@ -23,7 +23,7 @@ import msgspec
 
 from dronefleet.bus.clock import Clock, SystemClock
 from dronefleet.bus.mesh_security import relays_of
-from dronefleet.bus.port import Bus, Declaration, NoRoute, QueryRefused, Sample, Unreachable, echo
+from dronefleet.bus.port import Bus, Declaration, NoRoute, QueryRefused, Sample, Unreachable
 from dronefleet.bus.recording import now_ns_of
 from dronefleet.bus.redeclarable import Redeclarable
 from dronefleet.bus.stream_copy import Stream, StreamCopy
@@ -61,6 +61,7 @@ from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
 from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround, GroundInfo, StandbyError
 from dronefleet.schemas.keys import Keys
+from dronefleet.schemas.probe import ping_decoder
 from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import LinkQuality, SensorReading, Telemetry
 
@@ -71,6 +72,10 @@ WATCH_QUEUE = 2048
 # `ground/ping` queryable is declared afresh (at most this often), since the drone's
 # router may hold no route to it while telemetry flows (ADR 0003, "ground/ping afresh").
 PING_REFRESH_MIN_S = 2.0
+# A drone heard this long with no route here to its commands is told so in the answer to
+# its next probe, and declares them afresh (issue 76): a route usually follows a drone's
+# first telemetry within a few tenths of a second.
+REDECLARE_ASK_AFTER_MS = 500
 ROUTE_RETRY_FIRST_S = 0.05  # a command to a heard drone with no route yet is asked again after this, doubling …
 ROUTE_RETRY_MAX_S = 0.5  # … up to this, until the command deadline
 _reply_decoder = msgspec.json.Decoder(CommandReply)
@@ -107,6 +112,7 @@ class GroundStation:
         self._last_telem_event: dict[str, float] = {}
         self.ping: Redeclarable | None = None  # `ground/ping`, the agents' probes: declared while running
         self._tokens_lost: set[str] = set()  # drones whose liveliness token went (refreshed when back)
+        self._routes: dict[str, Declaration] = {}  # per drone heard: the watch on its command queryable's route
         self._ping_refreshed_at = -math.inf
         self.airspace = Airspace(config, self.registry)  # SPEC §11: the fence and the other drones' targets
         self.recordings: MissionRecordings | None = None
@@ -151,7 +157,7 @@ class GroundStation:
             *self.peers.declare(),
             *(d for copy, _ in self.copies.values() for d in copy.declare()),
         ]
-        self.ping = Redeclarable(self.bus, k.ground_ping(), echo, self.clock)
+        self.ping = Redeclarable(self.bus, k.ground_ping(), self._answer_ping, self.clock)
         self.log_ground("info", "Ground station started")
         peers = asyncio.get_running_loop().create_task(self.peers.run(listen_first=bool(self.config.connect)),
                                                        name="ground peers")
@@ -166,6 +172,8 @@ class GroundStation:
             peers.cancel()
             self.peers.close()
             self.ping.close()
+            for route in self._routes.values():
+                route.close()
             for copy, _ in self.copies.values():
                 copy.close()
             self.log_ground("info", "Ground station stopped")
@@ -407,10 +415,17 @@ class GroundStation:
                 return await self.bus.query(key, payload, timeout_s=max(left_s, ROUTE_RETRY_FIRST_S))
             except NoRoute:
                 if left_s <= pause_s:
-                    raise NoRoute(f"no route to {key} within {deadline_s:g} s: its agent's queryable has not "
-                                  "reached the ground (the drone is heard, its commands are not)") from None
+                    raise NoRoute(self._no_route(key, deadline_s)) from None
             await self.clock.sleep(pause_s)
             pause_s = min(pause_s * 2, ROUTE_RETRY_MAX_S)
+
+    def _no_route(self, key: str, deadline_s: float) -> str:
+        parsed = self.keys.parse(key)
+        unrouted_ms = self.registry.unrouted_for_ms(parsed.drone_id, self.clock.time_ms()) if parsed else None
+        why = (f"the drone is heard, but this ground has held no route to its commands for {unrouted_ms / 1000:.1f} s "
+               "(its agent is asked to declare them afresh)" if unrouted_ms is not None
+               else "the drone is heard, its commands are not")
+        return f"no route to {key} within {deadline_s:g} s: its agent's queryable has not reached the ground ({why})"
 
     def _body(self, drone_id: str, body: bytes) -> dict[str, Any]:
         """A JSON object body for `drone_id`, with drone_id and timestamp set."""
@@ -442,10 +457,33 @@ class GroundStation:
     def _on_telemetry(self, sample: Sample) -> None:
         telem: Telemetry | None = self.from_drone(decode_telemetry, sample)
         if telem is not None:
+            if telem.drone_id not in self._routes:
+                self._watch_route(telem.drone_id)
             self.emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
             self.feeds.ask_about(telem.drone_id)
             self._offer_telemetry(telem)
             self.tell(WatchEvent("telemetry", telem))
+
+    def _watch_route(self, drone_id: str) -> None:
+        """From the drone's first telemetry on: whether this router holds a route to its
+        command queryable. Heard without one, it is `unreachable`, not `ready` (issue 76)."""
+        def routed(ok: bool) -> None:
+            self.emit(self.registry.on_route(drone_id, ok, self.clock.time_ms()))
+
+        self._routes[drone_id] = self.bus.watch_route(self.keys.cmd(drone_id), routed)
+
+    async def _answer_ping(self, key: str, payload: bytes) -> bytes:
+        """A probe, echoed (SPEC §8). To a drone heard here for a while with no route to
+        its commands, the echo asks it to declare them afresh: the answer goes back the
+        way the probe came, which needs no declaration (ADR 0003)."""
+        try:
+            ping = ping_decoder.decode(payload)
+        except msgspec.MsgspecError:
+            return payload
+        unrouted_ms = self.registry.unrouted_for_ms(ping.drone_id, self.clock.time_ms())
+        if unrouted_ms is None or unrouted_ms < REDECLARE_ASK_AFTER_MS:
+            return payload
+        return encode(msgspec.structs.replace(ping, redeclare=True))
 
     def _on_status(self, sample: Sample) -> None:
         status = self.decode(decode_status, sample)

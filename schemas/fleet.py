@@ -14,7 +14,8 @@ from dronefleet.schemas.about import SensorDeclaration
 from dronefleet.schemas.status import Coords
 from dronefleet.schemas.telemetry import LinkQuality
 
-DroneState = Literal["unknown", "error", "manual", "active", "hold", "ready"]
+# unreachable: heard, but no route from the ground to its command queryable (issue 76)
+DroneState = Literal["unknown", "error", "manual", "unreachable", "active", "hold", "ready"]
 DRONE_STATES: tuple[str, ...] = get_args(DroneState)
 
 CRITICAL_BATTERY = "Critical battery level"
@@ -25,6 +26,8 @@ HEALTH_FAILING = "Health check failing"  # the warning before health_error_after
 LINK_DEGRADED = "Link degraded"
 LINK_LOST = "Link lost"
 LINK_RESTORED = "Link restored"
+COMMANDS_UNREACHABLE = "Commands cannot reach it"
+COMMANDS_REACH = "Commands reach it again"
 
 
 class CurrentCommand(msgspec.Struct, frozen=True, kw_only=True):

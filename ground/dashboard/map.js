@@ -7,7 +7,7 @@
 import { niceMetres } from "./view.js";
 
 export const STATE_COLOURS = {
-  ready: "#2e9d4f", active: "#2f6fd6", hold: "#0e9aa7", manual: "#8a4fd6", error: "#d13434", unknown: "#8a8f98",
+  ready: "#2e9d4f", active: "#2f6fd6", hold: "#0e9aa7", manual: "#8a4fd6", unreachable: "#d98a1a", error: "#d13434", unknown: "#8a8f98",
 };
 export const FIELD_SENSOR_COLOUR = "#d61fd6";
 const LABELS_UP_TO = 40; // more drones than this: only the selected one is labelled

@@ -266,7 +266,8 @@ async def test_record_a_sim_flight_then_replay_it_into_a_fresh_ground(tmp_path: 
             await until(lambda: "holding" in player.output(), 30, "the replay's end")
             again = {d: comparable((await http.get(f"/drone/{d}")).json()) for d in ("drone01", "drone02")}
         for drone_id in ("drone01", "drone02"):
-            assert again[drone_id]["info"] == original[drone_id]["info"] | {"mission": None}, drone_id
+            # Replayed, a drone is heard but has no agent to command: unreachable (issue 76)
+            assert again[drone_id]["info"] == original[drone_id]["info"] | {"mission": None, "state": "unreachable"}, drone_id
             assert again[drone_id]["telem"] == last_telem[drone_id]
     finally:
         try:

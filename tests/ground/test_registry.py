@@ -33,9 +33,16 @@ def lines(events: list[Any]) -> list[str]:
     return [f"{e.level.upper()} {e.message}" for e in events if isinstance(e, LogLine)]
 
 
+def routed(registry: Registry, *drones: str) -> Registry:
+    """The bus says a query from the ground finds these drones' command queryables."""
+    for drone in drones or ("drone01", "drone02"):
+        registry.on_route(drone, True, 0)
+    return registry
+
+
 @pytest.fixture
 def reg() -> Registry:
-    return Registry(GroundConfig(sensor_timeout_ms={"temperature": 1000}))
+    return routed(Registry(GroundConfig(sensor_timeout_ms={"temperature": 1000})))
 
 
 def test_first_telemetry_registers_the_drone_ready(reg: Registry) -> None:
@@ -84,7 +91,7 @@ def test_a_drone_is_in_error_exactly_when_its_health_has_failed_for_the_time_all
         samples: list[tuple[int, bool]]) -> None:
     """Over random runs of samples (ms since the last, failing or not): error iff the
     current run of failing samples began health_error_after_s or more ago."""
-    registry = Registry(GroundConfig())
+    registry = routed(Registry(GroundConfig()))
     allowed_ms = GroundConfig().health_error_after_s * 1000
     now, since = 0, None
     for later, failing in samples:
@@ -292,3 +299,61 @@ def test_a_return_whose_end_was_never_heard_is_over_once_the_drone_is_landed_and
     assert lines(reg.on_telemetry(telem(armed=False, landed_state="on_ground"), 40)) == [
         "INFO Finish return to launch with altitude 10.0m (landed)"]
     assert reg.info("drone01").state == "ready" and reg.info("drone01").current_command is None
+
+
+def test_a_drone_heard_before_its_command_route_is_unreachable_until_the_route_comes(reg: Registry) -> None:
+    fresh = Registry(GroundConfig())
+    fresh.on_telemetry(telem(), 0)
+    assert fresh.info("drone01").state == "unreachable"
+    assert fresh.unrouted_for_ms("drone01", 400) == 400
+    assert lines(fresh.tick(999)) == []  # a route usually follows within tenths of a second: nothing said yet
+    assert lines(fresh.tick(1000)) == ["WARN Commands cannot reach it: heard, but no route here to its command "
+                                       "queryable for 1.0 s"]
+    events = fresh.on_route("drone01", True, 1500)
+    assert lines(events) == ["INFO Commands reach it again after 1.5 s"]
+    assert fresh.info("drone01").state == "ready" and fresh.unrouted_for_ms("drone01", 1600) is None
+
+
+EVENTS = st.one_of(
+    st.tuples(st.just("telem"), st.booleans()),  # in the air or not
+    st.tuples(st.just("route"), st.booleans()),
+    st.tuples(st.just("token"), st.booleans()),
+    st.tuples(st.just("tick"), st.just(False)),
+)
+
+
+@given(st.lists(st.tuples(st.integers(0, 3000), EVENTS), min_size=1, max_size=60))
+def test_a_drone_listed_commandable_always_has_a_route_and_a_lack_of_one_is_told_once(
+        steps: list[tuple[int, tuple[str, bool]]]) -> None:
+    """Over random interleavings of telemetry, route changes, tokens and time: a drone is
+    ready, hold or active only while the bus says its command queryable is routed here;
+    heard with none it is `unreachable`; the log says so once per outage, only after a
+    second heard without one, and says when it is back only after saying it was gone."""
+    registry = Registry(GroundConfig(drone_timeout_ms=60_000))
+    now, routed, told = 0, False, False
+    for later, (kind, value) in steps:
+        now += later
+        if kind == "telem":
+            events = registry.on_telemetry(telem(armed=value, landed_state="in_air" if value else "on_ground"), now)
+        elif kind == "route":
+            routed = value
+            events = registry.on_route("drone01", value, now)
+        elif kind == "token":
+            events = registry.on_liveliness("drone01", value, now)
+        else:
+            events = registry.tick(now)
+        said = lines(events)
+        if any("Commands cannot reach it" in line for line in said):
+            assert not told and not routed
+            told = True
+        if any("Commands reach it again" in line for line in said):
+            assert told and routed
+            told = False
+        if kind == "route" and value:
+            assert not told, ("a route back after 'cannot reach' is said", steps)
+        if "drone01" in registry:
+            state = registry.info("drone01").state
+            if state in ("ready", "hold", "active"):
+                assert routed, (state, steps)
+            if not routed and state != "unknown":
+                assert state == "unreachable", (state, steps)
