@@ -39,6 +39,7 @@ from playwright.async_api import Browser, Page, ViewportSize, async_playwright, 
 
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.codec import encode  # noqa: E402
+from dronefleet.schemas.commands import CommandReply  # noqa: E402
 from dronefleet.schemas.geo import destination  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
 from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry, VelocityNed  # noqa: E402
@@ -77,9 +78,17 @@ async def launch_chromium(executable: str) -> AsyncIterator[Browser]:
             await browser.close()
 
 
+async def _refuse(key: str, payload: bytes) -> bytes:
+    command_id = str(json.loads(payload or b"{}").get("command_id", ""))
+    return encode(CommandReply(command_id=command_id, accepted=False, reason="a synthetic drone takes no commands"))
+
+
 class SyntheticFleet:
     """`n` drones circling over a field, each publishing real Telemetry at `rate_hz`
-    over Zenoh into the ground (publishes spread evenly over each period)."""
+    over Zenoh into the ground (publishes spread evenly over each period). One
+    queryable on `drone/*/cmd` stands for their agents, so the ground can reach them
+    and lists them as it would real ones (`hold`, not `unreachable`); it refuses
+    every command."""
 
     def __init__(self, endpoint: str, n: int = 200, rate_hz: float = 10.0, center: tuple[float, float] = (40.6335, -8.6608)) -> None:
         self.endpoint, self.n, self.period_s, self.center = endpoint, n, 1 / rate_hz, center
@@ -89,6 +98,7 @@ class SyntheticFleet:
 
     async def __aenter__(self) -> SyntheticFleet:
         self._bus = await ZenohBus.open("client", connect=[self.endpoint], wait=True)
+        self._bus.serve(Keys().cmd("*"), _refuse)
         self._task = asyncio.get_running_loop().create_task(self._publish(self._bus), name="synthetic telemetry")
         return self
 

@@ -7,34 +7,50 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import msgspec
 
-from dronefleet.bus.port import Declaration, QueryRefused, Sample, Unreachable
+from dronefleet.bus.clock import Clock
+from dronefleet.bus.port import Bus, Declaration, QueryRefused, Sample, Unreachable
 from dronefleet.ground.describe import Level
-from dronefleet.ground.registry import LogLine
+from dronefleet.ground.inbound import Inbound
+from dronefleet.ground.registry import Event, LogLine, Registry
 from dronefleet.schemas.about import About
 from dronefleet.schemas.codec import decode_about, decode_sensor
 from dronefleet.schemas.errors import InvalidMessage
 from dronefleet.schemas.fleet import WatchEvent
+from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.telemetry import SensorReading
-
-if TYPE_CHECKING:
-    from dronefleet.ground.station import GroundStation
 
 log = logging.getLogger(__name__)
 ABOUT_ASK_S = 30.0  # a registered drone whose About was not heard is asked this often
 
 
+class FeedsOut(Protocol):
+    """Where what the feeds learn goes (the station)."""
+
+    def emit(self, events: list[Event]) -> None:
+        """Registry events: log lines and drone changes, to the log and every watcher."""
+
+    def broadcast(self, event: WatchEvent) -> None:
+        """To the watchers (HTTP event streams)."""
+
+    def tell(self, event: WatchEvent) -> None:
+        """To the missions."""
+
+
 class SensorFeeds:
-    def __init__(self, station: GroundStation) -> None:
-        self.station = station
+    def __init__(self, bus: Bus, keys: Keys, clock: Clock, registry: Registry, inbound: Inbound, *,
+                 query_timeout_s: float, out: FeedsOut) -> None:
+        self.bus, self.keys, self.clock, self.registry, self.inbound = bus, keys, clock, registry, inbound
+        self.query_timeout_s = query_timeout_s
+        self.out = out
         self._about_asked: dict[str, float] = {}  # drone → when its About was last asked for (monotonic)
         self._asking: set[asyncio.Task[None]] = set()
 
     def declare(self) -> list[Declaration]:
-        bus, k = self.station.bus, self.station.keys
+        bus, k = self.bus, self.keys
         return [
             bus.subscribe(k.about(), self._on_about, maxsize=1024),
             bus.subscribe(k.field_sensor(), self._on_field_reading, latest_only=True, maxsize=4096),
@@ -44,27 +60,26 @@ class SensorFeeds:
     # ---- About ---------------------------------------------------------------------
 
     def _on_about(self, sample: Sample) -> None:
-        about: About | None = self.station.from_drone(decode_about, sample)
+        about: About | None = self.inbound.from_drone(decode_about, sample)
         if about is not None:
-            self.station.emit(self.station.registry.on_about(about, self.station.clock.time_ms()))
+            self.out.emit(self.registry.on_about(about, self.clock.time_ms()))
 
     def ask_about(self, drone_id: str) -> None:
         """A drone registered without its About heard (the ground started after it, or
         the publication was lost): ask its agent, at most every ABOUT_ASK_S."""
-        station = self.station
-        now = station.clock.monotonic()
-        if station.registry.about(drone_id) is not None or now - self._about_asked.get(drone_id, -1e9) < ABOUT_ASK_S:
+        now = self.clock.monotonic()
+        if self.registry.about(drone_id) is not None or now - self._about_asked.get(drone_id, -1e9) < ABOUT_ASK_S:
             return
         self._about_asked[drone_id] = now
 
         async def ask() -> None:
             try:
-                raw = await station.bus.query(station.keys.about(drone_id), timeout_s=station.config.command_timeout_ms / 1000)
+                raw = await self.bus.query(self.keys.about(drone_id), timeout_s=self.query_timeout_s)
                 about = msgspec.structs.replace(decode_about(raw), drone_id=drone_id)
             except (Unreachable, QueryRefused, InvalidMessage) as exc:
                 log.info("%s: no About from its agent (%s); asked again in %g s", drone_id, exc, ABOUT_ASK_S)
                 return
-            station.emit(station.registry.on_about(about, station.clock.time_ms()))
+            self.out.emit(self.registry.on_about(about, self.clock.time_ms()))
 
         task = asyncio.get_running_loop().create_task(ask(), name=f"about {drone_id}")
         self._asking.add(task)
@@ -73,32 +88,31 @@ class SensorFeeds:
     # ---- field sensors -------------------------------------------------------------
 
     def _on_field_reading(self, sample: Sample) -> None:
-        station = self.station
-        parsed = station.keys.parse_field_sensor(sample.key)
-        reading: SensorReading | None = station.decode(decode_sensor, sample)
+        parsed = self.keys.parse_field_sensor(sample.key)
+        reading: SensorReading | None = self.inbound.decode(decode_sensor, sample)
         if parsed is None or reading is None:
             return
         sensor_id, kind = parsed
         # The key is the authority (on a secured mesh only that sensor may publish under it).
         reading = msgspec.structs.replace(reading, sensor_id=sensor_id, type=kind)
-        lines, kept = station.registry.field.on_reading(reading, station.clock.time_ms())
+        lines, kept = self.registry.field.on_reading(reading, self.clock.time_ms())
         self._log(lines)
         if kept is not None:
             event = WatchEvent("field_sensor", kept)
-            station.broadcast(event)
-            station.tell(event)
+            self.out.broadcast(event)
+            self.out.tell(event)
 
     def _on_field_liveliness(self, key: str, alive: bool) -> None:
         parts = key.split("/")
         if len(parts) >= 3 and parts[-1] == "alive":
-            self._log(self.station.registry.field.on_liveliness(parts[-2], alive))
+            self._log(self.registry.field.on_liveliness(parts[-2], alive))
 
     def tick(self) -> None:
-        lines, gone = self.station.registry.field.tick(self.station.clock.time_ms())
+        lines, gone = self.registry.field.tick(self.clock.time_ms())
         self._log(lines)
         for sensor_id, kind in gone:
-            self.station.tell(WatchEvent("field_sensor_lost", {"sensor_id": sensor_id, "type": kind}))
+            self.out.tell(WatchEvent("field_sensor_lost", {"sensor_id": sensor_id, "type": kind}))
 
     def _log(self, lines: list[tuple[Level, str]]) -> None:
-        now = self.station.clock.time_ms()
-        self.station.emit([LogLine(timestamp=now, level=level, drone_id=None, message=message) for level, message in lines])
+        now = self.clock.time_ms()
+        self.out.emit([LogLine(timestamp=now, level=level, drone_id=None, message=message) for level, message in lines])

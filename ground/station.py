@@ -34,9 +34,9 @@ from dronefleet.ground.describe import describe_step
 from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.feeds import SensorFeeds
 from dronefleet.ground.ground_peers import GroundPeers
+from dronefleet.ground.inbound import Inbound
 from dronefleet.ground.mission_recording import MissionRecordings
 from dronefleet.ground.registry import Event, InfoChanged, LogLine, Registry
-from dronefleet.ground.throttle import WarningThrottle
 from dronefleet.schemas.auth import T, signer_of
 from dronefleet.schemas.bundles import (
     BundleRecord,
@@ -103,8 +103,8 @@ class GroundStation:
         self.bus = bus
         self.events = events
         self.clock = clock or SystemClock()
-        self._warnings = WarningThrottle(log, self.clock)
         self.keys = Keys(config.namespace)
+        self.inbound = Inbound(self.keys, self.clock)  # messages from the mesh, decoded (bad ones warned of)
         self.registry = Registry(config, relays_of(config.security))  # who the mesh lets relay
         self._watchers: set[Watcher] = set()
         self._watches_ended = False
@@ -123,7 +123,9 @@ class GroundStation:
         self.new_bundle_id: Callable[[], str] = new_bundle_id
         self._held_bundle_statuses: dict[tuple[str, str], list[BundleStatus]] = {}
         self._catching_up: set[asyncio.Task[None]] = set()
-        self.feeds = SensorFeeds(self)  # About and field sensors (SPEC §2)
+        # About and field sensors (SPEC §2)
+        self.feeds = SensorFeeds(bus, self.keys, self.clock, self.registry, self.inbound,
+                                 query_timeout_s=config.command_timeout_ms / 1000, out=self)
         # SPEC §14: this ground among the grounds on the mesh; only the active one commands
         self.peers = GroundPeers(bus, self.keys, GroundInfo(ground_id=config.ground_id, priority=config.priority,
                                                             role=config.role, http=http_url),
@@ -455,7 +457,7 @@ class GroundStation:
     # ---- events in -----------------------------------------------------------------
 
     def _on_telemetry(self, sample: Sample) -> None:
-        telem: Telemetry | None = self.from_drone(decode_telemetry, sample)
+        telem: Telemetry | None = self.inbound.from_drone(decode_telemetry, sample)
         if telem is not None:
             if telem.drone_id not in self._routes:
                 self._watch_route(telem.drone_id)
@@ -486,14 +488,14 @@ class GroundStation:
         return encode(msgspec.structs.replace(ping, redeclare=True))
 
     def _on_status(self, sample: Sample) -> None:
-        status = self.decode(decode_status, sample)
+        status = self.inbound.decode(decode_status, sample)
         if status is None:
             return
         parsed = self.keys.parse(sample.key)
         if parsed is None or status.drone_id != parsed.drone_id:
             # A status speaks for the drone whose key it came on, and only for it: one
             # naming another drone would move that drone's commands and bundles.
-            self._warnings.warn(sample.key, "ignored a status on %s that names drone %r", sample.key, status.drone_id)
+            self.inbound.warnings.warn(sample.key, "ignored a status on %s that names drone %r", sample.key, status.drone_id)
             return
         if not self.registry.first_heard(status):
             return
@@ -532,7 +534,7 @@ class GroundStation:
         task.add_done_callback(self._catching_up.discard)
 
     def _on_sensor(self, sample: Sample) -> None:
-        reading: SensorReading | None = self.from_drone(decode_sensor, sample)
+        reading: SensorReading | None = self.inbound.from_drone(decode_sensor, sample)
         if reading is not None:
             dropped = self.registry.drop_reading(reading, self.clock.time_ms())
             if dropped is not None:  # outside what the drone declared: logged, never shown as a value
@@ -542,7 +544,7 @@ class GroundStation:
             self.tell(WatchEvent("sensor", reading))  # a mission in its own process keeps a copy
 
     def _on_link(self, sample: Sample) -> None:
-        quality: LinkQuality | None = self.from_drone(decode_link, sample)
+        quality: LinkQuality | None = self.inbound.from_drone(decode_link, sample)
         if quality is not None:
             self.emit(self.registry.on_link(quality, self.clock.time_ms()))
 
@@ -571,24 +573,6 @@ class GroundStation:
         self._ping_refreshed_at = now
         self.ping.refresh()
         log.info("%s is back on the mesh: ground/ping declared afresh (%s)", drone_id, self.ping.form)
-
-    def from_drone(self, decoder: Any, sample: Sample) -> Any:
-        """A drone's message, its drone_id taken from the key (the key is the authority
-        on who sent it: a sensor program may leave the field empty)."""
-        message = self.decode(decoder, sample)
-        parsed = self.keys.parse(sample.key)
-        if message is None or parsed is None:
-            return None
-        if message.drone_id != parsed.drone_id:
-            message = msgspec.structs.replace(message, drone_id=parsed.drone_id)
-        return message
-
-    def decode(self, decoder: Any, sample: Sample) -> Any:
-        try:
-            return decoder(sample.payload)
-        except InvalidMessage as exc:
-            self._warnings.warn(sample.key, "ignored a bad message on %s: %s", sample.key, exc)
-            return None
 
     # ---- events out ----------------------------------------------------------------
 

@@ -343,8 +343,8 @@ class Mission:
 
     def _on_drone(self, info: DroneInfo) -> None:
         if info.state in ("unknown", "unreachable"):  # unheard, or heard with no route to its commands
-            self._link_lost(info.drone_id, "link lost" if info.state == "unknown"
-                            else "heard, but its commands cannot reach it (no route to its agent's queryable)")
+            self._link_lost(info.drone_id, "" if info.state == "unknown"
+                            else " (heard, but its commands cannot reach it: no route to its agent's queryable)")
             return
         self._link_back(info.drone_id)
         if info.state == "manual":
@@ -360,7 +360,7 @@ class Mission:
                 if missing:
                     self.end("sensor", f"{info.drone_id} lost its {', '.join(missing)} sensor")
 
-    def _link_lost(self, drone_id: str, what: str = "link lost") -> None:
+    def _link_lost(self, drone_id: str, why: str = "") -> None:
         """A drone out of reach is not yet a failure: it may be flying back into range
         (or finishing work alone). Wait `mission.link_grace_s` for it."""
         if drone_id in self._link_waits or self.ending:
@@ -369,11 +369,11 @@ class Mission:
         alone = [b for b in self.delivery.bundles.values() if b.drone_id == drone_id]
         if alone:  # working alone is not a failure: the grace counts from the bundle's end
             ends_in = max(0.0, max(b.deadline for b in alone) - self.clock.monotonic())
-            self.log("info", f"{drone_id}: {what} while it runs bundle {alone[0].bundle_id}; waiting up to "
+            self.log("info", f"{drone_id}: link lost while it runs bundle {alone[0].bundle_id}{why}; waiting up to "
                              f"{ends_in + grace:.0f} s (its timeout, then mission.link_grace_s)")
             grace += ends_in
         else:
-            self.log("warn", f"{drone_id}: {what}; waiting up to {grace:g} s for it to come back")
+            self.log("warn", f"{drone_id}: link lost{why}; waiting up to {grace:g} s for it to come back")
         self.delivery.link_back_at.setdefault(drone_id, asyncio.get_running_loop().create_future())
         self._link_waits[drone_id] = asyncio.get_running_loop().create_task(
             self._link_grace(drone_id, grace), name=f"mission {self.id} link grace {drone_id}",

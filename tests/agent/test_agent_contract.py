@@ -21,12 +21,15 @@ pytestmark = pytest.mark.integration
 
 
 @pytest.mark.slow(110)
+@pytest.mark.parametrize("flight_controller", ["mavsdk", "mavsdk-ardupilot"], indirect=True)
 async def test_flight_contract(flight_controller: str, tmp_path: Path) -> None:
     """The whole contract as bench/autopilot_contract.py flies it against a real autopilot
-    (SPEC §2–§3, §8), through `fleet agent` over real Zenoh and, for `fleet sim`, real
-    MAVSDK and UDP: telemetry, refusals, arm, takeoff, gotos, turn, move, cancel, a goto
-    refused while landing, the auto-disarm announced, gotos queued in a takeoff, the
-    return to the last arming's home and the lost-link failsafe."""
+    (SPEC §2–§3, §8), through `fleet agent` over real Zenoh, real MAVSDK and UDP, on
+    `fleet sim` as PX4 (its default parameters) and as ArduCopter: telemetry, refusals,
+    arm, takeoff, gotos, turn, move, cancel, a goto refused while landing, the
+    auto-disarm announced, gotos queued in a takeoff, the return to the last arming's
+    home and the lost-link failsafe. The built-in vehicle (`--fc sim`) is the same
+    vehicle without MAVLink; the tests below and every mission test fly it."""
     result = await fly_contract(flight_controller, tmp_path)
     assert result.failed is None, f"{result.failed}: {result.why} (passed: {', '.join(result.passed)})"
 
