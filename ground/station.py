@@ -322,8 +322,9 @@ class GroundStation:
         ground that was out of range catches up. Raises CommandRejected 404 or Unreachable."""
         self._registered(drone_id)
         try:
-            raw = await self.bus.query(f"{self.keys.bundle(drone_id)}?id={bundle_id}",
-                                       timeout_s=self.config.command_timeout_ms / 1000)
+            # a read: asked again while no route reaches the agent, as a command is
+            raw = await self._query_within(f"{self.keys.bundle(drone_id)}?id={bundle_id}", b"",
+                                           self.config.command_timeout_ms / 1000)
         except QueryRefused as exc:
             raise CommandRejected(404, str(exc).split(": ", 1)[-1]) from None
         try:
