@@ -14,7 +14,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import re
 from collections.abc import AsyncIterator, Awaitable
 from typing import Annotated, Any, Literal
 
@@ -59,6 +58,7 @@ from dronefleet.schemas.bundles import BundleRecord, BundleReply, TaskBundle
 from dronefleet.schemas.commands import Command, CommandReply
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fleet import DroneInfo, DroneState, WatchEvent
+from dronefleet.schemas.grounds import NotCommanding
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
@@ -197,6 +197,12 @@ async def send_command(station: GroundStation, drone_id: str, request: Request[A
     return await _to_drone(drone_id, station.command(drone_id, await request.body(), who=_who(request)))
 
 
+def _not_commanding(refused: NotCommanding) -> Response[Any]:
+    """SPEC §14: everything stays visible; only the active ground commands. The refusal
+    names the active ground and where its API answers."""
+    return Response(refused.refusal, status_code=refused.refusal.status)
+
+
 async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
     """One request to a drone's agent, its failures as the API's errors."""
     try:
@@ -204,6 +210,8 @@ async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
     except InvalidMessage as exc:
         field = exc.field.removeprefix("$.") if exc.field else None
         return _error(400, str(exc), {"field": field})
+    except NotCommanding as exc:
+        return _not_commanding(exc)
     except CommandRejected as exc:
         detail: dict[str, Any] = {"drone_id": drone_id}
         if exc.code is not None:  # SPEC §11: "geofence" or "conflict" (with the other drone)
@@ -266,6 +274,10 @@ async def submit_mission(
     preflight: Annotated[bool, Parameter(description="fly it in fast time against the live fleet first (false: "
                                                      "skip on purpose, logged)")] = True,
 ) -> Response[MissionCreated]:
+    try:  # before its text is read or its preflight flown
+        missions.check_commanding()
+    except NotCommanding as exc:
+        return _not_commanding(exc)
     source = await _text(request, "script", {"line": None, "column": None})
     if not isinstance(source, str):
         return source
@@ -292,6 +304,8 @@ async def submit_mission(
     try:
         record = missions.submit(source, name, submitted_by=_who(request),
                                  notes=[report.summary()] if report is not None else None)
+    except NotCommanding as exc:  # it stood down during the preflight
+        return _not_commanding(exc)
     except ScriptError as exc:
         return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
     if not preflight:
@@ -346,6 +360,8 @@ async def cancel_mission(missions: MissionManager, mission_id: str, request: Req
     who = _who(request)
     try:
         record = missions.cancel(mission_id, message=f"cancelled by {who}" if who else None)
+    except NotCommanding as exc:
+        return _not_commanding(exc)
     except UnknownMission:
         return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
     except MissionEnded as exc:
@@ -484,22 +500,10 @@ def _who(request: Request[Any, Any, Any]) -> str | None:
     return getattr(request.state, "who", None)
 
 
-_COMMANDING = re.compile(r"POST /drone/[^/]+/(cmd|bundle)|POST /mission|DELETE /mission/[^/]+")
-
-
-def _authorize(tokens: list[ApiToken], station: GroundStation) -> Any:
+def _authorize(tokens: list[ApiToken]) -> Any:
     by_token = {t.token: t for t in tokens}
 
-    async def authorize(request: Request[Any, Any, Any]) -> Response[Any] | None:
-        refused = await _check_token(request)
-        if refused is not None:
-            return refused
-        refusal = station.standby() if _COMMANDING.fullmatch(f"{request.method} {request.url.path}") else None
-        if refusal is not None:  # everything stays visible; only the active ground commands
-            return Response(refusal, status_code=refusal.status)
-        return None
-
-    async def _check_token(request: Request[Any, Any, Any]) -> Response[ApiError] | None:
+    async def authorize(request: Request[Any, Any, Any]) -> Response[ApiError] | None:
         path = request.url.path
         if not by_token or _public(path):
             return None
@@ -548,7 +552,7 @@ def create_app(station: GroundStation, missions: MissionManager, tiles: TileArch
                 type="http", scheme="bearer", description="api.tokens: viewer (GET), operator (commands, missions), admin")}),
             security=[{"bearer": []}] if tokens else None,
         ),
-        before_request=_authorize(tokens, station),
+        before_request=_authorize(tokens),
         on_startup=[_add_command_components],
         debug=False,
         logging_config=None,  # the CLI configures logging, not the framework

@@ -59,7 +59,7 @@ from dronefleet.schemas.commands import Command, CommandReply, decode_command, n
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.fleet import WatchEvent
-from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround, GroundInfo, StandbyError
+from dronefleet.schemas.grounds import STALE_GROUND, ActiveGround, GroundInfo, NotCommanding, StandbyError
 from dronefleet.schemas.keys import Keys
 from dronefleet.schemas.probe import ping_decoder
 from dronefleet.schemas.status import CommandStatus
@@ -222,10 +222,7 @@ class GroundStation:
     def _check_active(self) -> None:
         refusal = self.standby()
         if refusal is not None:
-            raise CommandRejected(refusal.status,
-                                  f"this ground is {'an observer' if refusal.error == 'observer' else 'standby'}: "
-                                  f"{refusal.active or 'no ground'} is active"
-                                  + (f" ({refusal.http})" if refusal.http else ""), code=refusal.error)
+            raise NotCommanding(refusal)
 
     def log_ground(self, level: str, message: str) -> None:
         """A line about the ground itself (no drone)."""

@@ -7,6 +7,8 @@ from typing import Literal
 
 import msgspec
 
+from dronefleet.schemas.errors import CommandRejected
+
 GroundRole = Literal["ground", "observer"]
 STALE_GROUND = "stale_ground"  # an agent's refusal of a command or bundle from an older epoch than it heard
 RESERVED = frozenset({"alive", "ping"})  # `ground/alive`, `ground/ping` are keys of their own: not ground ids
@@ -35,6 +37,17 @@ class StandbyError(msgspec.Struct, frozen=True, kw_only=True):
     @property
     def status(self) -> int:
         return 403 if self.error == "observer" else 503
+
+
+class NotCommanding(CommandRejected):
+    """This ground does not command now (SPEC §14): what it refuses, whoever asks
+    (drone commands, pushes, mission submission and cancellation), says so by this."""
+
+    def __init__(self, refusal: StandbyError) -> None:
+        role = "an observer" if refusal.error == "observer" else "standby"
+        super().__init__(refusal.status, f"this ground is {role}: {refusal.active or 'no ground'} is active"
+                         + (f" ({refusal.http})" if refusal.http else ""), code=refusal.error)
+        self.refusal = refusal
 
 
 class GroundLogLine(msgspec.Struct, frozen=True, kw_only=True):
