@@ -44,6 +44,7 @@ from dronefleet.bus.port import (
     Sample,
     SampleHandler,
 )
+from dronefleet.bus.route_watch import RouteWatches
 from dronefleet.bus.sockets import LingerOff
 
 log = logging.getLogger(__name__)
@@ -172,6 +173,7 @@ class ZenohBus:
         self._publishers: dict[tuple[str, bool], zenoh.Publisher] = {}
         self._decls: list[_Declared] = []
         self._query_tasks: set[asyncio.Task[None]] = set()
+        self._routes: RouteWatches | None = None  # created with the first route watch
         self._closed = False
 
     @classmethod
@@ -336,34 +338,12 @@ class ZenohBus:
         return self._keep(_Declared(sub.undeclare, inbox))
 
     def watch_route(self, key: str, handler: RouteHandler) -> _Declared:
-        # A querier's matching status is this router's own lookup for a `get` on its
-        # key (what `_query` raises NoRoute on): no query is sent to learn it.
-        querier = self._session.declare_querier(key)
-        told: list[bool] = [_matching(querier.matching_status)]
-
-        def tell(routed: bool) -> None:  # on the loop: each change once, none after close
-            if not (decl.closed or self._closed) and routed != told[0]:
-                told[0] = routed
-                handler(routed)
-
-        def on_status(status: zenoh.MatchingStatus) -> None:  # on a Zenoh thread
-            try:
-                self._loop.call_soon_threadsafe(tell, status.matching)
-            except RuntimeError:  # loop closed
-                pass
-
-        listener = querier.declare_matching_listener(on_status)
-
-        def undeclare() -> None:
-            try:
-                listener.undeclare()
-            finally:
-                querier.undeclare()
-
-        decl = _Declared(undeclare)
-        handler(told[0])
-        tell(_matching(querier.matching_status))  # a change between the first read and the listener
-        return self._keep(decl)
+        """Polled, not pushed (bus/route_watch.py): a change is told within
+        route_watch.SWEEP_S, an unrouted key's route within POLL_S."""
+        if self._routes is None:
+            self._routes = RouteWatches(self._session, self._loop)
+        watch = self._routes.watch(key, handler)
+        return self._keep(_Declared(watch.close))
 
     def watch_links(self, on_closed: Callable[[], None]) -> _Declared:
         def tell() -> None:  # on the loop: not once the watch or the session is closed
@@ -389,6 +369,8 @@ class ZenohBus:
         self._closed = True
         for task in list(self._query_tasks):
             task.cancel()
+        if self._routes is not None:
+            self._routes.close()
         for decl in reversed(self._decls):
             decl.close()
         self._decls.clear()
@@ -425,12 +407,6 @@ class ZenohBus:
         except TimeoutError:
             log.warning("zenoh: the session did not close within %g s (a link to a silent peer; upstream #2675); "
                         "going on without waiting", CLOSE_WAIT_S)
-
-
-def _matching(status: object) -> bool:
-    """A querier's `matching_status`: a `MatchingStatus` at run time, though zenoh-python
-    1.10's stub says `bool`."""
-    return bool(getattr(status, "matching", status))
 
 
 def _settle(done: asyncio.Future[None]) -> None:

@@ -252,6 +252,31 @@ async def test_query_without_queryable_is_unreachable_at_once(mesh: MeshFactory)
     assert not isinstance(info.value, QueryTimeout)
 
 
+async def test_a_route_watch_tells_whether_a_query_would_find_a_queryable(mesh: MeshFactory) -> None:
+    """At once, then on each change: none, a queryable elsewhere on the mesh (in its
+    other key form too), undeclared, and a second watch of the same key beside. Every
+    "routed" told is a query answered."""
+    server, client = await mesh(), await mesh()
+    told: list[bool] = []
+    watch = client.watch_route("drone/d7/cmd", told.append)
+    assert told == [False]
+    served = server.serve("drone/d7/cmd/**", echo)
+    await until(lambda: told[-1:] == [True], 10, "the route told")
+    assert await client.query("drone/d7/cmd", b"hi", timeout_s=5) == b"hi"
+    other: list[bool] = []
+    beside = client.watch_route("drone/d7/cmd", other.append)
+    assert other == [True]
+    served.close()
+    await until(lambda: told[-1:] == [False] and other[-1:] == [False], 10, "the route's loss told to both")
+    with pytest.raises(Unreachable):
+        await client.query("drone/d7/cmd", b"hi", timeout_s=5)
+    watch.close()
+    server.serve("drone/d7/cmd", echo)
+    await until(lambda: other[-1:] == [True], 10, "the route back")
+    beside.close()
+    assert told == [False, True, False], "a closed watch tells nothing more"
+
+
 async def test_slow_queryable_times_out(mesh: MeshFactory) -> None:
     server, client = await mesh(), await mesh()
     release = asyncio.Event()
