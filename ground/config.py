@@ -137,6 +137,10 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     namespace: str = ""
     battery: BatteryLevels = msgspec.field(default_factory=BatteryLevels)
     drone_timeout_ms: Annotated[int, Meta(ge=100, le=3_600_000)] = 5000
+    # The registry's bound: telemetry under a new id past it is dropped and counted (one
+    # line per 10 s names how many), so made-up ids on an open mesh cannot grow the
+    # ground without end (each drone heard holds a record and a route watch).
+    max_drones: Annotated[int, Meta(ge=1, le=1_000_000)] = 10_000
     sensor_timeout_ms: dict[str, Millis] = msgspec.field(default_factory=dict)  # per type; 0 = never
     mission: MissionSettings = msgspec.field(default_factory=MissionSettings)
     event_telemetry_ms: Annotated[int, Meta(ge=0, le=60_000)] = 500  # /events: one telemetry per drone per period

@@ -73,6 +73,8 @@ class _Sensor:
 
 COMMANDS_KEPT = 32  # command statuses kept per drone (Registry.command_statuses)
 
+TURNED_AWAY_EVERY_MS = 10_000  # a full registry says how many ids it turned away at most this often
+TURNED_AWAY_COUNTED = 100_000  # distinct ids counted per line, at most (the count itself is bounded)
 # A drone heard this long with no route to its commands is logged so: a route usually
 # follows its first telemetry within a few tenths of a second.
 UNREACHABLE_TOLD_AFTER_MS = 1000
@@ -124,6 +126,8 @@ class Registry:
         self._drones: dict[str, _Drone] = {}
         self._abouts: dict[str, About] = {}  # heard per drone, also before its first telemetry
         self._routed: dict[str, bool] = {}  # whether its command queryable is routed here, also before registering
+        self._turned_away: set[str] = set()  # ids heard past max_drones since the last line said so
+        self._turned_away_told_ms = -TURNED_AWAY_EVERY_MS
         self.field = FieldSensors(config.sensor_timeout_ms)  # sensors that are not on a drone (SPEC §2)
         self.relays = relays  # on a secured mesh, the drones that may relay; None: every drone
 
@@ -131,6 +135,10 @@ class Registry:
 
     def __contains__(self, drone_id: str) -> bool:
         return drone_id in self._drones
+
+    def admits(self, drone_id: str) -> bool:
+        """Whether telemetry under this id is taken: a registered drone, or room for one."""
+        return drone_id in self._drones or len(self._drones) < self.config.max_drones
 
     def ids(self) -> list[str]:
         return sorted(self._drones)
@@ -187,6 +195,10 @@ class Registry:
         out: list[Event] = []
         d = self._drones.get(telem.drone_id)
         if d is None:
+            if not self.admits(telem.drone_id):
+                if len(self._turned_away) < TURNED_AWAY_COUNTED:
+                    self._turned_away.add(telem.drone_id)
+                return []
             d = self._drones[telem.drone_id] = _Drone(telem.drone_id, telem, now_ms)
             out.append(self._line(now_ms, "info", d, "Registered"))
             if not self._routed.get(d.drone_id, False):
@@ -460,6 +472,12 @@ class Registry:
     def tick(self, now_ms: int) -> list[Event]:
         """Time passing: drone and sensor timeouts (the thesis's scheduled monitors)."""
         out: list[Event] = []
+        if self._turned_away and now_ms - self._turned_away_told_ms >= TURNED_AWAY_EVERY_MS:
+            out.append(LogLine(timestamp=now_ms, level="warn", drone_id=None, message=(
+                f"Registry full (ground.max_drones {self.config.max_drones}): dropped the telemetry of "
+                f"{len(self._turned_away)} drone id(s) not registered, e.g. {min(self._turned_away)!r}")))
+            self._turned_away.clear()
+            self._turned_away_told_ms = now_ms
         for d in self._drones.values():
             if not d.unknown and now_ms - d.last_telem_ms > self.config.drone_timeout_ms:
                 out += self._lose(d, now_ms, f"{LINK_LOST}: stopped receiving messages from drone")

@@ -457,7 +457,7 @@ class GroundStation:
     def _on_telemetry(self, sample: Sample) -> None:
         telem: Telemetry | None = self.inbound.from_drone(decode_telemetry, sample)
         if telem is not None:
-            if telem.drone_id not in self._routes:
+            if telem.drone_id not in self._routes and self.registry.admits(telem.drone_id):
                 self._watch_route(telem.drone_id)
             self.emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
             self.feeds.ask_about(telem.drone_id)

@@ -357,3 +357,29 @@ def test_a_drone_listed_commandable_always_has_a_route_and_a_lack_of_one_is_told
                 assert routed, (state, steps)
             if not routed and state != "unknown":
                 assert state == "unreachable", (state, steps)
+
+
+@given(st.integers(1, 5), st.lists(st.tuples(st.integers(0, 4000), st.integers(0, 9)), max_size=80))
+def test_a_full_registry_keeps_its_drones_drops_new_ids_and_says_how_many_every_interval(
+        cap: int, heard: list[tuple[int, int]]) -> None:
+    """Over random streams of telemetry under ids 0-9 with room for `cap` drones: the
+    first `cap` ids heard are registered and stay so, no other is, and every id turned
+    away is counted in the next line that says so (at most one per 10 s)."""
+    registry = Registry(GroundConfig(max_drones=cap, drone_timeout_ms=3_600_000))
+    now, told_at = 0, None
+    order: list[str] = []  # registered, in the order first heard
+    dropped_since_line: set[str] = set()
+    for later, n in heard:
+        now += later
+        drone_id = f"drone{n:02d}"
+        registry.on_telemetry(telem(drone_id), now)
+        if drone_id not in order and len(order) < cap:
+            order.append(drone_id)
+        elif drone_id not in order:
+            dropped_since_line.add(drone_id)
+        said = [e for e in registry.tick(now) if isinstance(e, LogLine) and "Registry full" in e.message]
+        if said:
+            assert told_at is None or now - told_at >= 10_000
+            assert f": dropped the telemetry of {len(dropped_since_line)} drone id(s)" in said[0].message, said
+            told_at, dropped_since_line = now, set()
+        assert registry.ids() == sorted(order)
