@@ -2,8 +2,11 @@
 does (a reliable publication gone down with a link that closed under it, say).
 
 `FaultyBus(inner, lose=...)` passes everything to `inner` except the publications for
-which `lose(key, payload)` is true: those are kept in `lost` and go nowhere. In-process
-(fast time and unit tests); the real mesh's faults are made with the emulated radio.
+which `lose(key, payload)` is true: those are kept in `lost` and go nowhere; and, with
+`lose_serve`, the queryables for which `lose_serve(keyexpr)` is true: declared here,
+but no query on the mesh finds them (a declaration that never crossed, ADR 0003), kept
+in `lost_serves`. In-process (fast time and unit tests); the real mesh's faults are
+made with the emulated radio.
 """
 
 from __future__ import annotations
@@ -14,10 +17,13 @@ from dronefleet.bus.port import Bus, Declaration, LivelinessHandler, QueryHandle
 
 
 class FaultyBus:
-    def __init__(self, inner: Bus, lose: Callable[[str, bytes], bool]) -> None:
+    def __init__(self, inner: Bus, lose: Callable[[str, bytes], bool] = lambda key, payload: False,
+                 lose_serve: Callable[[str], bool] = lambda keyexpr: False) -> None:
         self.inner = inner
         self.lose = lose
+        self.lose_serve = lose_serve
         self.lost: list[tuple[str, bytes]] = []
+        self.lost_serves: list[str] = []
 
     def publish(self, key: str, payload: bytes, *, reliable: bool = True) -> None:
         if self.lose(key, payload):
@@ -30,6 +36,9 @@ class FaultyBus:
         return self.inner.subscribe(keyexpr, handler, latest_only=latest_only, maxsize=maxsize)
 
     def serve(self, keyexpr: str, handler: QueryHandler) -> Declaration:
+        if self.lose_serve(keyexpr):
+            self.lost_serves.append(keyexpr)
+            return _Nothing()
         return self.inner.serve(keyexpr, handler)
 
     async def query(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> bytes:
@@ -52,3 +61,8 @@ class FaultyBus:
 
     async def close(self) -> None:
         await self.inner.close()
+
+
+class _Nothing:
+    def close(self) -> None:
+        pass

@@ -480,3 +480,35 @@ async def test_a_goto_whose_end_is_lost_ends_once_the_drone_stands_at_its_target
     assert sum(len(bus.lost) for bus in buses) == 1, "the scenario never lost a goto's finish"
     assert cause(record) == ("finished", "success"), (record, log)
     assert any("the end of its goto was not heard; it stands at its target" in line for line in log), log
+
+
+async def test_a_drone_whose_command_queryable_never_crossed_is_unreachable_until_asked_to_declare_it_afresh() -> None:
+    """Issue 76 in fast time: drone01's agent declares its `cmd` queryable, but the
+    declaration never reaches the ground (a FaultyBus loses it). Heard, drone01 is
+    `unreachable`, not `ready`; the ground's answer to its next link probe asks it to
+    declare its queryables afresh; the other key form crosses, it is ready and flies."""
+    buses: list[FaultyBus] = []
+
+    def cmd_never_crosses(drone_id: str, bus: Bus) -> Bus:
+        if drone_id != "drone01":
+            return bus
+        buses.append(FaultyBus(bus, lose_serve=lambda keyexpr: keyexpr == "drone/drone01/cmd"))
+        return buses[-1]
+
+    field = SimField(world_with(), None, agent_bus=cmd_never_crosses)
+    states: list[str] = []  # drone01's, as the ground lists it
+    field.station.listen(lambda e: states.append(e.data.state) if e.kind == "drone" and e.data.drone_id == "drone01" else None)
+    await field.start()
+    try:
+        record = await field.run_mission('d = assign("drone01")\narm(d)\nprint("armed")\n', max_s=120)
+        lines = [line.message for line in field.mission_log(record.mission_id)]
+        ground = [line.message for _, line in field.events.query() if line.drone_id == "drone01"]
+    finally:
+        await field.close()
+    assert buses[0].lost_serves == ["drone/drone01/cmd"], "the scenario never lost the declaration"
+    assert cause(record) == ("finished", "success"), (record, lines)
+    assert "armed" in lines, lines
+    assert states[0] == "unreachable" and "ready" in states, states
+    assert "ready" not in states[:states.index("ready")], states
+    reach = [m.split(":")[0].split(" after")[0] for m in ground if m.startswith("Commands")]
+    assert reach == ["Commands cannot reach it", "Commands reach it again"], ground
