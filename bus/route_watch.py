@@ -90,9 +90,10 @@ class RouteWatches:
                 n = len(self._watches)
                 share = math.ceil(n * POLL_S / SWEEP_S)
                 start = self._cursor % n
-                due = self._watches[start:start + share] + self._watches[:max(0, start + share - n)]
                 self._cursor = start + share
-                due += [w for w in self._watches if not w.routed and w not in due]
+                sweep = self._watches[start:start + share] + self._watches[:max(0, start + share - n)]
+                swept = set(sweep)
+                due = sweep + [w for w in self._watches if not w.routed and w not in swept]
             for watch in due:
                 watch.check()
 
