@@ -7,7 +7,8 @@ listener costs about 18 KiB and 0.5 ms to declare, and makes every queryable dec
 on the mesh about seven times slower to take in (5000 listeners: 99 MiB; measured in
 one process, zenoh 1.10). A querier alone costs 2.3 KiB and its status 36 µs to read,
 so the watches are polled instead: the unrouted ones (a drone that just registered, or
-lost its route) every POLL_S, the routed ones a slice per poll so that each is read at
+lost its route) every POLL_S for their first FAST_FOR_S (an id nobody serves, say a
+made-up one, then costs what a routed one does), the routed ones a slice per poll so that each is read at
 least every SWEEP_S, and all of them at the next poll after a link of this session
 opens or closes (when routes change).
 """
@@ -16,12 +17,14 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 from collections.abc import Callable
 
 import zenoh
 
 POLL_S = 0.2
 SWEEP_S = 5.0
+FAST_FOR_S = 10.0  # an unrouted watch is read every POLL_S this long, then with the sweep
 
 
 def matching(status: object) -> bool:
@@ -34,12 +37,13 @@ class RouteWatch:
     def __init__(self, querier: zenoh.Querier, handler: Callable[[bool], None]) -> None:
         self.querier, self.handler = querier, handler
         self.routed = matching(querier.matching_status)
+        self.since = time.monotonic()  # when `routed` last changed
         self.closed = False
 
     def check(self) -> None:
         routed = matching(self.querier.matching_status)
         if routed != self.routed and not self.closed:
-            self.routed = routed
+            self.routed, self.since = routed, time.monotonic()
             self.handler(routed)
 
     def close(self) -> None:
@@ -92,8 +96,8 @@ class RouteWatches:
                 start = self._cursor % n
                 self._cursor = start + share
                 sweep = self._watches[start:start + share] + self._watches[:max(0, start + share - n)]
-                swept = set(sweep)
-                due = sweep + [w for w in self._watches if not w.routed and w not in swept]
+                swept, recent = set(sweep), time.monotonic() - FAST_FOR_S
+                due = sweep + [w for w in self._watches if not w.routed and w.since > recent and w not in swept]
             for watch in due:
                 watch.check()
 
