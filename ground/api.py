@@ -28,7 +28,7 @@ from litestar.params import Parameter
 from litestar.response import ServerSentEvent, ServerSentEventMessage
 
 from dronefleet.bus.port import QueryRefused, Unreachable
-from dronefleet.ground.api_error import ApiError, body_operation, text_operation
+from dronefleet.ground.api_error import ApiError, ApiFailure, body_operation, failure_response, text_operation
 from dronefleet.ground.api_error import error_response as _error
 from dronefleet.ground.api_error import error_specs as _errors
 from dronefleet.ground.config import ROLE_RANK, ApiToken
@@ -185,7 +185,7 @@ def show_drone(
     data_part: Annotated[DataParam | None, Parameter(query="data", description="keep only this part")] = None,
 ) -> Response[DroneView]:
     if drone_id not in station.registry:
-        return _error(404, f"no drone {drone_id!r} is registered", {"drone_id": drone_id})  # type: ignore[return-value]
+        raise ApiFailure(404, f"no drone {drone_id!r} is registered", {"drone_id": drone_id})
     return Response(_view(station, drone_id, data_part))
 
 
@@ -285,29 +285,28 @@ async def submit_mission(
     try:
         first_problem(source, plugin_verbs=verbs)
     except ScriptError as exc:
-        return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
+        raise ApiFailure(400, str(exc), exc.detail()) from None
     report = None
     if preflight and station.config.mission.preflight:
         try:
             report = await run_preflight(station, planner, source)
         except PreflightBusy as busy:
-            refusal = _error(503, f"the ground is running {planner.slots} preflights (mission.preflight_concurrency); "
-                                  f"try again in {math.ceil(busy.retry_after_s)} s, or submit with --no-preflight / "
-                                  "?preflight=false", {"retry_after_s": math.ceil(busy.retry_after_s)})
-            refusal.headers["Retry-After"] = str(math.ceil(busy.retry_after_s))
-            return refusal  # type: ignore[return-value]
+            wait_s = math.ceil(busy.retry_after_s)
+            raise ApiFailure(503, f"the ground is running {planner.slots} preflights (mission.preflight_concurrency); "
+                                  f"try again in {wait_s} s, or submit with --no-preflight / ?preflight=false",
+                             {"retry_after_s": wait_s}, headers={"Retry-After": str(wait_s)}) from None
         except PreflightUnavailable as exc:
-            return _error(422, f"preflight could not run: {exc} (submit with --no-preflight / ?preflight=false "  # type: ignore[return-value]
-                               "to fly it anyway)")
+            raise ApiFailure(422, f"preflight could not run: {exc} (submit with --no-preflight / ?preflight=false "
+                                  "to fly it anyway)") from None
         if not report.passed:
-            return _error(422, report.failure(), msgspec.to_builtins(report))  # type: ignore[return-value]
+            raise ApiFailure(422, report.failure(), msgspec.to_builtins(report))
     try:
         record = missions.submit(source, name, submitted_by=_who(request),
                                  notes=[report.summary()] if report is not None else None)
     except NotCommanding as exc:  # it stood down during the preflight
         return _not_commanding(exc)
     except ScriptError as exc:
-        return _error(400, str(exc), exc.detail())  # type: ignore[return-value]
+        raise ApiFailure(400, str(exc), exc.detail()) from None
     if not preflight:
         station.log_ground("warn", f"Mission {record.mission_id} submitted without its preflight"
                                    + (f" by {_who(request)}" if _who(request) else ""))
@@ -330,7 +329,7 @@ async def import_mission_plan(
     try:
         imported = import_plan(text, drone or None, "the uploaded plan")
     except NotAPlan as exc:
-        return _error(400, str(exc))  # type: ignore[return-value]
+        raise ApiFailure(400, str(exc)) from None
     return Response(PlanImported(script=imported.script, left_out=imported.left_out, geofence=imported.geofence,
                                  waypoints=imported.waypoints, takeoff_alt=imported.takeoff_alt, end=imported.end))
 
@@ -346,7 +345,7 @@ def show_mission(missions: MissionManager, mission_id: str) -> Response[MissionV
         record = missions.get(mission_id)
         lines = missions.log(mission_id)
     except UnknownMission:
-        return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
+        raise ApiFailure(404, f"no mission {mission_id!r}", {"mission_id": mission_id}) from None
     lanes = missions.lanes(mission_id)
     return Response(MissionView(**msgspec.structs.asdict(record), log=lines, source=missions.store.source(mission_id),
                                 subroutines=list(lanes.subroutines.values()), marks=lanes.marks))
@@ -363,9 +362,9 @@ async def cancel_mission(missions: MissionManager, mission_id: str, request: Req
     except NotCommanding as exc:
         return _not_commanding(exc)
     except UnknownMission:
-        return _error(404, f"no mission {mission_id!r}", {"mission_id": mission_id})  # type: ignore[return-value]
+        raise ApiFailure(404, f"no mission {mission_id!r}", {"mission_id": mission_id}) from None
     except MissionEnded as exc:
-        return _error(409, str(exc), {"mission_id": mission_id})  # type: ignore[return-value]
+        raise ApiFailure(409, str(exc), {"mission_id": mission_id}) from None
     return Response(record, status_code=200)
 
 
@@ -545,7 +544,7 @@ def create_app(station: GroundStation, missions: MissionManager, tiles: TileArch
             "tile_source": Provide(lambda: tile_source, sync_to_thread=False),
             "planner": Provide(lambda: planner, sync_to_thread=False),
         },
-        exception_handlers={HTTPException: _http_error, Exception: _internal_error},
+        exception_handlers={ApiFailure: failure_response, HTTPException: _http_error, Exception: _internal_error},
         openapi_config=OpenAPIConfig(
             title="Fleet ground station", version="0.1.0",
             components=Components(security_schemes={"bearer": SecurityScheme(

@@ -42,6 +42,21 @@ def error_response(status: int, error: str, detail: Any = None) -> Response[ApiE
     return Response(ApiError(error=error, detail=detail), status_code=status)
 
 
+class ApiFailure(Exception):
+    """Raised by a handler typed for its success: the app answers it as `ApiError` with
+    `status` (its exception handler, `failure_response`)."""
+
+    def __init__(self, status: int, error: str, detail: Any = None, headers: dict[str, str] | None = None) -> None:
+        super().__init__(error)
+        self.status, self.error, self.detail, self.headers = status, error, detail, headers or {}
+
+
+def failure_response(request: Any, failure: ApiFailure) -> Response[ApiError]:
+    response = error_response(failure.status, failure.error, failure.detail)
+    response.headers.update(failure.headers)
+    return response
+
+
 def body_operation(media_type: str, schema: dict[str, Any], description: str) -> type[Operation]:
     """An operation whose handler reads its body itself (to name the field at fault, or
     take text): what the body is, for the schema."""

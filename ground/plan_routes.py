@@ -8,7 +8,7 @@ from typing import Any
 
 from litestar import Request, Response, post
 
-from dronefleet.ground.api_error import error_response, error_specs, json_operation, text_operation
+from dronefleet.ground.api_error import ApiFailure, error_response, error_specs, json_operation, text_operation
 from dronefleet.ground.planner import Planner, live_world_of, plugins_dir
 from dronefleet.ground.planning import (
     Bounds,
@@ -66,17 +66,17 @@ async def simulate_mission(station: GroundStation, planner: Planner, missions: M
         first_problem(wanted.source, plugin_verbs=plugin_verbs(missions))
         world = live_world_of(station)
     except ScriptError as exc:
-        return error_response(400, str(exc), exc.detail())  # type: ignore[return-value]
+        raise ApiFailure(400, str(exc), exc.detail()) from None
     except InvalidMessage as exc:
-        return error_response(400, exc.reason, {"field": exc.field})  # type: ignore[return-value]
+        raise ApiFailure(400, exc.reason, {"field": exc.field}) from None
     if not planner.free():
-        return error_response(503, f"{planner.slots} simulations are running on the ground; try again when one ends")  # type: ignore[return-value]
+        raise ApiFailure(503, f"{planner.slots} simulations are running on the ground; try again when one ends")
     async with planner.slot():
         try:
             bounds = Bounds(memory_mb=station.config.mission.max_memory_mb)
             return Response(await predict(wanted.source, world, wanted.max_s, plugins_dir(station), bounds))
         except (SimulationBound, InvalidMessage) as exc:
-            return error_response(503, str(exc))  # type: ignore[return-value]
+            raise ApiFailure(503, str(exc)) from None
 
 
 @post("/mission/plan/export", status_code=200, responses=error_specs(400, 413),

@@ -9,7 +9,7 @@ from litestar import Response, get
 from litestar.openapi.spec import Example
 from litestar.params import Parameter
 
-from dronefleet.ground.api_error import error_response, error_specs
+from dronefleet.ground.api_error import ApiFailure, error_specs
 from dronefleet.ground.field_sensor_registry import FieldSensorInfo
 from dronefleet.ground.station import GroundStation
 
@@ -29,5 +29,5 @@ def list_field_sensors(
 def show_field_sensor(station: GroundStation, sensor_id: str) -> Response[FieldSensorInfo]:
     found = station.registry.field.get(sensor_id)
     if found is None:
-        return error_response(404, f"no field sensor {sensor_id!r} is heard", {"sensor_id": sensor_id})  # type: ignore[return-value]
+        raise ApiFailure(404, f"no field sensor {sensor_id!r} is heard", {"sensor_id": sensor_id})
     return Response(found)
