@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
 import re
 import signal
@@ -29,6 +28,7 @@ from typing import Annotated, Any, Literal, get_args
 import msgspec
 from msgspec import Meta
 
+from dronefleet.mission.hosting.simulate import SimResult
 from dronefleet.schemas.about import Role, SensorDeclaration
 from dronefleet.schemas.errors import InvalidMessage
 from dronefleet.schemas.telemetry import SensorReading
@@ -149,29 +149,28 @@ def _last_fields(readings: Sequence[SensorReading]) -> tuple[dict[str, dict[str,
     return fields, temperature
 
 
-def prediction_of(result: dict[str, Any], wall_s: float, log_lines: list[str]) -> Prediction:
+def prediction_of(result: SimResult, wall_s: float, log_lines: list[str]) -> Prediction:
     """What the map and the chart draw, from `fleet mission simulate`'s result.json."""
-    record = result["mission"]
-    duration = ((record.get("end") or 0) - (record.get("start") or 0)) / 1000
-    used = record.get("used_drones") or list(result["drones"])
+    record = result.mission
+    duration = ((record.end or 0) - (record.start or 0)) / 1000
     drones = {}
-    for drone_id in used:
-        samples = result["drones"].get(drone_id, {}).get("samples") or []
+    for drone_id in record.used_drones or list(result.drones):
+        track = result.drones.get(drone_id)
+        samples = track.samples if track is not None else []
         step = max(1, -(-len(samples) // PATH_POINTS))
         picked = samples[::step] + ([samples[-1]] if samples and (len(samples) - 1) % step else [])
-        flying = [s for s in samples if s.get("armed") and s.get("rel_alt", 0) > 0.5]
-        charge = [s["battery"] for s in samples if s.get("battery") is not None]
-        period = samples[1]["t_s"] - samples[0]["t_s"] if len(samples) > 1 else 0.0
+        flying = [s for s in samples if s.armed and s.rel_alt > 0.5]
+        charge = [s.battery for s in samples if s.battery is not None]
+        period = samples[1].t_s - samples[0].t_s if len(samples) > 1 else 0.0
         drones[drone_id] = PredictedDrone(
-            path=[(s["t_s"], s["lat"], s["lon"], s.get("rel_alt", 0.0)) for s in picked],
-            battery=[(s["t_s"], s["battery"]) for s in picked if s.get("battery") is not None],
-            battery_start=samples[0].get("battery") if samples else None,
+            path=[(s.t_s, s.lat, s.lon, s.rel_alt) for s in picked],
+            battery=[(s.t_s, s.battery) for s in picked if s.battery is not None],
+            battery_start=samples[0].battery if samples else None,
             # the least it held: a simulated drone that lands and disarms gets a fresh pack
             battery_end=min(charge, default=None),
             flying_s=round(len(flying) * period, 1),
         )
-    return Prediction(status=record["status"], cause=record.get("cause"), message=record.get("message") or "",
-                      line=record.get("line"),
+    return Prediction(status=record.status, cause=record.cause, message=record.message or "", line=record.line,
                       duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:])
 
 
@@ -267,5 +266,5 @@ async def predict(source: str, world: World, max_s: float, plugins_dir: Path | N
             if proc.returncode == -signal.SIGXCPU:
                 raise InvalidMessage(f"the simulation used more than its {bounds.cpu_s:g} s of CPU")
             raise InvalidMessage("the simulation did not run: " + (" / ".join(lines[-3:]) or f"exit {proc.returncode}"))
-        result = json.loads(result_file.read_text())
+        result = msgspec.json.decode(result_file.read_bytes(), type=SimResult)
         return prediction_of(result, time.monotonic() - started, lines)
