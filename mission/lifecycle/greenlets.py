@@ -21,7 +21,7 @@ import contextvars
 import itertools
 import time
 from collections.abc import Awaitable, Callable
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 from greenlet import getcurrent, greenlet
 
@@ -78,6 +78,11 @@ class Subroutine:
     @property
     def result(self) -> Any:
         return self._result
+
+    @property
+    def outcome(self) -> Literal["failed", "stopped", "finished"]:
+        """How it ended (or is ending): an exception escaped it, it was stopped, or it ran out."""
+        return "failed" if self._error is not None else "stopped" if self._stopping else "finished"
 
     async def ended(self) -> None:
         """Until the subroutine has ended (at once if it has)."""

@@ -124,7 +124,7 @@ class Mission:
             self._activity(sub, "started")
         else:
             self._doing.pop(sub.sid, None)
-            self._activity(sub, "ended", status="failed" if sub._error is not None else "stopped" if sub._stopping else "finished")
+            self._activity(sub, "ended", status=sub.outcome)
 
     def _activity(self, sub: Subroutine, event: Literal["started", "verb", "waiting", "ended"], **fields: Any) -> None:
         self.on_activity(self, Activity(
