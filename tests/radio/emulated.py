@@ -89,6 +89,23 @@ class RadioSim(ChildProcess):
                               capture_output=True, text=True).stdout
 
 
+async def relay_line(tmp: Path, processes: list[ChildProcess], near: tuple[float, float], mid: tuple[float, float],
+                     far: tuple[float, float]) -> tuple[GroundProcess, RadioSim]:
+    """A `fleet ground` and three drones on the radio, none failing safe for a minute:
+    drone01 near the laptop, drone02 (which may relay) further out, drone03 beyond it."""
+    ground = GroundProcess(tmp, zenoh_host="0.0.0.0")
+    processes.append(ground)
+    await ground.ready()
+    sim = RadioSim(tmp, ground, [
+        {"id": "drone01", "lat": near[0], "lon": near[1]},
+        {"id": "drone02", "lat": mid[0], "lon": mid[1], "roles": ["survey", "relay"]},
+        {"id": "drone03", "lat": far[0], "lon": far[1]},
+    ], lost_link={"timeout_s": 60, "action": "continue"})
+    processes.append(sim)
+    await sim.up()
+    return ground, sim
+
+
 class OnBoard(ChildProcess):
     """`fleet sub` inside a drone's namespace, connected to that drone's agent only."""
 

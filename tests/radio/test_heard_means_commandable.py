@@ -18,8 +18,8 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.harness import ChildProcess, GroundProcess
-from tests.radio.emulated import RADIO_A, RadioSim, drone, north, state_is
+from tests.harness import ChildProcess
+from tests.radio.emulated import RADIO_A, drone, north, relay_line, state_is
 from tests.waiting import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
@@ -74,17 +74,7 @@ async def test_a_drone_listed_ready_answers_commands_through_a_neighbour_reroute
     and back), a command every second it is listed ready; then drone03's radio silent
     until the ground has lost it, and its first command once listed ready again. Every
     one is answered by the agent within 3 s."""
-    ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0")
-    processes.append(ground)
-    await ground.ready()
-    near, mid, far = north(20), north(50), north(105)
-    sim = RadioSim(tmp_path, ground, [
-        {"id": "drone01", "lat": near[0], "lon": near[1]},
-        {"id": "drone02", "lat": mid[0], "lon": mid[1], "roles": ["survey", "relay"]},
-        {"id": "drone03", "lat": far[0], "lon": far[1]},
-    ], lost_link={"timeout_s": 60, "action": "continue"})
-    processes.append(sim)
-    await sim.up()
+    ground, sim = await relay_line(tmp_path, processes, north(20), north(50), north(105))
     netns = sim.netns("drone01")
     laptop = ground_address(netns)
     firsts: list[tuple[str, float]] = []

@@ -20,8 +20,8 @@ import pytest
 
 from dronefleet.bus.zenoh_bus import ZenohBus
 from dronefleet.schemas.geo import destination, distance_m
-from tests.harness import ChildProcess, GroundProcess
-from tests.radio.emulated import GROUND, RADIO_A, RadioSim, command, drone, log_lines, state_is
+from tests.harness import ChildProcess
+from tests.radio.emulated import GROUND, RADIO_A, command, drone, log_lines, relay_line, state_is
 from tests.waiting import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
@@ -38,17 +38,8 @@ def at(metres: float, bearing: float) -> tuple[float, float]:
 @pytest.mark.slow(90)
 async def test_a_healthy_drone_stays_heard_while_its_link_to_a_neighbour_turns_lossy(
         tmp_path: Path, processes: list[ChildProcess]) -> None:  # noqa: F811
-    ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0")
-    processes.append(ground)
-    await ground.ready()
-    h, r, f = at(20, 0.0), at(55, BEARING), at(105, BEARING)
-    sim = RadioSim(tmp_path, ground, [
-        {"id": "drone01", "lat": h[0], "lon": h[1]},
-        {"id": "drone02", "lat": r[0], "lon": r[1], "roles": ["survey", "relay"]},
-        {"id": "drone03", "lat": f[0], "lon": f[1]},
-    ], lost_link={"timeout_s": 60, "action": "continue"})
-    processes.append(sim)
-    await sim.up()
+    r = at(55, BEARING)  # drone02's spot, where its flights end
+    ground, sim = await relay_line(tmp_path, processes, at(20, 0.0), r, at(105, BEARING))
     heard: list[float] = []
     tokens: list[tuple[float, bool]] = []
     watcher = await ZenohBus.open("client", [f"tcp/127.0.0.1:{ground.zenoh_port}"])
