@@ -149,7 +149,8 @@ async def run_ground(config: GroundConfig, out: Callable[[str], None] = lambda l
             station = GroundStation(config, bus, events, http_url=http_url, epoch_file=data_dir / "ground-epoch")
             station.keep_copies("missions", store.stream(), store.last_change, store)
             station.record_missions(data_dir / "missions")
-            missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True, standby=station.standby)
+            missions = MissionManager(station, store, station.clock, plugins=plugins, isolate=True,
+                                      check_commanding=station.check_commanding)
             station.on_takeover = missions.take_over
             server = _EmbeddedServer(uvicorn.Config(
                 create_app(station, missions, tiles), log_level="warning", lifespan="on",

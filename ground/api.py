@@ -197,9 +197,9 @@ async def send_command(station: GroundStation, drone_id: str, request: Request[A
     return await _to_drone(drone_id, station.command(drone_id, await request.body(), who=_who(request)))
 
 
-def _not_commanding(refused: NotCommanding) -> Response[Any]:
+def _not_commanding(request: Any, refused: NotCommanding) -> Response[Any]:
     """SPEC §14: everything stays visible; only the active ground commands. The refusal
-    names the active ground and where its API answers."""
+    names the active ground and where its API answers (the app's handler of it)."""
     return Response(refused.refusal, status_code=refused.refusal.status)
 
 
@@ -210,8 +210,8 @@ async def _to_drone(drone_id: str, sending: Awaitable[Any]) -> Response[Any]:
     except InvalidMessage as exc:
         field = exc.field.removeprefix("$.") if exc.field else None
         return _error(400, str(exc), {"field": field})
-    except NotCommanding as exc:
-        return _not_commanding(exc)
+    except NotCommanding:  # the app's handler answers it
+        raise
     except CommandRejected as exc:
         detail: dict[str, Any] = {"drone_id": drone_id}
         if exc.code is not None:  # SPEC §11: "geofence" or "conflict" (with the other drone)
@@ -274,10 +274,7 @@ async def submit_mission(
     preflight: Annotated[bool, Parameter(description="fly it in fast time against the live fleet first (false: "
                                                      "skip on purpose, logged)")] = True,
 ) -> Response[MissionCreated]:
-    try:  # before its text is read or its preflight flown
-        missions.check_commanding()
-    except NotCommanding as exc:
-        return _not_commanding(exc)
+    missions.check_commanding()  # before its text is read or its preflight flown
     source = await _text(request, "script", {"line": None, "column": None})
     if not isinstance(source, str):
         return source
@@ -303,8 +300,6 @@ async def submit_mission(
     try:
         record = missions.submit(source, name, submitted_by=_who(request),
                                  notes=[report.summary()] if report is not None else None)
-    except NotCommanding as exc:  # it stood down during the preflight
-        return _not_commanding(exc)
     except ScriptError as exc:
         raise ApiFailure(400, str(exc), exc.detail()) from None
     if not preflight:
@@ -359,8 +354,6 @@ async def cancel_mission(missions: MissionManager, mission_id: str, request: Req
     who = _who(request)
     try:
         record = missions.cancel(mission_id, message=f"cancelled by {who}" if who else None)
-    except NotCommanding as exc:
-        return _not_commanding(exc)
     except UnknownMission:
         raise ApiFailure(404, f"no mission {mission_id!r}", {"mission_id": mission_id}) from None
     except MissionEnded as exc:
@@ -544,7 +537,7 @@ def create_app(station: GroundStation, missions: MissionManager, tiles: TileArch
             "tile_source": Provide(lambda: tile_source, sync_to_thread=False),
             "planner": Provide(lambda: planner, sync_to_thread=False),
         },
-        exception_handlers={ApiFailure: failure_response, HTTPException: _http_error, Exception: _internal_error},
+        exception_handlers={ApiFailure: failure_response, NotCommanding: _not_commanding, HTTPException: _http_error, Exception: _internal_error},
         openapi_config=OpenAPIConfig(
             title="Fleet ground station", version="0.1.0",
             components=Components(security_schemes={"bearer": SecurityScheme(

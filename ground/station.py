@@ -219,7 +219,8 @@ class GroundStation:
         return StandbyError(error="observer" if self.config.role == "observer" else "standby",
                             active=active.ground_id if active else "", http=active.http if active else "")
 
-    def _check_active(self) -> None:
+    def check_commanding(self) -> None:
+        """NotCommanding (503, 403 on an observer) unless this ground commands now (SPEC §14)."""
         refusal = self.standby()
         if refusal is not None:
             raise NotCommanding(refusal)
@@ -269,7 +270,7 @@ class GroundStation:
         Raises InvalidMessage (400), CommandRejected (404/409; 503 on a standby ground)
         or bus Unreachable (504).
         """
-        self._check_active()
+        self.check_commanding()
         self._registered(drone_id)
         command = self._stamp(drone_id, body)
         self._check(drone_id, command.name, command.name, mission_id)
@@ -293,7 +294,7 @@ class GroundStation:
         The whole bundle is checked here first (400 naming the step and field), then
         by the agent. Raises InvalidMessage, CommandRejected (404/409/503) or Unreachable.
         """
-        self._check_active()
+        self.check_commanding()
         self._registered(drone_id)
         obj = self._body(drone_id, body)
         obj.update(ground_epoch=self.peers.epoch, ground_id=self.config.ground_id)

@@ -36,7 +36,6 @@ from dronefleet.mission.script.sandbox import compile_mission
 from dronefleet.mission.script.script import ScriptMission
 from dronefleet.schemas.errors import FleetError
 from dronefleet.schemas.fleet import WatchEvent
-from dronefleet.schemas.grounds import NotCommanding, StandbyError
 
 log = logging.getLogger(__name__)
 
@@ -247,14 +246,15 @@ class MissionManager:
         seed: int | None = None,
         plugins: PluginLibrary | None = None,
         isolate: bool = False,
-        standby: Callable[[], StandbyError | None] = lambda: None,
+        check_commanding: Callable[[], None] = lambda: None,
     ) -> None:
         """With `isolate`, every mission runs in a process of its own under the limits
         `mission.max_memory_mb` and `mission.max_cpu_s` (the ground; ADR 0009);
         without, on this loop (fast-time simulation, where the clock is virtual)."""
         self.station = station
         self.isolate = isolate
-        self._standby = standby  # SPEC §14: None while this ground commands, else its refusal
+        # SPEC §14: raises NotCommanding while this ground does not command (the station's)
+        self.check_commanding = check_commanding
         self.plugins = plugins
         self.store = store
         self.clock = clock
@@ -283,20 +283,13 @@ class MissionManager:
 
     # ---- operations ----------------------------------------------------------------
 
-    def check_commanding(self) -> None:
-        """NotCommanding (503, 403 on an observer) on a ground that does not command
-        now (SPEC §14): it neither starts nor cancels a mission."""
-        refusal = self._standby()
-        if refusal is not None:
-            raise NotCommanding(refusal)
-
     def submit(self, source: str, name: str = "", enable: dict[str, dict[str, Any]] | None = None,
                submitted_by: str | None = None, notes: builtins.list[str] | None = None) -> MissionRecord:
         """Check and compile (ScriptError → 400 with line/column), record as pending, start.
 
         `enable` maps plugin ids to inputs, enabled before the script's first line
         (`fleet mission simulate --enable`); `notes` are its log's first lines (the
-        preflight's prediction). NotCommanding on a standby ground."""
+        preflight's prediction). NotCommanding on a ground that does not command."""
         self.check_commanding()
         mission_id = self.store.next_id()
         first_problem(source, f"<mission {mission_id}>", self.plugins.verbs() if self.plugins is not None else ())
