@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.schemas.geo import angle_diff_deg, bearing_deg, destination, distance_m  # noqa: E402
-from dronefleet.schemas.status import SystemStatus  # noqa: E402
+from dronefleet.schemas.status import CommandStatus, SystemStatus  # noqa: E402
 from dronefleet.schemas.telemetry import Position, Telemetry  # noqa: E402
 from tests.harness import AgentProcess, ChildProcess, Operator, SimProcess, open_ground_router  # noqa: E402
 from tests.ports import free_port, free_udp_base  # noqa: E402
@@ -93,7 +93,7 @@ class Flight:
     armed_home: Position | None = None  # where the last arming was
     notes: list[str] = field(default_factory=list)
 
-    async def expect(self, command_id: str, state: str, timeout_s: float = 30) -> object:
+    async def expect(self, command_id: str, state: str, timeout_s: float = 30) -> CommandStatus:
         status = await self.op.command_state(command_id, state, timeout_s)
         check(status.state == state, f"{command_id}: expected {state}, got {status.state} ({status.reason})")
         return status
@@ -198,8 +198,8 @@ async def step_goto_yaw_alt(f: Flight) -> None:
 
 async def step_turn(f: Flight) -> None:
     before = (await f.settle()).heading
-    await f.expect(await f.accepted("turn", deg=90), "finish", 30)
-    t = await f.op.next_telemetry(timeout_s=5)
+    finish = await f.expect(await f.accepted("turn", deg=90), "finish", 30)
+    t = await f.op.next_telemetry(lambda t: t.timestamp > finish.timestamp, 5, "telemetry after the turn")
     check(abs(angle_diff_deg(t.heading, before + 90)) < 5, f"heading {t.heading:.0f}°, not {before + 90:.0f}°")
 
 
@@ -235,8 +235,10 @@ async def step_land(f: Flight) -> None:
     here = at(f.op.last)
     reply = await f.op.send("goto", lat=here.lat, lon=here.lon)
     check(not reply.accepted and reply.reason == "landing", f"goto while landing: {reply}")
-    await f.expect(land, "finish", LANDING_S)
-    t = await f.op.next_telemetry(timeout_s=5)
+    finish = await f.expect(land, "finish", LANDING_S)
+    # Telemetry goes at a lower priority than status, so a sample taken before the
+    # finish can arrive after it: judge the first one taken after.
+    t = await f.op.next_telemetry(lambda t: t.timestamp > finish.timestamp, 5, "telemetry after the landing")
     check(t.landed_state == "on_ground", f"landed state {t.landed_state}")
 
 
@@ -275,7 +277,7 @@ async def step_return(f: Flight) -> None:
     ret = await f.accepted("return")
     await f.expect(ret, "start", 10)
     landed = await f.expect(ret, "finish", 180)
-    t = await f.op.next_telemetry(lambda t: t.timestamp >= getattr(landed, "timestamp", 0), 10)
+    t = await f.op.next_telemetry(lambda t: t.timestamp > landed.timestamp, 10, "telemetry after the return")
     home = f.armed_home
     assert home is not None
     off = distance_m(at(t).lat, at(t).lon, home.lat, home.lon)
