@@ -199,7 +199,26 @@ class SimulationBound(Exception):
 
 _SCRIPT_FRAME = re.compile(r'File "<mission [^>]*>", line (\d+)')
 _ECHOED_T = re.compile(r"^\[\s*([0-9.]+) s\]")
-DUMP_WAIT_S = 1.0  # for the child's stack dump after SIGUSR1
+DUMP_WAIT_S = 1.0  # for the child's stack dumps after SIGUSR1
+DUMPS = 5  # spread over DUMP_WAIT_S
+
+
+async def _line_computing(proc: asyncio.subprocess.Process, out: bytearray, reading: asyncio.Task[None]) -> int | None:
+    """The script's line the child is computing at, from its stack dumps (SIGUSR1), or
+    None if no dump shows one. A script that never waits still yields to the loop at
+    every slice (mission/lifecycle/greenlets.py), and a dump taken then shows no script
+    frame: so up to DUMPS dumps, until one shows a line. A script waiting on its drones
+    shows none in any."""
+    for _ in range(DUMPS):
+        start = len(out)
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGUSR1)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(asyncio.shield(reading), DUMP_WAIT_S / DUMPS)
+        line = _stuck_line(out[start:].decode("utf-8", "replace"))
+        if line is not None or reading.done():
+            return line
+    return None
 
 
 def _stuck_line(output: str) -> int | None:
@@ -249,11 +268,9 @@ async def predict(source: str, world: World, max_s: float, plugins_dir: Path | N
             try:
                 await asyncio.wait_for(proc.wait(), bounds.wall_s)
             except TimeoutError:
-                proc.send_signal(signal.SIGUSR1)  # its stack: where the script was
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(asyncio.shield(reading), DUMP_WAIT_S)
+                line = await _line_computing(proc, out, reading)
                 text = out.decode("utf-8", "replace")
-                raise SimulationBound(bounds.wall_s, _stuck_line(text), _simulated_s(text.splitlines())) from None
+                raise SimulationBound(bounds.wall_s, line, _simulated_s(text.splitlines())) from None
             await reading
         finally:  # the bound, or the client went: so does the child
             if proc.returncode is None:
