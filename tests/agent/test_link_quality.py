@@ -54,7 +54,7 @@ async def test_quality_warns_while_the_hop_still_carries_and_never_on_a_clean_ho
 
 @pytest.mark.integration
 @pytest.mark.radio
-@pytest.mark.xdist_group("radio-b")
+@pytest.mark.xdist_group("radio-a")
 @pytest.mark.slow(60)
 @pytest.mark.usefixtures("radio_slot")
 async def test_on_real_packets_quality_warns_first_and_agrees_with_fast_time(tmp_path: Path) -> None:

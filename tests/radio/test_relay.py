@@ -1,5 +1,8 @@
-"""Relaying on real packets: a drone reached only through a neighbour, on the plain and
-the secured mesh, and the relay plugin keeping a drone beyond range heard."""
+"""Relaying on real packets: a drone reached only through a neighbour on the secured
+mesh, and the relay plugin keeping a drone beyond range heard. A drone commanded
+through a neighbour on the plain mesh, and again once back in reach, is
+tests/radio/test_heard_means_commandable.py; the neighbour flying away and back is
+tests/sim/test_radio_fast.py's fast-time twin."""
 
 from __future__ import annotations
 
@@ -16,7 +19,7 @@ import pytest
 
 from dronefleet import relay_experiments as rx
 from dronefleet.bus.zenoh_bus import ZenohBus
-from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.schemas.geo import distance_m
 from tests.harness import ChildProcess, GroundProcess, ended, submit
 from tests.radio.emulated import (
     GROUND,
@@ -28,7 +31,6 @@ from tests.radio.emulated import (
     drone,
     log_lines,
     north,
-    reachable,
     resampled,
     state_is,
     temperature_read,
@@ -36,48 +38,6 @@ from tests.radio.emulated import (
 from tests.waiting import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.radio]
-
-
-@RADIO_A
-@pytest.mark.slow(20)
-async def test_relay_through_a_neighbour(tmp_path: Path, processes: list[ChildProcess]) -> None:
-    """Ground, A at 50 m, B at 105 m: B is reachable only through A; A leaves, B is
-    lost; A comes back, B is reachable again within 5 s."""
-    ground = GroundProcess(tmp_path, zenoh_host="0.0.0.0")
-    processes.append(ground)
-    await ground.ready()
-    a, b = north(50), north(105)
-    # droneA may relay: its certificate (--role relay) and its About (roles) agree.
-    sim = RadioSim(tmp_path, ground, [{"id": "droneA", "lat": a[0], "lon": a[1], "roles": ["survey", "relay"]}, {"id": "droneB", "lat": b[0], "lon": b[1]}],
-                   lost_link={"timeout_s": 60, "action": "continue"})
-    processes.append(sim)
-    await sim.up()
-    async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-        await until(lambda: state_is(http, "droneB", "ready"), 60, "droneB ready at the ground (through droneA)")
-        await until(lambda: state_is(http, "droneA", "ready"), 60, "droneA ready (its autopilot's health known)")
-        # Only through A: B's packets to and from the ground are all dropped.
-        await until(lambda: 'iifname "d1" oifname "g" drop' in sim.rules(), 10, "B-ground total loss")
-        assert 'iifname "g" oifname "d1" drop' in sim.rules()
-        await command(http, "droneB", cmd="arm")  # accepted: the agent's reply came back through A
-        await command(http, "droneB", cmd="disarm")
-
-        away = destination(GROUND[0], GROUND[1], 55, 180.0)  # 55 m south: 155 m from B
-        await command(http, "droneA", cmd="arm")
-        await command(http, "droneA", cmd="takeoff", alt=5)
-        await until(lambda: state_is(http, "droneA", "hold"), 60, "droneA hovering")
-        await command(http, "droneA", cmd="goto", lat=away[0], lon=away[1], speed=10)
-        await until(lambda: state_is(http, "droneB", "unknown"), 60, "droneB unreachable once droneA left")
-        await command(http, "droneA", cmd="goto", lat=a[0], lon=a[1], speed=10)
-
-        async def a_back() -> bool:  # within good range (60 m) of B again: no loss between them
-            info = await drone(http, "droneA")
-            assert info is not None
-            pos = info["telem"]["position"]
-            return distance_m(b[0], b[1], pos["lat"], pos["lon"]) < 60
-
-        await until(a_back, 60, "droneA back within range of droneB")
-        # How soon is bench/mesh.py's failover figure; here a liveness deadline.
-        await until(lambda: reachable(http, "droneB"), 30, "droneB reachable again")
 
 
 INJECT = """
