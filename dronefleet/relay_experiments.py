@@ -24,7 +24,8 @@ from typing import Any
 
 from dronefleet import examples
 from dronefleet.compose import simulate
-from dronefleet.schemas.geo import distance_m
+from dronefleet.relay.ways import Point3, closest_approach
+from dronefleet.sim.projection import LocalFrame
 from dronefleet.sim.world import load_world
 
 EXAMPLES = examples.DIR
@@ -131,17 +132,31 @@ def least_separation(result: dict[str, Any], served: tuple[str, ...]) -> float:
 
 
 def least_distance(result: dict[str, Any], pairs: Iterable[tuple[str, str]]) -> float:
-    """The least 3-D distance between the two drones of any of `pairs`, at the moments
-    both were airborne (inf: never)."""
-    at = {d: {p["t_s"]: p for p in track(result, d)} for d in result["drones"]}
+    """The least 3-D distance between the two drones of any of `pairs` while both were
+    airborne, in continuous time (issue 78): between two moments both tracks hold, each
+    drone flew straight at constant speed, and the closest approach of the two over
+    that interval counts (relay/ways.py `closest_approach`), not only the distance at
+    its ends. An interval counts when both were airborne at one of its ends at least.
+    inf: never both airborne."""
+    frame: LocalFrame | None = None
+    tracks: dict[str, dict[float, tuple[Point3, bool]]] = {}
+    for d in result["drones"]:
+        points: dict[float, tuple[Point3, bool]] = {}
+        for p in track(result, d):
+            frame = frame or LocalFrame(p["lat"], p["lon"])
+            north, east = frame.to_local(p["lat"], p["lon"])
+            points[p["t_s"]] = ((north, east, p["rel_alt"]), p["rel_alt"] > AIRBORNE_M)
+        tracks[d] = points
     least = math.inf
     for one, other in pairs:
-        for t, a in at[one].items():
-            b = at[other].get(t)
-            if b is None or a["rel_alt"] <= AIRBORNE_M or b["rel_alt"] <= AIRBORNE_M:
-                continue
-            flat = distance_m(a["lat"], a["lon"], b["lat"], b["lon"])
-            least = min(least, math.hypot(flat, a["rel_alt"] - b["rel_alt"]))
+        a, b = tracks[one], tracks[other]
+        common = sorted(a.keys() & b.keys())
+        for t in common:  # a single moment in common counts too
+            if a[t][1] and b[t][1]:
+                least = min(least, math.dist(a[t][0], b[t][0]))
+        for t0, t1 in itertools.pairwise(common):
+            if (a[t0][1] and b[t0][1]) or (a[t1][1] and b[t1][1]):
+                least = min(least, closest_approach(a[t0][0], a[t1][0], b[t0][0], b[t1][0]))
     return least
 
 

@@ -79,6 +79,18 @@ def segment_distance(p1: Point3, q1: Point3, p2: Point3, q2: Point3) -> float:
     return math.dist(_along(p1, q1, s), _along(p2, q2, t))
 
 
+def closest_approach(a0: Point3, a1: Point3, b0: Point3, b1: Point3) -> float:
+    """The least distance between two drones over one interval in which each flies
+    straight at constant speed, from a0 to a1 and from b0 to b1: the closest approach
+    in continuous time, which samples at the interval's ends can miss (two drones
+    crossing between two samples)."""
+    r0 = _sub(a0, b0)
+    dr = _sub(_sub(a1, a0), _sub(b1, b0))
+    speed2 = _dot(dr, dr)
+    s = 0.0 if speed2 <= 1e-12 else min(1.0, max(0.0, -_dot(r0, dr) / speed2))
+    return math.hypot(r0[0] + s * dr[0], r0[1] + s * dr[1], r0[2] + s * dr[2])
+
+
 @dataclass
 class Ways:
     legs: dict[str, tuple[Point3, Point3]] = field(default_factory=dict)  # drone → its declared leg

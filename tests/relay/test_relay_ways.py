@@ -8,7 +8,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from dronefleet.relay.ways import CLEAR_M, YIELD_LIMIT_S, Point3, Ways, segment_distance
+from dronefleet.relay.ways import CLEAR_M, YIELD_LIMIT_S, Point3, Ways, closest_approach, segment_distance
 
 
 @pytest.mark.parametrize(("a", "b", "c", "d", "expected"), [
@@ -21,6 +21,34 @@ from dronefleet.relay.ways import CLEAR_M, YIELD_LIMIT_S, Point3, Ways, segment_
 def test_segment_distance(a: Point3, b: Point3, c: Point3, d: Point3, expected: float) -> None:
     assert segment_distance(a, b, c, d) == pytest.approx(expected)
     assert segment_distance(c, d, a, b) == pytest.approx(expected)
+
+
+coordinate = st.floats(-200, 200, allow_nan=False)
+point = st.tuples(coordinate, coordinate, st.floats(0, 60, allow_nan=False))
+
+
+@settings(max_examples=300, deadline=None)
+@given(point, point, point, point)
+def test_the_closest_approach_in_continuous_time_is_the_least_of_every_moment(
+        a0: Point3, a1: Point3, b0: Point3, b1: Point3) -> None:
+    """Two drones each flying straight at constant speed over one interval: the closest
+    approach is never above the distance at any moment of it (fine samples included, the
+    ends too), and some moment comes within a sampling step's travel of it; it is never
+    below the least distance between the two ways flown (where they were, at any time)."""
+    least = closest_approach(a0, a1, b0, b1)
+    steps = 400
+    at = [math.dist([p + i / steps * (q - p) for p, q in zip(a0, a1, strict=True)],
+                    [p + i / steps * (q - p) for p, q in zip(b0, b1, strict=True)]) for i in range(steps + 1)]
+    step_travel = (math.dist(a0, a1) + math.dist(b0, b1)) / steps
+    assert least <= min(at) + 1e-6
+    assert min(at) <= least + step_travel + 1e-6
+    assert least >= segment_distance(a0, a1, b0, b1) - 1e-6
+
+
+def test_two_drones_crossing_between_two_samples_are_judged_at_their_closest() -> None:
+    """Samples 1 s apart show 10 m at each end; half-way they pass 3 m apart in height."""
+    assert closest_approach((-5, 0, 15), (5, 0, 15), (0, -5, 18), (0, 5, 18)) == pytest.approx(3.0)
+    assert min(math.dist((-5, 0, 15), (0, -5, 18)), math.dist((5, 0, 15), (0, 5, 18))) > 7
 
 
 def test_a_worker_waits_short_of_another_workers_way_and_goes_on_once_it_has_flown() -> None:
