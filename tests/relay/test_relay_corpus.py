@@ -65,9 +65,9 @@ def test_the_lower_bound_uses_the_longest_hop_that_holds_and_keeps_the_min_quali
 
 
 @pytest.mark.slow(5)  # of one core: ordered among the long tests, while cores are idle (ADR 0011)
-@pytest.mark.parametrize("seed", range(8))
+@pytest.mark.parametrize("seed", range(5))
 def test_corpus_worlds_never_fail_through_a_relay(seed: int) -> None:
-    """Issue 32 item 2 on the first 8 worlds: a relay on duty is part of the link, so no
+    """Issue 32 item 2 on the first 5 worlds (the users' worlds are test_relay_repro.py's): a relay on duty is part of the link, so no
     mission fails because a relay's failsafe pulled it off duty or a relay's move was
     refused, and no relay's command is interrupted by its lost-link failsafe. The bench
     holds the same judgement over hundreds of worlds with the rates the issue asks for
