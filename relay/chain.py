@@ -79,7 +79,6 @@ class Worker:
     alt: float  # metres above the ground station it flies at
     goal: Point | None  # where the script wants it now (a held goto's goal too)
     home: Point | None = None  # where its return (its lost-link failsafe's too) takes it
-    base: Point | None = None  # its home, returning or not: where its way home ends
 
 
 @dataclass(frozen=True)
@@ -92,7 +91,6 @@ class Seen:
     rtt_ms: float | None
     fresh: bool = True  # heard lately (else where it is and its window are old news)
     hops: int | None = None  # its window's answers came over its own link (1), some through others (2), or unknown
-    home: Point | None = None  # where it lands when it goes home (None: not known)
 
 
 @dataclass
@@ -623,18 +621,6 @@ class Chains:
                 return True
         return False
 
-    def _home_clear(self, relay: str, workers: Sequence[Worker], seen: Mapping[str, Seen]) -> bool:
-        """Whether `relay` may go home now. It lands at its home through the workers'
-        level, so no flying worker's way may pass within PARKED_CLEAR_M (across) of that
-        column: neither its leg now nor its way home, which it may take at any time (a
-        worker returning over a relay's home came within 3.85 m of it landing there)."""
-        o = seen.get(relay)
-        if o is None or o.home is None:
-            return True
-        column = (*o.home, 0.0)
-        ways = [*self.legs, *((w.at, w.base) for w in workers if w.alt >= 1.0 and w.base is not None)]
-        return all(segment_distance((*a, 0.0), (*b, 0.0), column, column) >= PARKED_CLEAR_M for a, b in ways)
-
     def _release(self, workers: Sequence[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:
         """The last relay of a chain its worker no longer needs goes home — when no
         other relay is climbing out or coming home: one crossing the levels at a time (a
@@ -663,14 +649,14 @@ class Chains:
             if needed:
                 self.leaving.pop(rid, None)
                 continue
-            if self._released(rid, not crossing and self._home_clear(rid, workers, seen)):
+            if self._released(rid, not crossing):
                 crossing = True
                 chain.pop()
                 out.home.append(rid)
         # An idle relay (the probe, once the hop is known) that no chain took goes home
         # once every worker is done (it hovered to the time limit).
         for rid in list(self.idle) if all(_done(w) for w in workers) else []:
-            if self._released(rid, not crossing and self._home_clear(rid, workers, seen)):
+            if self._released(rid, not crossing):
                 crossing = True
                 self.idle.remove(rid)
                 out.home.append(rid)

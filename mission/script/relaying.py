@@ -230,16 +230,14 @@ class Relays:
             workers.append(chains.Worker(d.id, frame.local(d.position),
                                          level if level is not None else (_above(d, d.position.alt) or 0.0),
                                          frame.local(goal) if goal is not None else None,
-                                         frame.local(home) if cmd is not None and cmd.name == "return" and home else None,
-                                         frame.local(home) if home else None))
+                                         frame.local(home) if cmd is not None and cmd.name == "return" and home else None))
         seen = {}
         for rid, d in drones.items():
             link = d.link
             fresh = self._mission is not None and self._mission.heard_within(rid, heard_s)
             seen[rid] = chains.Seen(frame.local(d.position), _above(d, d.position.alt) or 0.0,
                                     link.loss if link is not None else None, link.rtt_ms if link is not None else None,
-                                    fresh, link.hops if link is not None else None,
-                                    frame.local(d.home) if d.home else None)
+                                    fresh, link.hops if link is not None else None)
         result = self._chains.plan(now, workers, seen, self.spare(), self._mesh_nodes(frame, set(seen) | set(self._served)),
                                    self._spare_spots(frame))
         return ChainOrders(
