@@ -91,6 +91,28 @@ def closest_approach(a0: Point3, a1: Point3, b0: Point3, b1: Point3) -> float:
     return math.hypot(r0[0] + s * dr[0], r0[1] + s * dr[1], r0[2] + s * dr[2])
 
 
+LAND_RATE_MPS = 1.0  # a relay's descent is judged at this rate: slower than either autopilot lands, the longer window
+
+
+def descent_clear(column: Point3, below: Collection[tuple[Point3, tuple[float, float]]], clear_m: float) -> bool:
+    """Whether a drone at `column` (north, east, up) may come straight down now: every
+    drone of `below` (where it is, its velocity north and east in m/s) flying under it
+    keeps `clear_m` across from the column while the descent lasts (judged at
+    LAND_RATE_MPS), flying straight on at its velocity. A snapshot is not enough: a
+    worker flying home at 5 m/s, 130 m out when a relay began its 30-s descent, passed
+    2.5 m from its column under it."""
+    x0, y0, z0 = column
+    lasts_s = max(0.0, z0 - AIRBORNE_M) / LAND_RATE_MPS
+    top = (x0, y0, 0.0)
+    for (x, y, z), (vn, ve) in below:
+        if z <= AIRBORNE_M or z >= z0:
+            continue  # on the ground, or above it: not in the way down
+        ahead = (x + vn * lasts_s, y + ve * lasts_s, 0.0)
+        if segment_distance((x, y, 0.0), ahead, top, top) < clear_m:
+            return False
+    return True
+
+
 @dataclass
 class Ways:
     legs: dict[str, tuple[Point3, Point3]] = field(default_factory=dict)  # drone → its declared leg

@@ -330,15 +330,29 @@ class Relays:
         return frame.world(next((pt for pt in [home, *ring] if clear(pt)), home))
 
     def clear_below(self, relay: Any) -> bool:
-        """No drone flies below `relay` within LAND_CLEAR_M across: it may come down."""
+        """No drone flying below `relay` is within LAND_CLEAR_M across of its column, nor
+        comes within it on its way while the relay comes down (relay/ways.py
+        `descent_clear`): it may come down."""
         frame = self._frame
         assert frame is not None, "clear_below: mode chain only"
         everyone = self._everyone(frame)
         if relay.id not in everyone:
             return True
-        x0, y0, z0 = everyone[relay.id]
-        return all(z <= AIRBORNE_M or z >= z0 or chains.dist((x0, y0), (x, y)) >= LAND_CLEAR_M
-                   for k, (x, y, z) in everyone.items() if k != relay.id)
+        moving = self._velocities()
+        return ways.descent_clear(everyone[relay.id], [(at, moving.get(k, (0.0, 0.0))) for k, at in everyone.items()
+                                                        if k != relay.id], LAND_CLEAR_M)
+
+    def _velocities(self) -> dict[str, tuple[float, float]]:
+        """Every drone's velocity north and east (m/s), as its last telemetry gave it."""
+        if self._mission is None:
+            return {}
+        registry = self._mission.station.registry
+        out = {}
+        for drone_id in registry.ids():
+            t = registry.telemetry(drone_id)
+            if t is not None:
+                out[drone_id] = (t.velocity.north, t.velocity.east)
+        return out
 
     def _everyone(self, frame: Frame) -> dict[str, tuple[float, float, float]]:
         """Where every drone the ground knows is (local metres, metres above field level)."""

@@ -3,6 +3,8 @@ run exactly as given, each with the seed its README names:
 
 - `relay_short_radio`: the world file's default layout (`count: 5`), a radio good to
   40 m and lost at 70 m, one drone surveying ~117 m out;
+- `relay_two_workers_close`: 12 drones, radio 82/129 m, two workers about 200 m out (a
+  relay coming down at its home as a worker flew home under it came within 3.85 m);
 - `relay_two_workers_stuck`: radio 115/178 m, workers 240 and 320 m out (a worker
   released from its hold never finished; the mission met its time limit);
 - `relay_cluster_short_radio`: seven drones in a cluster beside the laptop, radio
@@ -31,6 +33,7 @@ ROUND_OFF_M = 1e-6  # two drones taking off side by side at the layout's 5 m
 @pytest.mark.slow(12)
 @pytest.mark.parametrize(("name", "seed", "workers"), [
     ("relay_short_radio", 5, ["drone01"]),
+    ("relay_two_workers_close", 10, ["drone01", "drone02"]),
     ("relay_two_workers_stuck", 16, ["drone01", "drone02"]),
     ("relay_cluster_short_radio", 13, ["drone01"]),
 ])

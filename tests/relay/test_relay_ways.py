@@ -8,7 +8,17 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from dronefleet.relay.ways import CLEAR_M, YIELD_LIMIT_S, Point3, Ways, closest_approach, segment_distance
+from dronefleet.relay.ways import (
+    AIRBORNE_M,
+    CLEAR_M,
+    LAND_RATE_MPS,
+    YIELD_LIMIT_S,
+    Point3,
+    Ways,
+    closest_approach,
+    descent_clear,
+    segment_distance,
+)
 
 
 @pytest.mark.parametrize(("a", "b", "c", "d", "expected"), [
@@ -49,6 +59,43 @@ def test_two_drones_crossing_between_two_samples_are_judged_at_their_closest() -
     """Samples 1 s apart show 10 m at each end; half-way they pass 3 m apart in height."""
     assert closest_approach((-5, 0, 15), (5, 0, 15), (0, -5, 18), (0, 5, 18)) == pytest.approx(3.0)
     assert min(math.dist((-5, 0, 15), (0, -5, 18)), math.dist((5, 0, 15), (0, 5, 18))) > 7
+
+
+speed = st.floats(-12, 12, allow_nan=False)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.tuples(coordinate, coordinate, st.floats(2, 60, allow_nan=False)),
+       st.lists(st.tuples(point, st.tuples(speed, speed)), max_size=4))
+def test_a_relay_comes_down_only_where_no_drone_below_passes_its_column_meanwhile(
+        column: Point3, below: list[tuple[Point3, tuple[float, float]]]) -> None:
+    """The invariant of a relay's descent: when it may come down, every drone flying
+    below it, flying straight on at its velocity, keeps CLEAR_M across from the column
+    at every moment of the descent (judged at LAND_RATE_MPS); when it may not, one of
+    them comes within CLEAR_M of it in that time."""
+    lasts_s = max(0.0, column[2] - AIRBORNE_M) / LAND_RATE_MPS
+    steps = 200
+
+    def nearest(at: Point3, v: tuple[float, float]) -> float:
+        return min(math.dist(column[:2], (at[0] + v[0] * lasts_s * i / steps, at[1] + v[1] * lasts_s * i / steps))
+                   for i in range(steps + 1))
+
+    under = [(at, v) for at, v in below if AIRBORNE_M < at[2] < column[2]]
+    step_m = max((math.hypot(*v) * lasts_s / steps for _, v in under), default=0.0)
+    if descent_clear(column, below, CLEAR_M):
+        assert all(nearest(at, v) >= CLEAR_M - 1e-6 for at, v in under)
+    else:
+        assert any(nearest(at, v) < CLEAR_M + step_m for at, v in under)
+
+
+def test_a_worker_flying_home_under_a_relay_keeps_it_up_until_it_has_passed() -> None:
+    """As seen: a relay over its home 45 m up, a worker at 15 m flying home at 5 m/s
+    along a way 2.5 m from the column, 130 m out. A snapshot finds it far away; its way
+    over the descent does not. Once past and landed, the relay may come down."""
+    column = (8.0, 10.0, 45.0)
+    assert not descent_clear(column, [((79.8, 109.2, 15.0), (-2.95, -4.05))], CLEAR_M)
+    assert descent_clear(column, [((0.0, 0.0, 0.5), (0.0, 0.0))], CLEAR_M)
+    assert descent_clear(column, [((79.8, 109.2, 15.0), (2.95, 4.05))], CLEAR_M)  # flying away
 
 
 def test_a_worker_waits_short_of_another_workers_way_and_goes_on_once_it_has_flown() -> None:
