@@ -87,6 +87,41 @@ class MemoryNetwork:
     routes: list[Callable[[], None]] = field(default_factory=list)  # each route watch's check
     # The tokens each watcher has been told are alive (what it sees of the mesh).
     _seen: dict[_Decl, set[_Decl]] = field(default_factory=dict)
+    # Per key, the subscriptions and queryables it matches, in declaration order: a
+    # field of a dozen drones publishes a hundred thousand samples a mission, each of
+    # which scanned every subscription. Dropped whenever a declaration comes or goes.
+    _subscribed: dict[str, list[tuple[_Decl, Inbox[Sample]]]] = field(default_factory=dict)
+    _served: dict[str, list[tuple[_Decl, QueryHandler]]] = field(default_factory=dict)
+
+    def add_subscriber(self, entry: tuple[_Decl, Inbox[Sample]]) -> None:
+        self.subscribers.append(entry)
+        self._subscribed.clear()
+
+    def remove_subscriber(self, entry: tuple[_Decl, Inbox[Sample]]) -> None:
+        self.subscribers.remove(entry)
+        self._subscribed.clear()
+
+    def add_queryable(self, entry: tuple[_Decl, QueryHandler]) -> None:
+        self.queryables.append(entry)
+        self._served.clear()
+
+    def remove_queryable(self, entry: tuple[_Decl, QueryHandler]) -> None:
+        self.queryables.remove(entry)
+        self._served.clear()
+
+    def subscribed(self, key: str) -> list[tuple[_Decl, Inbox[Sample]]]:
+        """The subscriptions whose key expressions match `key`."""
+        found = self._subscribed.get(key)
+        if found is None:
+            found = self._subscribed[key] = [entry for entry in self.subscribers if intersects(entry[0].keyexpr, key)]
+        return found
+
+    def served(self, key: str) -> list[tuple[_Decl, QueryHandler]]:
+        """The queryables whose key expressions match `key`."""
+        found = self._served.get(key)
+        if found is None:
+            found = self._served[key] = [entry for entry in self.queryables if intersects(entry[0].keyexpr, key)]
+        return found
 
     def __post_init__(self) -> None:
         if self.medium is not None:
@@ -95,7 +130,7 @@ class MemoryNetwork:
 
     def routed(self, node: str, key: str) -> bool:
         """Whether a query on `key` from `node` finds a queryable (as `query` looks)."""
-        return any(intersects(d.keyexpr, key) and self.reachable(node, d.owner.node) for d, _ in self.queryables)
+        return any(self.reachable(node, d.owner.node) for d, _ in self.served(key))
 
     def reconsider_routes(self) -> None:
         for check in list(self.routes):
@@ -165,9 +200,8 @@ class MemoryBus:
         # subscriptions there (as a Zenoh session does): a node that subscribes twice,
         # say to record, changes neither what crosses the radio nor its random draws.
         inboxes: dict[str, list[Inbox[Sample]]] = {}
-        for decl, inbox in list(self._net.subscribers):
-            if intersects(decl.keyexpr, key):
-                inboxes.setdefault(decl.owner.node, []).append(inbox)
+        for decl, inbox in self._net.subscribed(key):
+            inboxes.setdefault(decl.owner.node, []).append(inbox)
         sample = Sample(key, bytes(payload))
         for node, there in inboxes.items():
             self._net.carry(self.node, node, functools.partial(_put_all, there, sample), key)
@@ -183,21 +217,21 @@ class MemoryBus:
 
         def close() -> None:
             inbox.close()
-            self._net.subscribers.remove(entry)
+            self._net.remove_subscriber(entry)
 
         entry = (self._declare(keyexpr, close), inbox)
-        self._net.subscribers.append(entry)
+        self._net.add_subscriber(entry)
         return entry[0]
 
     def serve(self, keyexpr: str, handler: QueryHandler) -> _Decl:
         entry: tuple[_Decl, QueryHandler]
 
         def close() -> None:
-            self._net.queryables.remove(entry)
+            self._net.remove_queryable(entry)
             self._net.reconsider_routes()
 
         entry = (self._declare(keyexpr, close), handler)
-        self._net.queryables.append(entry)
+        self._net.add_queryable(entry)
         self._net.reconsider_routes()
         return entry[0]
 
@@ -223,8 +257,7 @@ class MemoryBus:
     async def query_linked(self, selector: str, payload: bytes = b"", *, timeout_s: float = 2.0) -> tuple[bytes, bool | None]:
         key = strip_parameters(selector)
         net = self._net
-        matches = [(d, h) for d, h in net.queryables
-                   if intersects(d.keyexpr, key) and net.reachable(self.node, d.owner.node)]
+        matches = [(d, h) for d, h in net.served(key) if net.reachable(self.node, d.owner.node)]
         if not matches:
             raise NoRoute(f"no queryable for {key}")
         decl, handler = matches[0]
