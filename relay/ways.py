@@ -54,11 +54,19 @@ def _along(a: Point3, b: Point3, t: float) -> Point3:
     return (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), a[2] + t * (b[2] - a[2]))
 
 
+def _to_segment(p: Point3, a: Point3, b: Point3) -> float:
+    """The least distance from point p to segment a-b."""
+    d = _sub(b, a)
+    length2 = _dot(d, d)
+    t = 0.0 if length2 <= 1e-12 else min(1.0, max(0.0, _dot(_sub(p, a), d) / length2))
+    return math.dist(p, _along(a, b, t))
+
+
 def segment_distance(p1: Point3, q1: Point3, p2: Point3, q2: Point3) -> float:
     """The least distance between segments p1-q1 and p2-q2 (either may be a point)."""
     d1, d2, r = _sub(q1, p1), _sub(q2, p2), _sub(p1, p2)
     a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
-    eps = 1e-9
+    eps = 1e-15  # a way this short (3e-8 m) is a point
     if a <= eps and e <= eps:
         return math.dist(p1, p2)
     if a <= eps:
@@ -70,7 +78,10 @@ def segment_distance(p1: Point3, q1: Point3, p2: Point3, q2: Point3) -> float:
         else:
             b = _dot(d1, d2)
             denom = a * e - b * b
-            s = min(1.0, max(0.0, (b * f - c * e) / denom)) if denom > eps else 0.0
+            if denom <= 1e-9 * a * e:  # (nearly) parallel: the nearest points include an end of one
+                return min(_to_segment(p1, p2, q2), _to_segment(q1, p2, q2), _to_segment(p2, p1, q1),
+                           _to_segment(q2, p1, q1))
+            s = min(1.0, max(0.0, (b * f - c * e) / denom))
             t = (b * s + f) / e
             if t < 0.0:
                 s, t = min(1.0, max(0.0, -c / a)), 0.0

@@ -27,6 +27,8 @@ from dronefleet.relay.ways import (
     ((0, 0, 0), (10, 0, 0), (3, 4, 0), (3, 4, 0), 4.0),  # a point beside
     ((0, 0, 0), (0, 0, 0), (3, 4, 0), (3, 4, 0), 5.0),  # two points
     ((0, 0, 0), (10, 0, 0), (0, 2, 0), (10, 2, 0), 2.0),  # parallel
+    ((0, 0, 0), (1, 0, 0), (1, 0, 0), (0, 0, 1e-5), 0.0),  # nearly parallel, sharing an end
+    ((0, 0, 0), (10, 0, 0), (12, 1, 0), (20, 1, 0), math.hypot(2, 1)),  # parallel, apart along
 ])
 def test_segment_distance(a: Point3, b: Point3, c: Point3, d: Point3, expected: float) -> None:
     assert segment_distance(a, b, c, d) == pytest.approx(expected)
