@@ -335,27 +335,14 @@ class Relays:
         `descent_clear`): it may come down."""
         frame = self._frame
         assert frame is not None, "clear_below: mode chain only"
-        everyone = self._everyone(frame)
-        if relay.id not in everyone:
+        heard = self._heard()
+        if relay.id not in heard:
             return True
-        moving = self._velocities()
-        return ways.descent_clear(everyone[relay.id], [(at, moving.get(k, (0.0, 0.0))) for k, at in everyone.items()
-                                                        if k != relay.id], LAND_CLEAR_M)
+        below = [(self._local(frame, t), (t.velocity.north, t.velocity.east)) for k, t in heard.items() if k != relay.id]
+        return ways.descent_clear(self._local(frame, heard[relay.id]), below, LAND_CLEAR_M)
 
-    def _velocities(self) -> dict[str, tuple[float, float]]:
-        """Every drone's velocity north and east (m/s), as its last telemetry gave it."""
-        if self._mission is None:
-            return {}
-        registry = self._mission.station.registry
-        out = {}
-        for drone_id in registry.ids():
-            t = registry.telemetry(drone_id)
-            if t is not None:
-                out[drone_id] = (t.velocity.north, t.velocity.east)
-        return out
-
-    def _everyone(self, frame: Frame) -> dict[str, tuple[float, float, float]]:
-        """Where every drone the ground knows is (local metres, metres above field level)."""
+    def _heard(self) -> dict[str, Any]:
+        """Every drone the ground knows with a position: its last telemetry."""
         if self._mission is None:
             return {}
         registry = self._mission.station.registry
@@ -363,8 +350,17 @@ class Relays:
         for drone_id in registry.ids():
             t = registry.telemetry(drone_id)
             if t is not None and t.position is not None:
-                out[drone_id] = (*frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt))
+                out[drone_id] = t
         return out
+
+    @staticmethod
+    def _local(frame: Frame, t: Any) -> tuple[float, float, float]:
+        """Where a drone is (local metres, metres above field level), from its telemetry."""
+        return (*frame.local(Position(t.position.lat, t.position.lon)), max(0.0, t.position.rel_alt))
+
+    def _everyone(self, frame: Frame) -> dict[str, tuple[float, float, float]]:
+        """Where every drone the ground knows is (local metres, metres above field level)."""
+        return {drone_id: self._local(frame, t) for drone_id, t in self._heard().items()}
 
 
 def _above(drone: Any, alt: float | None) -> float | None:
