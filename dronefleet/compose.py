@@ -50,8 +50,10 @@ from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
 from dronefleet.mission.hosting.simulate import add_field_reading, sensor_values, telemetry_sample, write_result
 from dronefleet.mission.lifecycle.fleet_port import FleetPort
+from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary, plugin_summary
+from dronefleet.schemas.about import SensorDeclaration
 from dronefleet.schemas.endpoints import split_host_port
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.schemas.fence import Geofence
@@ -210,11 +212,16 @@ class SimField:
         agent_config: AgentConfig | None = None,
         fleet_port: Callable[[GroundStation], FleetPort] | None = None,
         agent_bus: Callable[[str, Bus], Bus] | None = None,
+        predicting: bool = False,
     ) -> None:
         """`fleet_port` and `agent_bus` are fault-injection points: what the missions
         reach the ground through, made from the station (by default the station itself),
         and each agent's bus, made from its drone's id and session; a test wraps them to
-        make a call fail or a message go missing (bus/faulty.py)."""
+        make a call fail or a message go missing (bus/faulty.py). `predicting`: the
+        world is a preflight's copy of a live fleet, and each mission's first read of what
+        that copy cannot know (`unknowns`) goes into its result (ADR 0014)."""
+        self.predicting = predicting
+        self.unknowns: dict[str, dict[str, Any]] = {}  # mission id → {line, what} of its first such read
         self.world = world
         self.specs = world.spawn(n)
         self.seed = seed
@@ -290,7 +297,7 @@ class SimField:
             for fault in spec.faults:
                 self._tasks.append(loop.create_task(self._fault_at(vehicle, fault.at_s, fault.fault, fault.value)))
             if spec.sensors:
-                self._tasks.append(loop.create_task(self._sensors(spec.id, spec.sensor_types)))
+                self._tasks.append(loop.create_task(self._sensors(spec.id, self.world.declarations(spec))))
         for field_sensor in self.world.field_sensors:
             self._tasks.append(loop.create_task(self._field_sensor(field_sensor), name=f"field sensor {field_sensor.id}"))
         store = MissionStore(self.data_dir / "missions.db")
@@ -298,6 +305,8 @@ class SimField:
         self.manager = MissionManager(port, store, self.clock, deterministic=True, seed=self.seed, plugins=self.plugins)
         if echo is not None:
             self.manager.echo = lambda mission_id, line: echo(self.clock.monotonic(), line.message)
+        if self.predicting:
+            self.manager.on_unknowable = self._unknowable
         # Let every drone register (first telemetry) with its sensors before the mission
         # starts; on the radio, every drone the ground can reach.
         await self.clock.advance(self.agent_config.telemetry_rate_ms / 1000 + 0.1)
@@ -308,6 +317,13 @@ class SimField:
             await self.clock.advance(0.1)
         else:
             raise RuntimeError("simulated drones did not register with their sensors within 10 s")
+
+    def _unknowable(self, mission: Mission, line: int | None, what: str) -> None:
+        if mission.id not in self.unknowns:
+            self.unknowns[mission.id] = {"line": line, "what": what}
+            where = f"line {line}" if line is not None else "a plugin"
+            mission.log("info", f"Prediction: {where} reads {what}, which a preflight cannot know; "
+                                "from here on the prediction is a guess and refuses nothing")
 
     def _agent_config(self, spec: DroneSpec) -> AgentConfig:
         """The agents' config with what this drone is (its world entry's kind, roles, sensors)."""
@@ -336,12 +352,13 @@ class SimField:
         await self.clock.sleep(at_s)
         apply_fault(vehicle, fault, value)
 
-    async def _sensors(self, drone_id: str, kinds: list[str]) -> None:
+    async def _sensors(self, drone_id: str, declared: list[SensorDeclaration]) -> None:
         """Simulated on-board sensors (sim/sensors.py), following the drone's telemetry."""
         bus = self._bus(drone_id)  # on board: connected to its own agent
         keys = Keys(self.config.namespace)
-        tasks = [asyncio.ensure_future(simulated_sensor(bus, drone_id, kind, self.world, clock=self.clock, keys=keys))
-                 for kind in kinds]
+        tasks = [asyncio.ensure_future(simulated_sensor(bus, drone_id, d.type, self.world, clock=self.clock, keys=keys,
+                                                        fields=list(d.fields)))
+                 for d in declared]
         try:
             await asyncio.gather(*tasks)
         finally:
@@ -440,6 +457,7 @@ class SimField:
                 for drone_id, track in sorted(self.tracks.items())
             },
             **({"field_sensors": self.field_sensors} if self.field_sensors else {}),
+            **({"unknown": self.unknowns[record.mission_id]} if record.mission_id in self.unknowns else {}),
         }
 
     async def close(self) -> None:
@@ -475,9 +493,11 @@ async def simulate(
     plots: bool = True,
     plugins: PluginLibrary | None = None,
     enable: dict[str, dict[str, Any]] | None = None,
+    predicting: bool = False,
 ) -> dict[str, Any]:
-    """Run one script to its end under virtual time; write result.json and plots to out_dir."""
-    sim = SimField(world, n, seed=seed, plugins=plugins)
+    """Run one script to its end under virtual time; write result.json and plots to out_dir.
+    `predicting`: the world is a preflight's copy of the live fleet (SimField)."""
+    sim = SimField(world, n, seed=seed, plugins=plugins, predicting=predicting)
     try:
         await sim.start(echo)
         record = await sim.run_mission(source, name=name, max_s=max_s, enable=enable)

@@ -242,9 +242,12 @@ def check(script: Path, plugins_dir: Path | None) -> None:
 @click.option("--limit-memory-mb", type=click.IntRange(16), hidden=True,
               help="As a mission's sandbox: the memory the run may allocate beyond its own (the ground's preflight).")
 @click.option("--limit-cpu-s", type=click.FloatRange(1), hidden=True, help="As a mission's sandbox: CPU seconds in all.")
+@click.option("--predicting", is_flag=True, hidden=True,
+              help="As the ground's preflight: the world is a copy of the live fleet; result.json names the first "
+                   "line that reads what the copy cannot know (a sensor, the field sensors, the radio).")
 def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int | None, seed: int, out_dir: Path | None,
              max_s: float, plugins: tuple[str, ...], plugins_dir: Path | None, no_plots: bool, radio: bool | None,
-             limit_memory_mb: int | None, limit_cpu_s: float | None) -> None:
+             limit_memory_mb: int | None, limit_cpu_s: float | None, predicting: bool) -> None:
     """Run SCRIPT against simulated drones in fast time; exit with its outcome.
 
     Plugin inputs go with --enable in one word (--enable 'replacement drainage=0.0015')
@@ -302,7 +305,7 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         result = asyncio.run(run(
             source, field, n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,
             echo=lambda t, message: click.echo(f"[{t:8.1f} s] {message}"), plugins=library, enable=enable,
-            plots=not no_plots,
+            plots=not no_plots, predicting=predicting,
         ))
     except ScriptError as exc:
         _fail(f"{script}:{exc.line}:{exc.column}: {exc.message}")

@@ -28,7 +28,7 @@ from typing import Annotated, Any, Literal, get_args
 import msgspec
 from msgspec import Meta
 
-from dronefleet.mission.hosting.simulate import SimResult
+from dronefleet.mission.hosting.simulate import SimResult, UnknownRead
 from dronefleet.schemas.about import Role, SensorDeclaration
 from dronefleet.schemas.errors import InvalidMessage
 from dronefleet.schemas.telemetry import SensorReading
@@ -83,6 +83,9 @@ class Prediction(msgspec.Struct, frozen=True, kw_only=True):
     wall_s: float
     drones: dict[str, PredictedDrone]  # the drones the mission used
     log: list[str]
+    # The first line that read what the world, a copy of the live fleet, cannot know
+    # (a sensor, the field sensors, the radio): what follows it is a guess
+    unknown: UnknownRead | None = None
 
 
 def decode_body(body: bytes, kind: type[Any], what: str) -> Any:
@@ -103,8 +106,9 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
     position are left out (nothing to fly from). Batteries drain `drain_per_s` in flight
     down to empty (no floor: a real pack runs out). Sensors read what the ground last
     heard of their type (`readings`, the drones' and the field sensors'), everywhere:
-    a numeric field as a field of that value, a temperature as the environment's; what
-    was never heard is not invented. Field sensors (FieldSensorInfo) with a position
+    each field as a field of that value, a temperature as the environment's; what
+    was never heard is not invented. A mission's read of any of them is what the
+    prediction cannot know (`Prediction.unknown`): a guess from there on. Field sensors (FieldSensorInfo) with a position
     stand where they are, with the types of theirs the world can read."""
     fields, temperature = _last_fields(readings)
     specs = []
@@ -115,9 +119,11 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
         ground_alt = telem.home.alt if telem.home is not None else pos.alt - pos.rel_alt
         battery = telem.battery.remaining_percent if telem.battery is not None else None
         roles = [r for r in (info.roles or []) if r in ROLES]
-        # The sensors the ground has heard from (a mission assigns by those), as declared
+        # The sensors the ground has heard from (a mission assigns by those), as declared,
+        # and those declared but not heard yet (their readings are unknown: never invented)
         declared = {d.type: d for d in getattr(info, "sensors_declared", None) or []}
         sensors: list[str | SensorDeclaration] = [declared.get(t, t) for t in info.sensors]
+        sensors += [d for t, d in declared.items() if t not in info.sensors]
         specs.append(DroneSpec(id=info.drone_id, lat=pos.lat, lon=pos.lon, alt=ground_alt,
                                sensors=sensors, kind=info.kind, roles=roles or None,
                                battery=None if battery is None else min(1.0, max(0.0, battery))))
@@ -135,15 +141,16 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
 
 
 def _last_fields(readings: Sequence[SensorReading]) -> tuple[dict[str, dict[str, FieldModel]], float | None]:
-    """Per sensor type, each numeric field at its latest value; the latest temperature."""
+    """Per sensor type, each field at its latest value (a number, a word or a flag as it
+    came; a field that came empty is left unknown); the latest temperature."""
     fields: dict[str, dict[str, FieldModel]] = {}
     temperature: float | None = None
     for reading in sorted(readings, key=lambda r: r.timestamp):
         if reading.fields:
-            numbers = {k: FieldModel(background=float(v)) for k, v in reading.fields.items()
-                       if isinstance(v, int | float) and not isinstance(v, bool)}
-            if numbers:
-                fields[reading.type] = {**fields.get(reading.type, {}), **numbers}
+            values = {k: FieldModel(background=float(v) if isinstance(v, int) and not isinstance(v, bool) else v)
+                      for k, v in reading.fields.items() if v is not None}
+            if values:
+                fields[reading.type] = {**fields.get(reading.type, {}), **values}
         elif reading.type == "temperature" and isinstance(reading.value, int | float) and not isinstance(reading.value, bool):
             temperature = float(reading.value)
     return fields, temperature
@@ -171,7 +178,8 @@ def prediction_of(result: SimResult, wall_s: float, log_lines: list[str]) -> Pre
             flying_s=round(len(flying) * period, 1),
         )
     return Prediction(status=record.status, cause=record.cause, message=record.message or "", line=record.line,
-                      duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:])
+                      duration_s=round(duration, 1), wall_s=round(wall_s, 2), drones=drones, log=log_lines[-200:],
+                      unknown=result.unknown)
 
 
 @dataclass(frozen=True)
@@ -249,7 +257,7 @@ async def predict(source: str, world: World, max_s: float, plugins_dir: Path | N
         (d / "plan.py").write_text(source, encoding="utf-8")
         (d / "world.yml").write_text(yaml.safe_dump(msgspec.to_builtins(world)), encoding="utf-8")
         args = [sys.executable, "-m", "dronefleet", "mission", "simulate", str(d / "plan.py"), "--world", str(d / "world.yml"),
-                "--out", str(d / "out"), "--max-time", str(max_s), "--no-plots",
+                "--out", str(d / "out"), "--max-time", str(max_s), "--no-plots", "--predicting",
                 *(["--plugins-dir", str(plugins_dir)] if plugins_dir is not None else []),
                 *(["--limit-memory-mb", str(bounds.memory_mb)] if bounds.memory_mb is not None else []),
                 *(["--limit-cpu-s", str(bounds.cpu_s)] if bounds.cpu_s is not None else [])]

@@ -43,6 +43,9 @@ class Preflight(msgspec.Struct, frozen=True, kw_only=True):
     wall_s: float  # what it took on the ground's machine
     battery_left: dict[str, float | None]  # per drone the mission used, 0..1
     flying_s: dict[str, float]
+    # What the prediction could not know and where the script first read it: a
+    # prediction that failed after that line passes (soundness, ADR 0014)
+    unknown: str | None = None
 
     def failure(self) -> str:
         """What a refused submission says (the API's 422, the CLI's error)."""
@@ -57,18 +60,28 @@ class Preflight(msgspec.Struct, frozen=True, kw_only=True):
         text = f"Preflight {verdict}: {self.status} {self.cause or ''} after {self.t_s:g} s simulated ({self.wall_s:.1f} s on the ground)"
         if self.message and self.message != self.cause:
             text += f" - {self.message}"
+        if self.unknown is not None:
+            text += f"; unknown to it: {self.unknown}"
         return text + (f"; battery left: {left}" if left else "")
 
 
 def judge(prediction: Prediction) -> Preflight:
     """Passed: the mission finished, or was still running at the bound (it waits on the
-    world); anything else failed."""
-    passed = prediction.status == "finished" or prediction.cause == "time_limit"
+    world), or it failed only after reading what the prediction cannot know (its
+    world's sensors, field sensors and radio are a copy, not the field's future:
+    what followed was a guess); anything else failed, at its line."""
+    unknown = prediction.unknown
+    read = None if unknown is None else (f"line {unknown.line}: " if unknown.line is not None else "") + unknown.what
+    passed = prediction.status == "finished" or prediction.cause == "time_limit" or read is not None
+    message = prediction.message
+    if read is not None and prediction.status != "finished" and prediction.cause != "time_limit":
+        message = f"not refused: it {prediction.status} ({prediction.cause}) after reading {read}, which a preflight cannot know - {message}"
     return Preflight(
-        passed=passed, status=prediction.status, cause=prediction.cause, message=prediction.message,
+        passed=passed, status=prediction.status, cause=prediction.cause, message=message,
         line=prediction.line if not passed else None, t_s=prediction.duration_s, wall_s=prediction.wall_s,
         battery_left={d: p.battery_end for d, p in prediction.drones.items()},
         flying_s={d: p.flying_s for d, p in prediction.drones.items()},
+        unknown=read,
     )
 
 

@@ -32,7 +32,8 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 
 
 class FieldSpec(_Strict, frozen=True):
-    """One value a sensor reports: its unit and the range a real reading stays in."""
+    """One value a sensor reports: its unit and the range a real reading stays in. One
+    declared with neither is any value: a number, a word (`status: "ok"`) or a flag."""
 
     unit: str = ""
     min: float | None = None
@@ -114,8 +115,8 @@ def reading_fault(reading: SensorReading, declared: list[SensorDeclaration]) -> 
         spec = decl.fields.get(name)
         if spec is None:
             return f"unknown field {reading.type}.{name} (declared: {', '.join(sorted(decl.fields))})"
-        if not _number(value):
-            return f"{reading.type}.{name} is {value!r}, not a number"
+        if value is None:  # not read this time, as a field it did not carry
+            continue
         fault = _range_fault(f"{reading.type}.{name}", value, spec)
         if fault is not None:
             return fault

@@ -108,7 +108,7 @@ async def world_field_sensor(bus: Bus, world: World, spec: FieldSensorSpec, cloc
 
 
 async def simulated_field_sensor(bus: Bus, sensor_id: str, sensor_type: str, at: Position,
-                                 sample: Callable[[Position], dict[str, float] | float], rate_ms: int,
+                                 sample: Callable[[Position], dict[str, float | str | bool] | float], rate_ms: int,
                                  clock: Clock | None = None, keys: Keys | None = None,
                                  out: Callable[[str], None] | None = None) -> None:
     """A world's field sensor: the world's field where it stands, every `rate_ms`; `out` gets a line per reading."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Sequence
 from typing import TYPE_CHECKING, Any
 
 from dronefleet.bus.clock import Clock, SystemClock
@@ -41,7 +41,7 @@ class TemperatureSensor:
 
     def __init__(self, bus: Bus, drone_id: str, config: HeatConfig, *, clock: Clock | None = None,
                  keys: Keys | None = None, on_reading: Callable[[SensorReading], None] | None = None,
-                 kind: str = "temperature", model: Callable[[float, float], dict[str, float]] | None = None) -> None:
+                 kind: str = "temperature", model: Callable[[float, float], dict[str, float | str | bool]] | None = None) -> None:
         """`model`: another type's fields where the drone is (sim/world_fields.py), instead of the heat field."""
         self.kind = kind
         self.model = model
@@ -92,21 +92,23 @@ class TemperatureSensor:
 
 def simulated_sensor(bus: Bus, drone_id: str, kind: str, world: World, *, clock: Clock | None = None,
                      keys: Keys | None = None, on_reading: Callable[[SensorReading], None] | None = None,
-                     ) -> Coroutine[Any, Any, None]:
+                     fields: Sequence[str] = ()) -> Coroutine[Any, Any, None]:
     """The world's simulated sensor `kind` on a drone: temperature from the heat field;
-    any other kind is announced with readings of value None, so missions can assign by it."""
+    any other kind is announced with readings of value None (or, declared with `fields`,
+    each field None), so missions can assign by it and read that nothing is known."""
     if kind == "temperature":
         return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys, on_reading=on_reading).run()
     if kind in world.fields:  # a sensor with fields (sim/world_fields.py): each read where the drone is
         return TemperatureSensor(bus, drone_id, world.heat_config(), clock=clock, keys=keys, kind=kind, on_reading=on_reading,
                                  model=lambda lat, lon: sample(world.fields[kind], lat, lon)).run()
-    return _announce(bus, drone_id, kind, world.sensor_rate_ms, clock or SystemClock(), keys or Keys(), on_reading)
+    return _announce(bus, drone_id, kind, world.sensor_rate_ms, clock or SystemClock(), keys or Keys(), on_reading, fields)
 
 
 async def _announce(bus: Bus, drone_id: str, kind: str, rate_ms: int, clock: Clock, keys: Keys,
-                    on_reading: Callable[[SensorReading], None] | None) -> None:
+                    on_reading: Callable[[SensorReading], None] | None, fields: Sequence[str]) -> None:
     while True:
-        reading = SensorReading(drone_id=drone_id, timestamp=clock.time_ms(), type=kind, value=None)
+        reading = SensorReading(drone_id=drone_id, timestamp=clock.time_ms(), type=kind, value=None,
+                                fields=dict.fromkeys(fields) or None)
         bus.publish(keys.sensor(drone_id, kind), encode(reading))
         if on_reading is not None:
             on_reading(reading)

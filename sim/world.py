@@ -130,7 +130,7 @@ class World(_Strict, frozen=True):
                 out.append(SensorDeclaration(type=s))
         return out
 
-    def reading_at(self, kind: str, lat: float, lon: float) -> dict[str, float] | float:
+    def reading_at(self, kind: str, lat: float, lon: float) -> dict[str, float | str | bool] | float:
         """What a simulated sensor of `kind` reads there: the world's fields of that type,
         else (temperature) the heat field."""
         if kind in self.fields:

@@ -264,6 +264,8 @@ class MissionManager:
         self._seeds = itertools.count(seed or 0)
         self.commands: list[CommandResult] = []  # every mission's verbs, for simulation results
         self.echo: Callable[[str, MissionLogLine], None] | None = None  # progress printing
+        # A prediction's host (the preflight): told what each mission read that it cannot know
+        self.on_unknowable: Callable[[Mission, int | None, str], None] | None = None
         self._lanes: dict[str, Lanes] = {}  # mission id → what its subroutines last did (the newest LANES_KEPT)
         self._recover()
 
@@ -318,6 +320,8 @@ class MissionManager:
 
     def _start(self, mission: Running) -> None:
         mission.on_activity = self._on_activity
+        if isinstance(mission, Mission):  # an isolated mission is never a prediction
+            mission.on_unknowable = self.on_unknowable
         task = asyncio.get_running_loop().create_task(self._run(mission), name=f"mission {mission.id}")
         self._running[mission.id] = (mission, task)
         self._broadcast(mission.record)

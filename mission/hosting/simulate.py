@@ -45,12 +45,20 @@ class Track(msgspec.Struct, frozen=True, kw_only=True):
     samples: list[Sample]
 
 
+class UnknownRead(msgspec.Struct, frozen=True, kw_only=True):
+    """A prediction's first read of what its world cannot know (SimField `predicting`)."""
+
+    line: int | None  # the script's; None when a plugin read it
+    what: str
+
+
 class SimResult(msgspec.Struct, frozen=True, kw_only=True):
     """What of result.json a reader types: the mission's record and each drone's
     samples (the rest, for plots and lanes, stays as written)."""
 
     mission: MissionRecord
     drones: dict[str, Track]
+    unknown: UnknownRead | None = None
 
 
 def telemetry_sample(t: Telemetry, t_s: float, state: str, sensors: dict[str, Any],

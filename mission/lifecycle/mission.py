@@ -87,6 +87,10 @@ class Mission:
         self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (catch_up)
         # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
         self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
+        # A prediction's host (the preflight, ADR 0014): told of each read whose value a
+        # prediction cannot know (a sensor, the field sensors heard, the radio), with the
+        # script's line; None when nothing is predicted.
+        self.on_unknowable: Callable[[Mission, int | None, str], None] | None = None
         self._doing: dict[str, tuple[Any, ...]] = {}  # subroutine → what it last reported
         self._drones_of: dict[str, tuple[str, ...]] = {}  # subroutine → the drones its last verb on drones acted on
         self._heard_at: dict[str, float] = {}  # drone id → when its telemetry last came (mission clock)

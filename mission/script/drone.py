@@ -57,6 +57,15 @@ def call(mission: Mission, awaitable: Any) -> Any:
         raise Stopped() from None
 
 
+def unknowable(mission: Mission, what: str) -> None:
+    """The script read `what`, whose value a prediction cannot know (a sensor's reading,
+    the field sensors heard, the radio): its host hears of it with the script's line."""
+    if mission.on_unknowable is not None:
+        from dronefleet.mission.script.activity import script_line
+
+        mission.on_unknowable(mission, script_line(mission), what)
+
+
 class CommandView:
     """`drone.cmd`: the drone's current command, with `.target` for takeoff/goto/move."""
 
@@ -141,13 +150,14 @@ class SensorView:
             raise AttributeError(kind)
         registry, drone_id = self._drone._m.station.registry, self._drone._live()
         declared = next((d for d in registry.info(drone_id).sensors_declared or [] if d.type == kind), None)
-        for reading in registry.sensor_readings(drone_id):
-            if reading.type == kind:
-                return reading_value(reading, frozenset(declared.fields) if declared else frozenset())
         carried = registry.info(drone_id).sensors
         if kind not in carried and declared is None:
             raise NoSuchSensor(f"{drone_id} carries no {kind} sensor (it carries: {', '.join(carried) or 'none'}); "
                                f"assign(sensor={kind!r}) picks a drone that does")
+        unknowable(self._drone._m, f"{drone_id}'s {kind} sensor")
+        for reading in registry.sensor_readings(drone_id):
+            if reading.type == kind:
+                return reading_value(reading, frozenset(declared.fields) if declared else frozenset())
         return None
 
 
@@ -300,7 +310,9 @@ class Drone:
     def link(self) -> LinkQuality | None:
         """The drone's measured link to the ground (`.quality`, `.rtt_ms`, `.jitter_ms`,
         `.loss`), or None before its first probe report."""
-        return self._m.station.registry.info(self._live()).link
+        drone_id = self._live()
+        unknowable(self._m, f"{drone_id}'s link to the ground")
+        return self._m.station.registry.info(drone_id).link
 
     def as_position(self) -> Position:
         return self.position

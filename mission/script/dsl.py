@@ -23,13 +23,22 @@ from dronefleet.mission.lifecycle.greenlets import Subroutine
 from dronefleet.mission.script import units
 from dronefleet.mission.script.activity import reported
 from dronefleet.mission.script.channel import Channel
-from dronefleet.mission.script.drone import COMPLETED, MIN_HANDOVER_HEIGHT_M, Drone, any_drone, call, guarded, handle
+from dronefleet.mission.script.drone import (
+    COMPLETED,
+    MIN_HANDOVER_HEIGHT_M,
+    Drone,
+    any_drone,
+    call,
+    guarded,
+    handle,
+    unknowable,
+)
 from dronefleet.mission.script.field_sensors import FieldSensor, field_sensors_of
 from dronefleet.mission.script.names import VERBS, common_names, near_place
 from dronefleet.mission.script.position import Position
 from dronefleet.mission.script.relaying import Relays
 from dronefleet.mission.script.sandbox import Guards
-from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal
+from dronefleet.mission.script.steps import Steps, When, altitude_body, as_guard, move_goal, sensor_guards
 from dronefleet.mission.script.units import Angle, Distance, Duration, Speed
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
@@ -250,6 +259,8 @@ class Verbs:
             body["timeout_s"] = units.duration(timeout, "timeout")
         if until is not None:
             body["until"] = as_guard(until)
+        if sensed := sensor_guards(body):  # when the drone ends a step on them
+            unknowable(self.m, f"{self._drone_id(d)}'s {' and '.join(sensed)} (a bundle's guard)")
         record = call(self.m, self.m.delivery.push(self._drone_id(d), body))
         handle(d).anchor = None
         call(self.m, self.m.next_telemetry(handle(d).live()))
@@ -279,6 +290,7 @@ class Verbs:
                 if thing.running:
                     call(self.m, thing.ended())
             elif isinstance(thing, FieldSensor):
+                unknowable(self.m, f"field sensor {thing.id}'s next reading")
                 call(self.m, self.m.next_field_reading(thing.id))
             elif isinstance(thing, (list, tuple)):
                 self.wait(*thing)
@@ -287,6 +299,7 @@ class Verbs:
 
     def field_sensors(self, type: str | None = None, near: Any = None, within: Any = None) -> list[FieldSensor]:  # noqa: A002
         """The field sensors heard (not on a drone; SPEC §2), nearest `near` first."""
+        unknowable(self.m, "the field sensors heard" + (f" of type {type}" if type is not None else ""))
         return field_sensors_of(self.m.station.registry.field_readings(), type, near, within)
 
     def stop(self, *subs: Subroutine) -> None:

@@ -38,6 +38,26 @@ def as_guard(value: Any) -> dict[str, Any]:
     return value.data
 
 
+def sensor_guards(body: Any) -> list[str]:
+    """The sensors a bundle's guards compare (`when.sensor.gas.co_ppm > 50`: "gas"), in
+    the order they first appear, anywhere in its steps and its own `until`."""
+    found: list[str] = []
+
+    def walk(node: Any) -> None:
+        if isinstance(node, dict):
+            field = node.get("field")
+            if isinstance(field, str) and field.startswith("sensor.") and (kind := field.split(".")[1]) not in found:
+                found.append(kind)
+            for value in node.values():
+                walk(value)
+        elif isinstance(node, (list, tuple)):
+            for item in node:
+                walk(item)
+
+    walk(body)
+    return found
+
+
 class When:
     """`when.<dotted telemetry field>` or `when.sensor.<type>`, compared to a value."""
 

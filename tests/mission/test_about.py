@@ -69,6 +69,12 @@ def test_a_reading_is_held_to_its_declaration(reading: SensorReading, fault: str
     assert reading_fault(reading, [GAS, TEMP]) == fault
 
 
+def test_a_field_declared_without_unit_or_range_reads_a_word_or_a_flag() -> None:
+    declared = [SensorDeclaration(type="gas", fields={"co_ppm": FieldSpec(unit="ppm"), "status": FieldSpec(), "alarm": FieldSpec()})]
+    assert reading_fault(gas(co_ppm=3.0, status="ok", alarm=False), declared) is None
+    assert reading_fault(gas(co_ppm="ok"), declared) == "gas.co_ppm is 'ok', not a number"
+
+
 def test_nothing_declared_holds_nothing() -> None:
     assert reading_fault(SensorReading(drone_id="d", timestamp=0, type="anything", value="x"), []) is None
 
