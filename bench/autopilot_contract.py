@@ -360,8 +360,9 @@ class Px4Sitl(Autopilot):
     """PX4's SIH quadrotor from a build folder (build/px4_sitl_default), instance i sending
     to UDP 14540+i; parameters and mission storage wiped for a clean start."""
 
-    def __init__(self, build: Path, instance: int) -> None:
-        self.build, self.instance = build, instance
+    def __init__(self, build: Path, instance: int, home: tuple[float, float, float] | None = None) -> None:
+        """`home`: where the SIH quad stands (lat, lon, alt AMSL); PX4's default is Zürich."""
+        self.build, self.instance, self.home = build, instance, home
         self.name = f"PX4 SITL (SIH quad) {build / 'bin' / 'px4'} -i {instance}"
         self.fc_url = f"udpin://127.0.0.1:{14540 + instance}"
 
@@ -371,6 +372,8 @@ class Px4Sitl(Autopilot):
             path = rootfs / stale
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
         env = {"PX4_SIM_MODEL": "sihsim_quadx", "PX4_SIMULATOR": "sihsim"}
+        if self.home is not None:
+            env |= dict(zip(("PX4_HOME_LAT", "PX4_HOME_LON", "PX4_HOME_ALT"), map(str, self.home), strict=True))
         self.proc = ChildProcess([str(self.build / "bin" / "px4"), "-i", str(self.instance), "-d"],
                                  workdir / "px4.log", env=env, cwd=rootfs)
 
@@ -400,6 +403,15 @@ class Given(Autopilot):
         self.fc_url, self.name = url, f"the autopilot on {url} (not restarted between runs)"
 
 
+def px4_build(who: str) -> Path:
+    """$FLEET_PX4_BUILD, a PX4 build folder holding bin/px4, or SystemExit naming `who` needs it."""
+    build = os.environ.get("FLEET_PX4_BUILD")
+    if not build or not (Path(build).expanduser() / "bin" / "px4").exists():
+        raise SystemExit(f"{who} needs FLEET_PX4_BUILD, a PX4 build folder holding bin/px4 "
+                         "(build/px4_sitl_default); see docs/guides/real-hardware.md")
+    return Path(build).expanduser()
+
+
 def autopilot_of(args: argparse.Namespace) -> Autopilot:
     if args.fc:
         return Given(args.fc)
@@ -407,11 +419,7 @@ def autopilot_of(args: argparse.Namespace) -> Autopilot:
     if kind in ("sim-px4", "sim-ardupilot"):
         return FleetSim(kind.removeprefix("sim-"), args.param)
     if kind == "px4":
-        build = os.environ.get("FLEET_PX4_BUILD")
-        if not build or not (Path(build) / "bin" / "px4").exists():
-            raise SystemExit("bench/autopilot_contract.py: --autopilot px4 needs FLEET_PX4_BUILD, a PX4 build folder "
-                             "holding bin/px4 (build/px4_sitl_default); see docs/guides/real-hardware.md")
-        return Px4Sitl(Path(build).expanduser(), args.instance)
+        return Px4Sitl(px4_build("bench/autopilot_contract.py: --autopilot px4"), args.instance)
     binary = os.environ.get("FLEET_ARDUCOPTER")
     if not binary or not Path(binary).exists():
         raise SystemExit("bench/autopilot_contract.py: --autopilot arducopter needs FLEET_ARDUCOPTER, the path of an "

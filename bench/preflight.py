@@ -15,6 +15,12 @@ With `--fly`, each example the prediction finished then flies for real on the sa
 fleet (no preflight: it was just predicted), and the prediction is compared with the
 flight: duration, and each drone's least battery; exits 1 when a duration is off by
 more than `--error-bar` (10 %). The drones come home between examples.
+
+`--autopilot px4` flies the four drones on real PX4 SITL instead (the SIH quad, four
+instances standing where the simulated ones would, from $FLEET_PX4_BUILD; see
+docs/guides/real-hardware.md), through `fleet agent --fc udpin://…` as on a real drone:
+
+    FLEET_PX4_BUILD=~/PX4-Autopilot/build/px4_sitl_default .venv/bin/python bench/preflight.py --fly --autopilot px4
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import httpx
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.autopilot_contract import Px4Sitl, px4_build  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
 from dronefleet.agent.config import AgentConfig  # noqa: E402
 from dronefleet.sim.vehicle import VehicleParams  # noqa: E402
@@ -82,10 +89,25 @@ async def main() -> None:
     parser.add_argument("--fly", action="store_true",
                         help="also fly each example that the prediction finished, and compare (duration, battery)")
     parser.add_argument("--error-bar", type=float, default=0.10, help="with --fly: largest duration error allowed")
+    parser.add_argument("--autopilot", choices=["sim", "px4"], default="sim",
+                        help="the drones' flight controllers: the agents' built-in simulator, or real PX4 SITL ($FLEET_PX4_BUILD)")
+    parser.add_argument("--only", metavar="NAME", action="append", help="only this example (file stem; repeatable)")
     args = parser.parse_args()
     errors: list[float] = []
+    examples = [p for p in EXAMPLES if not args.only or p.stem in args.only]
+    spots = [(40.6334, -8.66081 + 0.00013 * i, 8.2) for i in range(4)]
+    sitls: list[Px4Sitl] = []
     with tempfile.TemporaryDirectory() as tmp:
-        fcs = {f"drone{i + 1:02d}": f"sim://?lat=40.6334&lon={-8.66081 + 0.00013 * i:.6f}&alt=8.2" for i in range(4)}
+        if args.autopilot == "px4":
+            build = px4_build("bench/preflight.py --autopilot px4")
+            for i, spot in enumerate(spots):
+                sitls.append(Px4Sitl(build, i, home=spot))
+                (Path(tmp) / f"px4-{i}").mkdir()
+                sitls[-1].start(Path(tmp) / f"px4-{i}")
+            fcs = {f"drone{i + 1:02d}": sitl.fc_url for i, sitl in enumerate(sitls)}
+            print(f"flying on {len(sitls)} x {sitls[0].name.rsplit(' -i', 1)[0]}", flush=True)
+        else:
+            fcs = {f"drone{i + 1:02d}": f"sim://?lat={lat}&lon={lon:.6f}&alt={alt}" for i, (lat, lon, alt) in enumerate(spots)}
         # The agents at their default telemetry rate (as the prediction's are), the prediction
         # draining batteries as the simulated vehicles do, drones home at a mission's end.
         fleet = GroundFleet(Path(tmp), fcs, {"telemetry_rate_ms": AgentConfig().telemetry_rate_ms},
@@ -94,7 +116,7 @@ async def main() -> None:
             async with fleet.client() as http:
                 await until(lambda: all_ready(http, len(fcs)), 60, "four drones ready")
                 walls, ratios = [], []
-                for path in EXAMPLES:
+                for path in examples:
                     response = await http.post("/mission/simulate", json={"source": path.read_text()}, timeout=300)
                     if response.status_code != 200:
                         raise ScenarioFailed(f"{path.name}: {response.status_code} {response.text}")
@@ -116,6 +138,8 @@ async def main() -> None:
                               f"battery left predicted/flown {batteries or 'n/a'}", flush=True)
         finally:
             fleet.stop()
+            for sitl in sitls:
+                sitl.stop()
     print(f"preflight wall time over {len(walls)} examples: p50 {statistics.median(walls):.2f} s, max {max(walls):.2f} s; "
           f"wall / simulated over the {len(ratios)} that flew: p50 {statistics.median(ratios):.2%}, "
           f"max {max(ratios):.2%} (bar {args.bar:.0%})")
