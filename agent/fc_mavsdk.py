@@ -167,6 +167,10 @@ class MavsdkFlightController:
         self._takeoff_to: float | None = None  # a takeoff's altitude above home while it climbs
         self._changes = Changes()
 
+    @property
+    def make(self) -> str | None:
+        return self.autopilot.name
+
     def watch(self, listener: Listener) -> None:
         self._changes.watch(listener)
 

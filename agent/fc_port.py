@@ -73,6 +73,11 @@ class FlightController(Protocol):
     async def start(self) -> None:
         """Connect; raise FcUnavailable when the autopilot does not answer in time."""
 
+    @property
+    def make(self) -> str | None:
+        """The autopilot's make once connected: px4 or ardupilot; None for a simulated
+        vehicle that is neither (the built-in simulator)."""
+
     def state(self) -> FcState: ...
 
     def watch(self, listener: Listener) -> None:

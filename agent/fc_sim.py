@@ -71,6 +71,8 @@ class SimFlightController:
         self._snapshot = FcState()
         self._changes = Changes()
 
+    make = None  # the built-in simulator: a vehicle of its own, neither make
+
     def watch(self, listener: Listener) -> None:
         self._changes.watch(listener)
 

@@ -240,7 +240,7 @@ class Agent:
     def about(self) -> About:
         c = self.config
         return About(drone_id=self.drone_id, timestamp=self.clock.time_ms(), kind=c.kind, roles=list(c.roles),
-                     sensors=list(c.sensors))
+                     sensors=list(c.sensors), autopilot=self.fc.make)
 
     def _publish_about(self) -> None:
         self.bus.publish(self.keys.about(self.drone_id), encode(self.about()), reliable=True)

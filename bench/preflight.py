@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import statistics
 import sys
 import tempfile
@@ -41,7 +42,7 @@ from bench.autopilot_contract import Px4Sitl, px4_build  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
 from dronefleet.agent.config import AgentConfig  # noqa: E402
 from dronefleet.sim.vehicle import VehicleParams  # noqa: E402
-from tests.harness import GroundFleet  # noqa: E402
+from tests.harness import GroundFleet, SimProcess  # noqa: E402
 from tests.waiting import until
 
 EXAMPLES = sorted(p for p in (Path(__file__).resolve().parents[1] / "examples").glob("*.py") if p.name != "__init__.py")
@@ -74,6 +75,10 @@ async def fly(http: httpx.AsyncClient, source: str, name: str, drones: list[str]
             break
         await asyncio.sleep(1.0)  # a sample a second: the battery's resolution here
     await until(lambda: all_ready(http, len(drones)), 300, f"every drone back after {name}")
+    if os.environ.get("FLEET_BENCH_LOG"):  # the flight's own account, to find where time went
+        for line in record.get("log") or []:
+            print(f"    {(line['timestamp'] - record['start']) / 1000:7.1f} s  {line['message']}")
+        print((await http.get("/drone/logs", params={"drone_id": drones[0]})).text[-6000:])
     used = record.get("used_drones") or []
     return Flown(duration_s=(record["end"] - record["start"]) / 1000, battery_left={d: least[d] for d in used if d in least})
 
@@ -89,23 +94,29 @@ async def main() -> None:
     parser.add_argument("--fly", action="store_true",
                         help="also fly each example that the prediction finished, and compare (duration, battery)")
     parser.add_argument("--error-bar", type=float, default=0.10, help="with --fly: largest duration error allowed")
-    parser.add_argument("--autopilot", choices=["sim", "px4"], default="sim",
-                        help="the drones' flight controllers: the agents' built-in simulator, or real PX4 SITL ($FLEET_PX4_BUILD)")
+    parser.add_argument("--autopilot", choices=["sim", "sim-px4", "px4"], default="sim",
+                        help="the drones' flight controllers: the agents' built-in simulator, `fleet sim` as PX4 "
+                             "(MAVLink through MAVSDK), or real PX4 SITL ($FLEET_PX4_BUILD)")
     parser.add_argument("--only", metavar="NAME", action="append", help="only this example (file stem; repeatable)")
     args = parser.parse_args()
     errors: list[float] = []
     examples = [p for p in EXAMPLES if not args.only or p.stem in args.only]
     spots = [(40.6334, -8.66081 + 0.00013 * i, 8.2) for i in range(4)]
-    sitls: list[Px4Sitl] = []
+    sitls: list[Px4Sitl | SimProcess] = []
     with tempfile.TemporaryDirectory() as tmp:
-        if args.autopilot == "px4":
+        if args.autopilot == "sim-px4":  # its default world: a row of drones east of the origin
+            sim = SimProcess(Path(tmp), n=len(spots), extra_args=["--autopilot", "px4"])
+            sitls.append(sim)
+            fcs = {f"drone{i + 1:02d}": sim.fc_url(i) for i in range(len(spots))}
+        elif args.autopilot == "px4":
             build = px4_build("bench/preflight.py --autopilot px4")
-            for i, spot in enumerate(spots):
-                sitls.append(Px4Sitl(build, i, home=spot))
+            quads = [Px4Sitl(build, i, home=spot) for i, spot in enumerate(spots)]
+            for i, quad in enumerate(quads):
+                sitls.append(quad)
                 (Path(tmp) / f"px4-{i}").mkdir()
-                sitls[-1].start(Path(tmp) / f"px4-{i}")
-            fcs = {f"drone{i + 1:02d}": sitl.fc_url for i, sitl in enumerate(sitls)}
-            print(f"flying on {len(sitls)} x {sitls[0].name.rsplit(' -i', 1)[0]}", flush=True)
+                quad.start(Path(tmp) / f"px4-{i}")
+            fcs = {f"drone{i + 1:02d}": quad.fc_url for i, quad in enumerate(quads)}
+            print(f"flying on {len(quads)} x {quads[0].name.rsplit(' -i', 1)[0]}", flush=True)
         else:
             fcs = {f"drone{i + 1:02d}": f"sim://?lat={lat}&lon={lon:.6f}&alt={alt}" for i, (lat, lon, alt) in enumerate(spots)}
         # The agents at their default telemetry rate (as the prediction's are), the prediction

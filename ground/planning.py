@@ -32,13 +32,14 @@ from dronefleet.mission.hosting.simulate import SimResult, UnknownRead
 from dronefleet.schemas.about import Role, SensorDeclaration
 from dronefleet.schemas.errors import InvalidMessage
 from dronefleet.schemas.telemetry import SensorReading
-from dronefleet.sim.world import BatteryModel, DroneSpec, FieldSensorSpec, Spot, World
+from dronefleet.sim.world import Autopilot, BatteryModel, DroneSpec, FieldSensorSpec, Spot, World
 from dronefleet.sim.world_fields import FieldModel
 
 log = logging.getLogger(__name__)
 SIMULATION_WALL_S = 180.0  # a prediction that takes longer on this machine is stopped
 PATH_POINTS = 600  # per drone at most: the map draws them, the chart the battery
 ROLES = frozenset(get_args(Role))
+AUTOPILOT_MAKES = frozenset(get_args(Autopilot))  # flown with their own timing (sim/autopilot_params.py)
 DEFAULT_TEMP_C = World().environment_temp  # the world's, where no temperature was heard
 
 
@@ -124,8 +125,10 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
         declared = {d.type: d for d in getattr(info, "sensors_declared", None) or []}
         sensors: list[str | SensorDeclaration] = [declared.get(t, t) for t in info.sensors]
         sensors += [d for t, d in declared.items() if t not in info.sensors]
+        make = getattr(info, "autopilot", None)
         specs.append(DroneSpec(id=info.drone_id, lat=pos.lat, lon=pos.lon, alt=ground_alt,
                                sensors=sensors, kind=info.kind, roles=roles or None,
+                               autopilot=make if make in AUTOPILOT_MAKES else None,
                                battery=None if battery is None else min(1.0, max(0.0, battery))))
     if not specs:
         raise InvalidMessage("no drone with a position to simulate: the ground has heard none yet")

@@ -558,7 +558,7 @@ class Registry:
             drone_id=d.drone_id, state=state, current_command=d.current, sensors=sorted(d.sensors),
             mission=d.mission, errors=errors, warns=warns, link=d.link, bundle=d.bundle,
             kind=about.kind if about else None, roles=list(about.roles) if about else None,
-            sensors_declared=list(about.sensors) if about else None,
+            sensors_declared=list(about.sensors) if about else None, autopilot=about.autopilot if about else None,
         )
 
     def _publish(self, d: _Drone, info: DroneInfo) -> list[Event]:

@@ -71,10 +71,15 @@ class About(msgspec.Struct, frozen=True, kw_only=True):
     kind: str = DEFAULT_KIND
     roles: list[Role] = msgspec.field(default_factory=lambda: list(DEFAULT_ROLES))
     sensors: list[SensorDeclaration] = msgspec.field(default_factory=list)
+    # The flight controller's make as the agent found it: px4 or ardupilot (None: the
+    # built-in simulator, or an agent that does not say). Predictions fly each drone
+    # with its make's timing (ground/planning.py).
+    autopilot: str | None = None
 
     def same_as(self, other: About | None) -> bool:
         """The same description (the timestamp aside)."""
-        return other is not None and (self.kind, self.roles, self.sensors) == (other.kind, other.roles, other.sensors)
+        return other is not None and ((self.kind, self.roles, self.sensors, self.autopilot)
+                                      == (other.kind, other.roles, other.sensors, other.autopilot))
 
 
 def _number(value: object) -> bool:

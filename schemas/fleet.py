@@ -62,6 +62,7 @@ class DroneInfo(msgspec.Struct, frozen=True, kw_only=True):
     kind: str | None = None
     roles: list[str] | None = None
     sensors_declared: list[SensorDeclaration] | None = None
+    autopilot: str | None = None  # its flight controller's make: px4, ardupilot (None: not said, or simulated)
 
 
 class WatchEvent(msgspec.Struct, frozen=True):

@@ -5,6 +5,9 @@ as the real autopilot's would. No MAVLink here: the agent's built-in sim uses it
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
+from typing import Any
+
 from dronefleet.sim.vehicle import Vehicle
 
 # name → (the VehicleParams field it sets, the field's units per parameter unit)
@@ -33,6 +36,32 @@ ARDUPILOT: Model = {
 }
 
 BY_AUTOPILOT: dict[str, Model] = {"px4": PX4, "ardupilot": ARDUPILOT}
+
+# How a make gets going and comes to rest, at its default parameters, where the vehicle
+# model is otherwise instant (VehicleParams). Fitted to PX4 1.16 SITL (SIH quad) flown
+# through the agent's adapter (docs/guides/real-hardware.md): a takeoff to 15 m passed
+# 14.5 m after 16.1 s and one to 5 m ended at 9.1 s (spool-up, MPC_TKO_RAMP_T, then about
+# 1.4 m/s: a 6 s start at 1.5 m/s fits both); a 60-m leg came within 1 m after 16.5 s and
+# a 10-m one ended after 6.4 s (1 m/s² each way at 5 m/s fits both); the descent slowed
+# from 1.5 m/s at MPC_LAND_ALT1 (10 m) to 0.7 m/s at 5 m, and the landing was detected
+# about 5 s after touchdown. The ground's predictions fly each drone with its make's.
+@dataclass(frozen=True)
+class Timing:
+    takeoff_delay_s: float
+    accel_mps2: float
+    land_alt1_m: float | None
+    land_detect_s: float
+
+
+TIMING: dict[str, Timing] = {
+    "px4": Timing(takeoff_delay_s=6.0, accel_mps2=1.0, land_alt1_m=10.0, land_detect_s=5.0),
+}
+
+
+def timing_of(autopilot: str | None) -> dict[str, Any]:
+    """VehicleParams fields for how `autopilot` gets going and comes to rest ({}: instant)."""
+    timing = TIMING.get(autopilot or "")
+    return asdict(timing) if timing is not None else {}
 
 
 def check(model: Model, name: str, value: float) -> None:

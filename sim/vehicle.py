@@ -47,6 +47,12 @@ class VehicleParams:
     battery_rtl_level: float = 0.10  # below this in the air: automatic RTL
     battery_cells: int = 4
     gps_satellites: int = 12
+    # How a real autopilot gets going and comes to rest, where this model is otherwise
+    # instant (autopilot_params.TIMING gives a make's; the built-in simulator leaves them off):
+    takeoff_delay_s: float = 0.0  # from the takeoff command to the climb (PX4: COM_SPOOLUP_TIME + MPC_TKO_RAMP_T)
+    accel_mps2: float = 0.0  # horizontal acceleration and braking (0: speed changes at once)
+    land_alt1_m: float | None = None  # MPC_LAND_ALT1: from here down to land_slow_below_m the descent slows linearly
+    land_detect_s: float = 0.0  # on the ground this long before the landing is detected
 
 
 @dataclass
@@ -84,6 +90,8 @@ class Vehicle:
         self.fence: list[tuple[float, float]] = []  # the autopilot's inclusion geofence [(lat, lon), …]; [] = none
         self._armed_at = 0.0
         self._landed_at: float | None = None
+        self._touched_at: float | None = None  # on the ground, its landing not detected yet
+        self._climb_at = 0.0  # a takeoff's climb starts then
         self._took_off = False
         self._takeoff_target = 0.0
         self._target: tuple[float, float, float] | None = None  # north, east, alt AMSL
@@ -165,6 +173,7 @@ class Vehicle:
         if self.mode in MANUAL_MODES:
             return "takeoff denied: manual control"
         self._takeoff_target = alt_m if alt_m is not None else self.params.takeoff_alt_m
+        self._climb_at = self.t + self.params.takeoff_delay_s
         self.mode = "takeoff"
         self.landed_state = "taking_off"
         self._took_off = True
@@ -326,7 +335,9 @@ class Vehicle:
         if mode == "takeoff":
             self.vn = self.ve = 0.0
             top = self.home.alt + self._takeoff_target
-            if top - self.alt > 1e-3:
+            if self.t < self._climb_at:
+                self.vd = 0.0
+            elif top - self.alt > 1e-3:
                 self.vd = -self._vertical_rate(top - self.alt, p.takeoff_speed_mps, dt)
             else:
                 self.vd = 0.0
@@ -414,10 +425,17 @@ class Vehicle:
         self.vd = down
 
     def _descend(self, dt: float) -> None:
-        """Land where it is: fast above MPC_LAND_ALT2, slow below, stop at the ground."""
+        """Land where it is: fast above MPC_LAND_ALT1, slowing linearly down to
+        MPC_LAND_ALT2 (with no ALT1: at once), slow below, stop at the ground."""
         p = self.params
         self.vn = self.ve = 0.0
-        rate = p.land_speed_mps if self.rel_alt <= p.land_slow_below_m else p.descent_speed_mps
+        alt, low, high = self.rel_alt, p.land_slow_below_m, p.land_alt1_m
+        if alt <= low:
+            rate = p.land_speed_mps
+        elif high is None or alt >= high or high <= low:
+            rate = p.descent_speed_mps
+        else:
+            rate = p.land_speed_mps + (alt - low) / (high - low) * (p.descent_speed_mps - p.land_speed_mps)
         self.vd = min(rate, (self.alt - self.ground_alt) / dt)
 
     def _vertical_rate(self, dz: float, rate: float, dt: float) -> float:
@@ -432,6 +450,10 @@ class Vehicle:
         speed = min(speed, p.max_speed_mps)
         if dist > 1e-6:
             step = min(speed, dist / dt)
+            if p.accel_mps2 > 0:  # speeding up from where it is, braking (in steps of dt) to stop there
+                brake = p.accel_mps2 * dt / 2
+                step = min(step, math.hypot(self.vn, self.ve) + p.accel_mps2 * dt,
+                           math.sqrt(brake * brake + 2 * p.accel_mps2 * dist) - brake)
             self.vn, self.ve = dn / dist * step, de / dist * step
         else:
             self.vn = self.ve = 0.0
@@ -450,12 +472,19 @@ class Vehicle:
         if self.mode == "takeoff" and self.armed:
             self.landed_state = "taking_off"
         elif on_ground and self.vd >= 0 and self.landed_state != "on_ground" and self._took_off:
+            if self._touched_at is None:
+                self._touched_at = self.t
+            if self.t - self._touched_at < self.params.land_detect_s:
+                return
+            self._touched_at = None
             self.landed_state = "on_ground"
             self._landed_at = self.t
             self.vn = self.ve = self.vd = 0.0
             self.events.append("Landing detected")
         elif not on_ground and self.landed_state == "on_ground":
             self.landed_state = "in_air"
+        if not on_ground:
+            self._touched_at = None
 
     def _auto_disarm(self) -> None:
         if not self.armed or self.in_air:

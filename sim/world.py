@@ -13,6 +13,7 @@ from msgspec import Meta
 from dronefleet.schemas.about import FieldSpec, Role, SensorDeclaration
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination
+from dronefleet.sim.autopilot_params import timing_of
 from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon, temperature_at
 from dronefleet.sim.radio import RadioModel, Spot3
 from dronefleet.sim.vehicle import VehicleParams
@@ -140,8 +141,11 @@ class World(_Strict, frozen=True):
     def heat_config(self) -> HeatConfig:
         return HeatConfig(rate_ms=self.sensor_rate_ms, environment_temp=self.environment_temp, heat_sources=self.heat_sources)
 
-    def params(self) -> VehicleParams:
-        return VehicleParams(battery_drain_per_s=self.battery.drain_per_s, battery_floor=self.battery.floor)
+    def params(self, autopilot: str | None = None) -> VehicleParams:
+        """The vehicle model of a drone: the world's battery, and how its `autopilot`
+        make gets going and comes to rest (autopilot_params.TIMING; none: at once)."""
+        return VehicleParams(battery_drain_per_s=self.battery.drain_per_s, battery_floor=self.battery.floor,
+                             **timing_of(autopilot))
 
     def spawn(self, n: int | None = None) -> list[DroneSpec]:
         """Drones with positions: the listed ones (first n), or a row east of the origin."""

@@ -54,6 +54,10 @@ class HeartbeatAutopilot:
 
     # ----- the port ---------------------------------------------------------------------
 
+    @property
+    def make(self) -> str | None:
+        return "px4"  # its heartbeat lag is PX4's
+
     async def start(self) -> None:
         self._task = asyncio.get_running_loop().create_task(self._run())
 

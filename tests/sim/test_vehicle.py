@@ -5,7 +5,9 @@ from __future__ import annotations
 import pytest
 
 from dronefleet.schemas.geo import destination, distance_m
+from dronefleet.sim.autopilot_params import timing_of
 from dronefleet.sim.vehicle import Vehicle
+from dronefleet.sim.world import World
 
 LAT, LON, GROUND = 40.633490, -8.660815, 8.2
 DT = 0.05
@@ -160,3 +162,33 @@ def test_goto_yaw_turns_at_the_yaw_rate() -> None:
     v.goto(pos.lat, pos.lon, pos.alt, 90.0)
     took = fly(v, 5, lambda v: abs(v.heading - 90.0) < 1e-6)
     assert took == pytest.approx(1.0, abs=0.06)
+
+
+def test_px4_timing_starts_late_speeds_up_and_brakes_slows_its_descent_and_detects_landing_late() -> None:
+    """A make's timing (autopilot_params.TIMING: PX4's, fitted to real SITL flights): the
+    climb starts `takeoff_delay_s` after the command; no leg changes speed faster than
+    `accel_mps2`, and each ends at rest; the landing is detected `land_detect_s` after
+    touchdown, and the whole profile matches what PX4 SITL flew within 10 %."""
+    timing = timing_of("px4")
+    v = Vehicle(LAT, LON, GROUND, World().params("px4"))
+    v.arm()
+    v.takeoff(15)
+    fly(v, timing["takeoff_delay_s"] - DT)
+    assert v.rel_alt == 0.0 and v.landed_state == "taking_off"
+    assert fly(v, 60, lambda v: v.rel_alt >= 14.5) + timing["takeoff_delay_s"] == pytest.approx(16.1, rel=0.1)
+    fly(v, 30, lambda v: v.mode == "hold")
+    lat, lon = destination(LAT, LON, 60, 0)
+    v.goto(lat, lon, GROUND + 15)
+    speeds, t = [0.0], 0.0
+    while distance_m(v.position().lat, v.position().lon, lat, lon) > 1e-3:
+        v.step(DT)
+        t += DT
+        speeds.append(v.speed())
+        assert t < 60
+    assert max(abs(b - a) for a, b in zip(speeds, speeds[1:], strict=False)) <= timing["accel_mps2"] * DT + 1e-9
+    assert max(speeds) == pytest.approx(5.0) and speeds[-1] < 0.5
+    v.land()
+    touched = fly(v, 60, lambda v: v.rel_alt <= 1e-3)
+    landed = fly(v, 60, lambda v: v.landed_state == "on_ground")
+    assert landed == pytest.approx(timing["land_detect_s"], abs=2 * DT)
+    assert touched + landed == pytest.approx(20.4, rel=0.1)
