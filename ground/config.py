@@ -141,6 +141,10 @@ class GroundConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     # line per 10 s names how many), so made-up ids on an open mesh cannot grow the
     # ground without end (each drone heard holds a record and a route watch).
     max_drones: Annotated[int, Meta(ge=1, le=1_000_000)] = 10_000
+    # New drone ids heard before their About (what the drone is) register on their first
+    # telemetry from a bucket of 64, refilled at this many per second; the rest are
+    # dropped and counted (one line per 10 s) until their agent answers `about`.
+    unannounced_per_s: Annotated[float, Meta(ge=0, le=10_000)] = 2.0
     sensor_timeout_ms: dict[str, Millis] = msgspec.field(default_factory=dict)  # per type; 0 = never
     mission: MissionSettings = msgspec.field(default_factory=MissionSettings)
     event_telemetry_ms: Annotated[int, Meta(ge=0, le=60_000)] = 500  # /events: one telemetry per drone per period

@@ -25,6 +25,11 @@ from dronefleet.schemas.telemetry import SensorReading
 
 log = logging.getLogger(__name__)
 ABOUT_ASK_S = 30.0  # a registered drone whose About was not heard is asked this often
+# Ids not registered (past the registry's bounds) are asked only while fewer than this
+# many asks are out, and remembered only this many at once: a flood of made-up ids on an
+# open mesh costs a bounded number of queries and entries, not one per id.
+UNREGISTERED_ASKS = 16
+ASKED_KEPT = 4096
 
 
 class FeedsOut(Protocol):
@@ -65,11 +70,18 @@ class SensorFeeds:
             self.out.emit(self.registry.on_about(about, self.clock.time_ms()))
 
     def ask_about(self, drone_id: str) -> None:
-        """A drone registered without its About heard (the ground started after it, or
-        the publication was lost): ask its agent, at most every ABOUT_ASK_S."""
+        """A drone heard without its About (the ground started after it, the publication
+        was lost, or it is not registered for want of one): ask its agent, at most every
+        ABOUT_ASK_S; one not registered only while few asks are out (UNREGISTERED_ASKS)."""
         now = self.clock.monotonic()
         if self.registry.about(drone_id) is not None or now - self._about_asked.get(drone_id, -1e9) < ABOUT_ASK_S:
             return
+        if drone_id not in self.registry and len(self._asking) >= UNREGISTERED_ASKS:
+            return
+        if len(self._about_asked) >= ASKED_KEPT:  # forget those asked longest ago
+            self._about_asked = {d: t for d, t in self._about_asked.items() if now - t < ABOUT_ASK_S}
+            if len(self._about_asked) >= ASKED_KEPT:
+                return
         self._about_asked[drone_id] = now
 
         async def ask() -> None:

@@ -74,6 +74,10 @@ class _Sensor:
 COMMANDS_KEPT = 32  # command statuses kept per drone (Registry.command_statuses)
 
 TURNED_AWAY_EVERY_MS = 10_000  # a full registry says how many ids it turned away at most this often
+# New ids whose About was not heard register on their first telemetry (SPEC §3) from a
+# bucket of this many, refilled at ground.unannounced_per_s: a real drone says what it is
+# before or with its first sample, made-up ids on an open mesh mostly never do.
+UNANNOUNCED_BURST = 64
 TURNED_AWAY_COUNTED = 100_000  # distinct ids counted per line, at most (the count itself is bounded)
 # A drone heard this long with no route to its commands is logged so: a route usually
 # follows its first telemetry within a few tenths of a second.
@@ -128,6 +132,10 @@ class Registry:
         self._routed: dict[str, bool] = {}  # whether its command queryable is routed here, also before registering
         self._turned_away: set[str] = set()  # ids heard past max_drones since the last line said so
         self._turned_away_told_ms = -TURNED_AWAY_EVERY_MS
+        self._unannounced: set[str] = set()  # new ids without an About past the bucket, since the last line
+        self._unannounced_told_ms = -TURNED_AWAY_EVERY_MS
+        self._bucket = float(UNANNOUNCED_BURST)  # unannounced registrations it may make now
+        self._bucket_ms: int | None = None
         self.field = FieldSensors(config.sensor_timeout_ms)  # sensors that are not on a drone (SPEC §2)
         self.relays = relays  # on a secured mesh, the drones that may relay; None: every drone
 
@@ -136,9 +144,21 @@ class Registry:
     def __contains__(self, drone_id: str) -> bool:
         return drone_id in self._drones
 
-    def admits(self, drone_id: str) -> bool:
-        """Whether telemetry under this id is taken: a registered drone, or room for one."""
-        return drone_id in self._drones or len(self._drones) < self.config.max_drones
+    def admits(self, drone_id: str, now_ms: int | None = None) -> bool:
+        """Whether telemetry under this id is taken (at `now_ms`, if given): a registered
+        drone, or room for one (and for a drone whose About was not heard, a registration
+        left in the bucket)."""
+        if drone_id in self._drones:
+            return True
+        if now_ms is not None:
+            self._refill(now_ms)
+        return len(self._drones) < self.config.max_drones and (drone_id in self._abouts or self._bucket >= 1)
+
+    def _refill(self, now_ms: int) -> None:
+        if self._bucket_ms is not None:
+            self._bucket = min(float(UNANNOUNCED_BURST),
+                               self._bucket + max(0, now_ms - self._bucket_ms) / 1000 * self.config.unannounced_per_s)
+        self._bucket_ms = now_ms
 
     def ids(self) -> list[str]:
         return sorted(self._drones)
@@ -195,10 +215,15 @@ class Registry:
         out: list[Event] = []
         d = self._drones.get(telem.drone_id)
         if d is None:
+            self._refill(now_ms)
             if not self.admits(telem.drone_id):
-                if len(self._turned_away) < TURNED_AWAY_COUNTED:
-                    self._turned_away.add(telem.drone_id)
+                full = len(self._drones) >= self.config.max_drones
+                counted = self._turned_away if full else self._unannounced
+                if len(counted) < TURNED_AWAY_COUNTED:
+                    counted.add(telem.drone_id)
                 return []
+            if telem.drone_id not in self._abouts:
+                self._bucket -= 1
             d = self._drones[telem.drone_id] = _Drone(telem.drone_id, telem, now_ms)
             out.append(self._line(now_ms, "info", d, "Registered"))
             if not self._routed.get(d.drone_id, False):
@@ -478,6 +503,13 @@ class Registry:
                 f"{len(self._turned_away)} drone id(s) not registered, e.g. {min(self._turned_away)!r}")))
             self._turned_away.clear()
             self._turned_away_told_ms = now_ms
+        if self._unannounced and now_ms - self._unannounced_told_ms >= TURNED_AWAY_EVERY_MS:
+            out.append(LogLine(timestamp=now_ms, level="warn", drone_id=None, message=(
+                f"Dropped the telemetry of {len(self._unannounced)} new drone id(s) that had not said what they are "
+                f"(no About heard), past ground.unannounced_per_s {self.config.unannounced_per_s:g}, "
+                f"e.g. {min(self._unannounced)!r}; a drone whose agent answers `about` registers")))
+            self._unannounced.clear()
+            self._unannounced_told_ms = now_ms
         for d in self._drones.values():
             if not d.unknown and now_ms - d.last_telem_ms > self.config.drone_timeout_ms:
                 out += self._lose(d, now_ms, f"{LINK_LOST}: stopped receiving messages from drone")

@@ -458,10 +458,13 @@ class GroundStation:
     def _on_telemetry(self, sample: Sample) -> None:
         telem: Telemetry | None = self.inbound.from_drone(decode_telemetry, sample)
         if telem is not None:
-            if telem.drone_id not in self._routes and self.registry.admits(telem.drone_id):
+            now_ms = self.clock.time_ms()
+            if telem.drone_id not in self._routes and self.registry.admits(telem.drone_id, now_ms):
                 self._watch_route(telem.drone_id)
-            self.emit(self.registry.on_telemetry(telem, self.clock.time_ms()))
-            self.feeds.ask_about(telem.drone_id)
+            self.emit(self.registry.on_telemetry(telem, now_ms))
+            self.feeds.ask_about(telem.drone_id)  # what it is (one not registered for want of it may then be)
+            if telem.drone_id not in self.registry:  # full, or past the unannounced bucket: counted there
+                return
             self._offer_telemetry(telem)
             self.tell(WatchEvent("telemetry", telem))
 

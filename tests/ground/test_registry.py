@@ -10,7 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dronefleet.ground.config import GroundConfig
-from dronefleet.ground.registry import InfoChanged, LogLine, Registry
+from dronefleet.ground.registry import UNANNOUNCED_BURST, InfoChanged, LogLine, Registry
+from dronefleet.schemas.about import About
 from dronefleet.schemas.status import CommandStatus, Coords, SystemStatus
 from dronefleet.schemas.telemetry import Battery, Position, SensorReading, Telemetry
 
@@ -383,3 +384,32 @@ def test_a_full_registry_keeps_its_drones_drops_new_ids_and_says_how_many_every_
             assert f": dropped the telemetry of {len(dropped_since_line)} drone id(s)" in said[0].message, said
             told_at, dropped_since_line = now, set()
         assert registry.ids() == sorted(order)
+
+
+@given(st.floats(0, 50), st.lists(st.tuples(st.integers(0, 2000), st.integers(0, 400), st.booleans()), max_size=300))
+def test_ids_that_never_said_what_they_are_register_only_from_the_bucket_and_are_counted(
+        per_s: float, heard: list[tuple[int, int, bool]]) -> None:
+    """Random telemetry under 401 ids, some of whose About came first: an announced id
+    always registers; unannounced ones register at most UNANNOUNCED_BURST plus
+    `unannounced_per_s` a second in all, and every one turned away is counted in the
+    next line that says so."""
+    registry = Registry(GroundConfig(unannounced_per_s=per_s, drone_timeout_ms=3_600_000))
+    now, unannounced, dropped = 0, 0, set()
+    for later, n, announced in heard:
+        now += later
+        drone_id = f"d{n}"
+        if announced and registry.about(drone_id) is None and drone_id not in registry:
+            registry.on_about(About(drone_id=drone_id, timestamp=now), now)
+        known = drone_id in registry
+        registry.on_telemetry(telem(drone_id), now)
+        if registry.about(drone_id) is not None:
+            assert drone_id in registry
+        elif not known and drone_id in registry:
+            unannounced += 1
+        elif drone_id not in registry:
+            dropped.add(drone_id)
+        assert unannounced <= UNANNOUNCED_BURST + per_s * now / 1000 + 1e-9
+        said = [e for e in registry.tick(now) if isinstance(e, LogLine) and "had not said what they are" in e.message]
+        if said:
+            assert f"Dropped the telemetry of {len(dropped)} new drone id(s)" in said[0].message, said
+            dropped = set()
