@@ -26,11 +26,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import httpx  # noqa: E402
 import msgspec  # noqa: E402
+import zenoh  # noqa: E402
 
 from bench.procstat import rss_mib  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
 from dronefleet.bus.port import Sample  # noqa: E402
-from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
+from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config  # noqa: E402
 from dronefleet.ground.config import GroundConfig  # noqa: E402
 from dronefleet.ground.registry import UNANNOUNCED_BURST  # noqa: E402
 from dronefleet.schemas.codec import decode_telemetry, encode  # noqa: E402
@@ -80,10 +81,12 @@ async def main(ids: int, rate: float, rss_bar_mib: float) -> None:
                 watching = asyncio.get_running_loop().create_task(watch())
                 midway = asyncio.get_running_loop().create_task(command_midway())
                 started = time.monotonic()
+                # An attacker's cheapest way: plain puts, no publisher declared per id
+                flooder = zenoh.open(zenoh_config("client", connect=[ground.endpoint]))
                 try:
                     for i in range(ids):
                         made_up = f"ghost{i:06d}"
-                        bus.publish(keys.telem(made_up), encode(msgspec.structs.replace(real, drone_id=made_up)))
+                        flooder.put(keys.telem(made_up), encode(msgspec.structs.replace(real, drone_id=made_up)))
                         lag = started + (i + 1) / rate - time.monotonic()
                         if lag > 0:
                             await asyncio.sleep(lag)
@@ -92,6 +95,7 @@ async def main(ids: int, rate: float, rss_bar_mib: float) -> None:
                     await asyncio.sleep(SETTLE_S)
                 finally:
                     watching.cancel()
+                    flooder.close()
                     await bus.close()
                 after = rss_mib(ground.proc.pid)
                 registered = len((await http.get("/drone")).json())
