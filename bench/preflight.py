@@ -78,7 +78,9 @@ async def fly(http: httpx.AsyncClient, source: str, name: str, drones: list[str]
     if os.environ.get("FLEET_BENCH_LOG"):  # the flight's own account, to find where time went
         for line in record.get("log") or []:
             print(f"    {(line['timestamp'] - record['start']) / 1000:7.1f} s  {line['message']}")
-        print((await http.get("/drone/logs", params={"drone_id": drones[0]})).text[-6000:])
+        used = record.get("used_drones") or drones
+        lines = (await http.get("/drone/logs", params={"drone_id": used})).text.splitlines()
+        print("\n".join(line for line in lines if " Start " in line or " Finish " in line or "mission" in line))
     used = record.get("used_drones") or []
     return Flown(duration_s=(record["end"] - record["start"]) / 1000, battery_left={d: least[d] for d in used if d in least})
 

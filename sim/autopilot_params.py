@@ -44,17 +44,21 @@ BY_AUTOPILOT: dict[str, Model] = {"px4": PX4, "ardupilot": ARDUPILOT}
 # 1.4 m/s: a 6 s start at 1.5 m/s fits both); a 60-m leg came within 1 m after 16.5 s and
 # a 10-m one ended after 6.4 s (1 m/s² each way at 5 m/s fits both); the descent slowed
 # from 1.5 m/s at MPC_LAND_ALT1 (10 m) to 0.7 m/s at 5 m, and the landing was detected
-# about 5 s after touchdown. The ground's predictions fly each drone with its make's.
+# about 5 s after touchdown; in the mapping example its turns of 90° and 180° where it
+# stood took 3.5 and 5.4 s (MPC_YAWRAUTO_MAX 45°/s, then settling: 38°/s fits both to
+# within 0.6 s). The ground's predictions fly each drone with its make's.
 @dataclass(frozen=True)
 class Timing:
     takeoff_delay_s: float
     accel_mps2: float
     land_alt1_m: float | None
     land_detect_s: float
+    yaw_rate_dps: float
 
 
 TIMING: dict[str, Timing] = {
-    "px4": Timing(takeoff_delay_s=6.0, accel_mps2=1.0, land_alt1_m=10.0, land_detect_s=5.0),
+    "px4": Timing(takeoff_delay_s=6.0, accel_mps2=1.0, land_alt1_m=10.0, land_detect_s=5.0,
+                  yaw_rate_dps=38.0),
 }
 
 
