@@ -43,7 +43,7 @@ from dronefleet.schemas.fence import Geofence
 from dronefleet.sim.world import BatteryModel, DroneSpec, FieldSensorSpec, Spot, World
 from dronefleet.sim.world_fields import FieldModel, Source
 
-EXAMPLES = int(os.environ.get("FLEET_SOUNDNESS_EXAMPLES", "25"))
+EXAMPLES = int(os.environ.get("FLEET_SOUNDNESS_EXAMPLES", "20"))
 ORIGIN = (40.633490, -8.660815, 8.2)
 M_PER_DEG_LAT = 111_320.0
 MAX_S = 600.0  # simulated seconds a flight and its prediction may take
