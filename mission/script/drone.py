@@ -14,6 +14,7 @@ from greenlet import getcurrent
 from dronefleet.mission.lifecycle.greenlets import Stopped, await_
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import MissionOver
+from dronefleet.mission.script.lines import script_line
 from dronefleet.mission.script.position import Position
 from dronefleet.schemas.about import DEFAULT_ROLES
 from dronefleet.schemas.telemetry import LinkQuality
@@ -61,8 +62,6 @@ def unknowable(mission: Mission, what: str) -> None:
     """The script read `what`, whose value a prediction cannot know (a sensor's reading,
     the field sensors heard, the radio): its host hears of it with the script's line."""
     if mission.on_unknowable is not None:
-        from dronefleet.mission.script.activity import script_line
-
         mission.on_unknowable(mission, script_line(mission), what)
 
 
