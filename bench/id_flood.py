@@ -24,20 +24,18 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import httpx  # noqa: E402
 import msgspec  # noqa: E402
 import zenoh  # noqa: E402
 
 from bench.procstat import rss_mib  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
-from dronefleet.bus.port import Sample  # noqa: E402
-from dronefleet.bus.zenoh_bus import ZenohBus, zenoh_config  # noqa: E402
+from dronefleet.bus.zenoh_bus import zenoh_config  # noqa: E402
 from dronefleet.ground.config import GroundConfig  # noqa: E402
 from dronefleet.ground.registry import UNANNOUNCED_BURST  # noqa: E402
-from dronefleet.schemas.codec import decode_telemetry, encode  # noqa: E402
+from dronefleet.schemas.codec import encode  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
-from tests.harness import AgentProcess, GroundProcess  # noqa: E402
-from tests.waiting import until
+from dronefleet.schemas.telemetry import Telemetry  # noqa: E402
+from tests.harness import GroundFleet, drone_state
 
 SETTLE_S = 3.0  # after the flood: what it left, not what is in flight
 
@@ -45,33 +43,19 @@ SETTLE_S = 3.0  # after the flood: what it left, not what is in flight
 async def main(ids: int, rate: float, rss_bar_mib: float) -> None:
     keys = Keys()
     with tempfile.TemporaryDirectory() as tmp_name:
-        tmp = Path(tmp_name)
-        ground = GroundProcess(tmp)
-        agent = AgentProcess("drone01", ground.endpoint, tmp)
+        fleet = GroundFleet(Path(tmp_name), {"drone01": "sim"})
+        ground = fleet.ground
         try:
-            await ground.ready()
-            async with httpx.AsyncClient(base_url=ground.url, timeout=10) as http:
-                async def ready() -> bool:
-                    view = await http.get("/drone/drone01")
-                    return view.status_code == 200 and view.json()["info"]["state"] == "ready"
-
-                await until(ready, 30, "drone01 ready")
-                bus = await ZenohBus.open("client", connect=[ground.endpoint])
-                copy: asyncio.Future[bytes] = asyncio.get_running_loop().create_future()
-
-                def first(sample: Sample) -> None:
-                    if not copy.done():
-                        copy.set_result(sample.payload)
-
-                bus.subscribe(keys.telem("drone01"), first)
-                real = decode_telemetry(await asyncio.wait_for(copy, 10))
+            async with fleet.client() as http:  # once drone01 is ready
+                view = (await http.get("/drone/drone01", params={"data": "telem"})).json()
+                real = msgspec.convert(view["telem"], Telemetry)
                 before = rss_mib(ground.proc.pid)
-                states: list[str] = []
+                states: list[str | None] = []
                 command: list[int] = []
 
                 async def watch() -> None:
                     while True:
-                        states.append((await http.get("/drone/drone01")).json()["info"]["state"])
+                        states.append(await drone_state(http, "drone01"))
                         await asyncio.sleep(0.2)
 
                 async def command_midway() -> None:
@@ -96,26 +80,24 @@ async def main(ids: int, rate: float, rss_bar_mib: float) -> None:
                 finally:
                     watching.cancel()
                     flooder.close()
-                    await bus.close()
                 after = rss_mib(ground.proc.pid)
                 registered = len((await http.get("/drone")).json())
                 lines = (await http.get("/drone/logs", params={"loglevel": "warn"})).text.splitlines()
         finally:
-            agent.stop()
-            ground.stop()
+            fleet.stop()
     allowed = UNANNOUNCED_BURST + GroundConfig().unannounced_per_s * (flood_s + SETTLE_S)
     said = [line for line in lines if "had not said what they are" in line]
     print(f"{ids} made-up ids at {ids / flood_s:.0f} ids/s over {flood_s:.1f} s (one real drone beside them)")
     print(f"  registered        : {registered - 1} made-up (bound {allowed:.0f}), and the real drone")
     print(f"  ground RSS        : {before:.1f} -> {after:.1f} MiB (+{after - before:.1f}, bar {rss_bar_mib:g})")
-    print(f"  real drone states : {', '.join(sorted(set(states)))} ({len(states)} reads); arm midway: {command}")
+    print(f"  real drone states : {', '.join(sorted(map(str, set(states))))} ({len(states)} reads); arm midway: {command}")
     print(f"  log               : {said[-1] if said else 'no line about the dropped ids'}")
     if after - before >= rss_bar_mib:
         raise ScenarioFailed(f"the ground grew by {after - before:.1f} MiB, the bar is {rss_bar_mib:g}")
     if registered - 1 > allowed:
         raise ScenarioFailed(f"{registered - 1} made-up ids registered, more than the bucket's {allowed:.0f}")
     if not set(states) <= {"ready", "active"} or command != [200]:
-        raise ScenarioFailed(f"the real drone was {sorted(set(states))}, its command answered {command}")
+        raise ScenarioFailed(f"the real drone was {sorted(map(str, set(states)))}, its command answered {command}")
     if not said:
         raise ScenarioFailed("the ground logged no line naming the ids it dropped")
 
