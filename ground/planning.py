@@ -109,8 +109,9 @@ def live_world(drones: list[tuple[Any, Any]], geofence: Any, ground: tuple[float
     heard of their type (`readings`, the drones' and the field sensors'), everywhere:
     each field as a field of that value, a temperature as the environment's; what
     was never heard is not invented. A mission's read of any of them is what the
-    prediction cannot know (`Prediction.unknown`): a guess from there on. Field sensors (FieldSensorInfo) with a position
-    stand where they are, with the types of theirs the world can read."""
+    prediction cannot know (`Prediction.unknown`): a guess from there on. Field
+    sensors (FieldSensorInfo) with a position stand where they are, with the types of
+    theirs the world can read."""
     fields, temperature = _last_fields(readings)
     specs = []
     for info, telem in drones:

@@ -72,9 +72,10 @@ def judge(prediction: Prediction) -> Preflight:
     what followed was a guess); anything else failed, at its line."""
     unknown = prediction.unknown
     read = None if unknown is None else (f"line {unknown.line}: " if unknown.line is not None else "") + unknown.what
-    passed = prediction.status == "finished" or prediction.cause == "time_limit" or read is not None
+    flew = prediction.status == "finished" or prediction.cause == "time_limit"
+    passed = flew or read is not None
     message = prediction.message
-    if read is not None and prediction.status != "finished" and prediction.cause != "time_limit":
+    if read is not None and not flew:
         message = f"not refused: it {prediction.status} ({prediction.cause}) after reading {read}, which a preflight cannot know - {message}"
     return Preflight(
         passed=passed, status=prediction.status, cause=prediction.cause, message=message,
