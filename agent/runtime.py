@@ -23,7 +23,7 @@ import msgspec
 from dronefleet.agent.bundle import BundleRunner, BundleStore
 from dronefleet.agent.config import AgentConfig, own_endpoint
 from dronefleet.agent.fc_port import FcError, FcState, FcUnavailable, FlightController
-from dronefleet.agent.fc_sim import SimFlightController, parse_sim_url
+from dronefleet.agent.footprint import HEAP_TRIM_EVERY_S, HEAP_TRIM_FIRST_S, release_freed_heap
 from dronefleet.agent.ground_fence import GroundFence
 from dronefleet.agent.handler import CommandHandler, FlightSettings
 from dronefleet.agent.link import LostLink, LostLinkAction
@@ -70,7 +70,10 @@ GEOFENCE_ID_PREFIX = "geofence-"
 
 
 def make_flight_controller(url: str, clock: Clock) -> FlightController:
+    """The adapter for `--fc`; each imports only its own libraries (agent/footprint.py)."""
     if url == "sim" or url.startswith("sim://"):
+        from dronefleet.agent.fc_sim import SimFlightController, parse_sim_url
+
         vehicle, control_port = parse_sim_url(url)
         return SimFlightController(vehicle, clock, control_port)
     from dronefleet.agent.fc_mavsdk import MavsdkFlightController
@@ -427,6 +430,15 @@ def _peek(payload: bytes, field: str) -> str:
         return ""
 
 
+async def _release_freed_heap() -> None:
+    """Start-up's freed memory back to the system once the agent serves, then after each
+    minute's churn (agent/footprint.py)."""
+    await asyncio.sleep(HEAP_TRIM_FIRST_S)
+    while True:
+        release_freed_heap()
+        await asyncio.sleep(HEAP_TRIM_EVERY_S)
+
+
 async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = None) -> None:
     """The `fleet agent` process: real flight controller, real Zenoh, until cancelled."""
     from dronefleet.bus.mesh_security import mesh_security
@@ -455,6 +467,7 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
         try:
             await _join(bus, Keys(config.namespace), drone_id)
             echo = await UdpEcho.open(config.connect)
+            heap = asyncio.get_running_loop().create_task(_release_freed_heap(), name="heap release")
             try:
                 agent = Agent(drone_id, config, fc, bus, clock, echo=echo)
                 if config.mesh_interface is None:
@@ -467,6 +480,7 @@ async def run_agent(drone_id: str, config: AgentConfig, clock: Clock | None = No
                                                 zids=bridge_zids)
                         tg.create_task(neighbours.run(), name=f"{drone_id} neighbours")
             finally:
+                heap.cancel()
                 if echo is not None:
                     echo.close()
         finally:

@@ -41,10 +41,7 @@ async def agent_usage(seconds: float, autopilot: str) -> None:
     finally:
         sim.terminate()
         sim.wait(timeout=10)
-    # No memory bar here: libmavsdk's resident code and threads put it at about 56 MiB
-    # (docs/bench/tests-and-benchmarks.md); the CPU bar holds.
-    report(f"agent --fc udpin (MAVSDK 4.1.0 in-process) against fleet sim --autopilot {autopilot}", rate, usage,
-           rss_bar_mib=None)
+    report(f"agent --fc udpin (MAVSDK 4.1.0 in-process) against fleet sim --autopilot {autopilot}", rate, usage)
 
 
 async def ack_latency(commands: int, autopilot: str) -> None:

@@ -1,5 +1,5 @@
 """`python -m dronefleet …`: the same as the `fleet` console script."""
 
-from dronefleet.cli import main
+from dronefleet.launch import main
 
-main(prog_name="fleet")
+main()

@@ -32,7 +32,7 @@ from dronefleet.cli_kit import (
     with_pki,
 )
 from dronefleet.schemas.errors import ConfigError
-from dronefleet.sim.world import FaultKind
+from dronefleet.sim.fault_kinds import FaultKind
 
 
 @click.group(cls=FleetGroup, help="Fleets of connected drones: the on-board agent, the ground station, missions, "

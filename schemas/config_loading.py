@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import msgspec
-import yaml
 from msgspec import Meta
 
 from dronefleet.schemas.errors import ConfigError
@@ -87,6 +86,8 @@ def load_config(kind: type[msgspec.Struct], path: Path | None, overrides: dict[s
 
 def read_yaml(path: Path) -> dict[str, Any]:
     """A YAML file holding a mapping (or nothing); ConfigError on one line otherwise."""
+    import yaml  # here, not above: an agent started without a file never loads it (agent/footprint.py)
+
     try:
         loaded = yaml.safe_load(path.read_text())
     except OSError as exc:

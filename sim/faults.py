@@ -13,8 +13,8 @@ import json
 import logging
 from collections.abc import Callable
 
+from dronefleet.sim.fault_kinds import FaultKind
 from dronefleet.sim.vehicle import Vehicle
-from dronefleet.sim.world import FaultKind
 
 log = logging.getLogger(__name__)
 

@@ -14,15 +14,12 @@ from dronefleet.schemas.about import FieldSpec, Role, SensorDeclaration
 from dronefleet.schemas.fence import Geofence
 from dronefleet.schemas.geo import destination
 from dronefleet.sim.autopilot_params import timing_of
+from dronefleet.sim.fault_kinds import FaultKind
 from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon, temperature_at
 from dronefleet.sim.radio import RadioModel, Spot3
 from dronefleet.sim.vehicle import VehicleParams
 from dronefleet.sim.world_fields import FieldModel, sample
 
-FaultKind = Literal[
-    "rc_takeover", "rc_release", "low_battery", "link_pull", "link_restore",
-    "health_failure", "health_ok", "gps_loss", "gps_ok", "gust", "arm_denied", "arm_ok",
-]
 ROW_SPACING_M = 5.0
 
 
