@@ -23,6 +23,15 @@ PX4: Model = {
     "COM_DISARM_LAND": ("disarm_after_land_s", 1.0),
     "COM_DISARM_PRFLT": ("disarm_preflight_s", 1.0),
     "COM_OF_LOSS_T": ("offboard_loss_s", 1.0),
+    # How it gets going and comes to rest (TIMING below); 0 turns each off. The model's
+    # start is one delay where PX4 has COM_SPOOLUP_TIME, then MPC_TKO_RAMP_T: it is set
+    # by the second, which reads the whole delay. LNDMC_TRIG_TIME likewise reads the
+    # whole time from touchdown to a detected landing.
+    "MPC_TKO_RAMP_T": ("takeoff_delay_s", 1.0),
+    "MPC_ACC_HOR": ("accel_mps2", 1.0),
+    "MPC_LAND_ALT1": ("land_alt1_m", 1.0),
+    "MPC_YAWRAUTO_MAX": ("yaw_rate_dps", 1.0),
+    "LNDMC_TRIG_TIME": ("land_detect_s", 1.0),
 }
 
 # ArduCopter's, in centimetres and cm/s: LAND_SPEED is the speed below LAND_ALT_LOW
@@ -46,7 +55,8 @@ BY_AUTOPILOT: dict[str, Model] = {"px4": PX4, "ardupilot": ARDUPILOT}
 # from 1.5 m/s at MPC_LAND_ALT1 (10 m) to 0.7 m/s at 5 m, and the landing was detected
 # about 5 s after touchdown; in the mapping example its turns of 90° and 180° where it
 # stood took 3.5 and 5.4 s (MPC_YAWRAUTO_MAX 45°/s, then settling: 38°/s fits both to
-# within 0.6 s). The ground's predictions fly each drone with its make's.
+# within 0.6 s). `fleet sim` flies each vehicle with its make's, and the ground's
+# predictions each drone.
 @dataclass(frozen=True)
 class Timing:
     takeoff_delay_s: float
@@ -69,11 +79,14 @@ def timing_of(autopilot: str | None) -> dict[str, Any]:
 
 
 def check(model: Model, name: str, value: float) -> None:
-    """ValueError for a value of parameter `name` the vehicle cannot fly with: a speed
-    that is not above 0 (the vehicle would never get there)."""
+    """ValueError for a value of parameter `name` the vehicle cannot fly with: a speed or
+    turn rate that is not above 0 (the vehicle would never get there), a time, height or
+    acceleration below 0."""
     field, _ = model[name]
-    if field.endswith("_mps") and not value > 0:
+    if field.endswith(("_mps", "_dps")) and not value > 0:
         raise ValueError(f"{name} must be above 0, not {value:g}")
+    if not value >= 0:
+        raise ValueError(f"{name} must not be below 0, not {value:g}")
 
 
 def tune(vehicle: Vehicle, model: Model, name: str, value: float) -> None:

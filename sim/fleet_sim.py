@@ -83,6 +83,16 @@ def autopilot_of(specs: list[DroneSpec], given: list[str] | None) -> dict[str, s
             for i, s in enumerate(specs)}
 
 
+def vehicle_of(world: World, spec: DroneSpec, autopilot: str) -> Vehicle:
+    """The vehicle model of a spawned drone (World.spawn): where it stands, its battery,
+    and how its `autopilot` gets going and comes to rest."""
+    assert spec.lat is not None and spec.lon is not None and spec.alt is not None
+    vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params(autopilot))
+    if spec.battery is not None:
+        vehicle.battery = spec.battery
+    return vehicle
+
+
 def check_params(params: dict[str, float], autopilots: set[str]) -> None:
     """`--param` names a parameter of at least one of the vehicles' autopilots, with a
     value the vehicle can fly with."""
@@ -149,10 +159,7 @@ async def run_sim(
             for line in field.describe():
                 out(line)
         for i, spec in enumerate(specs):
-            assert spec.lat is not None and spec.lon is not None and spec.alt is not None
-            vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params())
-            if spec.battery is not None:
-                vehicle.battery = spec.battery
+            vehicle = vehicle_of(world, spec, makes[spec.id])
             # On the radio every drone has its own 127.0.0.1: PX4's first ports serve all.
             port = base_port + (0 if field else i)
             def on_change(_: object, sv_id: str = spec.id) -> None:

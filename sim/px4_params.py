@@ -28,6 +28,11 @@ def default_params(v: Vehicle) -> dict[str, Param]:
         "COM_DISARM_LAND": Param(p.disarm_after_land_s),
         "COM_DISARM_PRFLT": Param(p.disarm_preflight_s),
         "COM_OF_LOSS_T": Param(p.offboard_loss_s),
+        "MPC_TKO_RAMP_T": Param(p.takeoff_delay_s),
+        "MPC_ACC_HOR": Param(p.accel_mps2),
+        "MPC_LAND_ALT1": Param(p.land_alt1_m or 0.0),  # 0: no slowing above MPC_LAND_ALT2
+        "MPC_YAWRAUTO_MAX": Param(p.yaw_rate_dps),
+        "LNDMC_TRIG_TIME": Param(p.land_detect_s),
         "NAV_DLL_ACT": Param(0, mav.MAV_PARAM_TYPE_INT32),
     }
 

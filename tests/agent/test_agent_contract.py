@@ -20,7 +20,7 @@ from tests.waiting import until
 pytestmark = pytest.mark.integration
 
 
-@pytest.mark.slow(110)
+@pytest.mark.slow(185)  # PX4's personality at its defaults: its start and landing times (autopilot_params.TIMING)
 @pytest.mark.parametrize("flight_controller", ["mavsdk", "mavsdk-ardupilot"], indirect=True)
 async def test_flight_contract(flight_controller: str, tmp_path: Path) -> None:
     """The whole contract as bench/autopilot_contract.py flies it against a real autopilot
@@ -43,7 +43,7 @@ def _square(half_m: float) -> list[list[float]]:
     return [[n, w], [n, e], [s, e], [s, w]]
 
 
-@pytest.mark.slow(40)
+@pytest.mark.slow(55)
 async def test_the_agent_keeps_its_geofence_whatever_path_a_command_takes(
     agents: Callable[..., AgentProcess], operator: Callable[[str], Operator], flight_controller: str, tmp_path: Path,
 ) -> None:

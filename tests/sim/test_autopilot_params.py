@@ -12,9 +12,11 @@ from pymavlink.dialects.v20 import common as mav2
 from dronefleet.agent.fc_sim import parse_sim_url
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim import ardupilot
-from dronefleet.sim.fleet_sim import check_params
+from dronefleet.sim.autopilot_params import TIMING
+from dronefleet.sim.fleet_sim import check_params, vehicle_of
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.vehicle import Vehicle
+from dronefleet.sim.world import load_world
 from tests.mavlink_gcs import Gcs, answering_autopilot
 
 SPAWN = (40.633490, -8.660815, 8.2)
@@ -99,3 +101,36 @@ async def test_a_speed_of_zero_set_over_mavlink_is_refused_and_read_back_unchang
     set_to = gcs.mav.param_set_encode(1, 1, name.encode(), 0.0, endpoint.params[name].kind)
     assert (await gcs.ask(set_to, "PARAM_VALUE")).param_value == pytest.approx(before)
     assert endpoint.vehicle.params.land_speed_mps > 0
+
+
+def climb_starts_after_s(vehicle: Vehicle, step_s: float = 0.05) -> float:
+    waited = 0.0
+    while vehicle.rel_alt < 0.5:
+        vehicle.step(step_s)
+        waited += step_s
+        assert waited < 60, "no climb within a minute"
+    return waited
+
+
+def test_fleet_sims_px4_starts_a_takeoff_as_px4_does_until_its_parameter_says_otherwise() -> None:
+    """A `fleet sim` PX4 vehicle carries PX4's start (autopilot_params.TIMING), shown as
+    its parameter and flown; an ArduCopter one flies the instant model."""
+    world = load_world(None)
+    spec = world.spawn(1)[0]
+    delay = TIMING["px4"].takeoff_delay_s
+
+    def px4(sysid: int) -> MavlinkVehicle:
+        endpoint = MavlinkVehicle(vehicle_of(world, spec, "px4"), sysid, [], autopilot="px4")
+        endpoint.vehicle.arm()
+        return endpoint
+
+    as_px4 = px4(1)
+    assert as_px4.params["MPC_TKO_RAMP_T"].value == delay
+    as_px4.vehicle.takeoff(5.0)
+    # The climb itself, to half a metre at MPC_TKO_SPEED, takes well under a second.
+    assert climb_starts_after_s(as_px4.vehicle) == pytest.approx(delay, abs=1.0)
+    brisk = px4(2)
+    brisk.set_param("MPC_TKO_RAMP_T", 0.0)
+    brisk.vehicle.takeoff(5.0)
+    assert climb_starts_after_s(brisk.vehicle) < 1.0
+    assert vehicle_of(world, spec, "ardupilot").params.takeoff_delay_s == 0.0

@@ -38,7 +38,7 @@ async def airborne(op: Operator, alt: float = 5) -> None:
     await op.expect(await op.accepted("takeoff", alt=alt), "finish", 30)
 
 
-@pytest.mark.slow(21)
+@pytest.mark.slow(37)
 async def test_three_vehicles_from_fleet_sim_agents_fly_concurrently(endpoint: str, client: ZenohBus, tmp_path: Path) -> None:
     config = tmp_path / "agent.yml"
     config.write_text("telemetry_rate_ms: 200\n")
@@ -115,7 +115,7 @@ async def test_rc_takeover_and_release(sim_and_agent, operator) -> None:
     await op.system("stop_manual", 5)
 
 
-@pytest.mark.slow(20)
+@pytest.mark.slow(33)
 async def test_low_battery_rtl_is_reported_then_landing_auto_disarms(sim_and_agent, operator) -> None:
     sim, _ = sim_and_agent
     op = operator("drone01")
