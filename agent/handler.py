@@ -30,7 +30,7 @@ from dronefleet.schemas import commands as c
 from dronefleet.schemas.commands import Command, CommandReply
 from dronefleet.schemas.fence import Geofence, refusal
 from dronefleet.schemas.geo import bearing_deg, normalize_deg, offset_body
-from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, FAILSAFE_REASON, CommandStatus, Coords, SystemStatus
+from dronefleet.schemas.status import DISARMED, FAILSAFE_ID_PREFIX, FAILSAFE_REASON, CommandStatus, Coords, SystemStatus
 
 log = logging.getLogger(__name__)
 
@@ -305,7 +305,7 @@ class CommandHandler:
         reason = interrupted(job.name, prev, s)
         if (reason is None and job.name not in ENDS_DISARMED and not self._arming.armed(now)
                 and (disarm_edge or now - job.accepted_s >= EFFECT_LAG_S)):
-            reason = "disarmed"
+            reason = DISARMED
         if reason is not None:
             self._end(job, end_state(job.name), reason)
         elif job.goal is not None and finished(job.goal, s, self._settings.acceptance_radius):

@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from dronefleet.schemas.status import RETURNING
+from dronefleet.schemas.status import DISARMED, RETURNING
 
 GOTO_LIKE = frozenset({"goto", "move"})
 INSTANT = frozenset({"arm", "disarm", "start_offboard", "stop_offboard", "cancel"})
@@ -51,7 +51,7 @@ class Decision:
 
 def decide(name: str, now: Situation) -> Decision:
     if not now.armed and name not in ALWAYS_ALLOWED:
-        return Decision("refuse", "disarmed")
+        return Decision("refuse", DISARMED)
     running, queued = now.running, now.queued
     if name in GOTO_LIKE:
         if running is not None and running.name == "takeoff":

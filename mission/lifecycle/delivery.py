@@ -9,6 +9,7 @@ import asyncio
 import contextlib
 import json
 import logging
+from collections import deque
 from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
 from typing import Any, Literal, Protocol, TypeVar
@@ -22,7 +23,8 @@ from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.geo import distance_m
-from dronefleet.schemas.status import CommandStatus, ended_by_failsafe
+from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, CommandStatus, ended_by_failsafe
+from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +57,7 @@ RESUME_TRIES = 3
 HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
 ARRIVED_M, ARRIVED_S = 1.0, 10.0  # a goto whose drone stands this close to its target this long has ended
 LEASH_LIMIT_S = 120.0  # a goto held this long with no drone free for the relays it needs ends the mission
+ALOFT_KEPT = 600  # heights in the air kept per drone (a minute at 10 Hz): where a failsafe found it
 HOLD_LIMIT_S = 600.0  # a goto held this long without its edge moving ends the mission, whatever holds it
 LEASH_STEP_M = 2.0  # a held goto is sent on when the edge moves this far
 
@@ -97,6 +100,10 @@ class CommandDelivery:
         # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
         self.leash: Callable[[str, float, float, float | None], Leash | None] | None = None
         self.leashed: dict[str, tuple[float, float, float | None]] = {}  # drone → the goal of its held goto
+        # Its lost-link failsafe flying a drone home or down: when it began (the agent's ms),
+        # until the mission sends it home itself, stops that return or takes it up again.
+        self.failsafe_homeward: dict[str, int] = {}
+        self.aloft: dict[str, deque[tuple[int, float]]] = {}  # drone → (ms, m above home) while in the air
 
     # What the send-again steps (send_again.Sender) ask of the mission, through it.
     @property
@@ -120,6 +127,8 @@ class CommandDelivery:
         status or no answer → cmd_exec, anything else → unexpected.
         """
         name = str(body["cmd"])
+        if name in HOMEWARD or name == "disarm":  # sent home by the mission itself now
+            self.failsafe_homeward.pop(drone_id, None)
         if name == "goto" and self.leash is not None and drone_id not in self.mission.plugin_drones and "lat" in body:
             await self._on_leash(drone_id, body)
         sent_at = self.clock.monotonic()
@@ -275,8 +284,30 @@ class CommandDelivery:
 
     async def cancel(self, drone_id: str) -> None:
         """Stop what the drone is doing (its failsafe's return), as this mission."""
+        self.failsafe_homeward.pop(drone_id, None)
         body = {"cmd": "cancel", "command_id": self.mission.station.new_command_id()}
         await self.mission.station.command(drone_id, json.dumps(body).encode(), self.mission.id)
+
+    def heard(self, telem: Telemetry) -> None:
+        """Each sample of an assigned drone: its height while in the air."""
+        if telem.landed_state == "in_air" and telem.position is not None:
+            kept = self.aloft.setdefault(telem.drone_id, deque(maxlen=ALOFT_KEPT))
+            kept.append((telem.timestamp, telem.position.rel_alt))
+
+    def heard_status(self, status: CommandStatus) -> None:
+        """The drone's failsafe began flying it home or down (the statuses of what an agent
+        sends itself come, at the latest, once it hears the ground again)."""
+        if status.command_id.startswith(FAILSAFE_ID_PREFIX) and status.command in HOMEWARD and status.state == "start":
+            self.failsafe_homeward[status.drone_id] = status.timestamp
+
+    def brought_home(self, drone_id: str) -> bool:
+        return drone_id in self.failsafe_homeward
+
+    async def relaunch(self, drone_id: str) -> None:
+        began = self.failsafe_homeward.pop(drone_id)
+        before = [alt for at, alt in self.aloft.get(drone_id, ()) if at <= began]
+        await self.execute(drone_id, {"cmd": "arm"})
+        await self.execute(drone_id, {"cmd": "takeoff", **({"alt": round(before[-1], 1)} if before else {})})
 
     def out_of_reach(self, drone_id: str) -> bool:
         back = self.link_back_at.get(drone_id)

@@ -275,6 +275,8 @@ class Mission:
 
     def _on_telemetry(self, telem: Telemetry) -> None:
         self._heard_at[telem.drone_id] = self.clock.monotonic()
+        if telem.drone_id in self.requests:
+            self.delivery.heard(telem)
         self._pulse(telem.drone_id)
 
     def heard_within(self, drone_id: str, seconds: float) -> bool:
@@ -289,6 +291,8 @@ class Mission:
                 fut.set_result(None)
 
     def _on_command_status(self, status: CommandStatus) -> None:
+        if status.drone_id in self.requests:
+            self.delivery.heard_status(status)
         sent = self.delivery.sent.get(status.command_id)
         if sent is not None and status.state in TERMINAL_STATES and not sent.outcome.done():
             sent.outcome.set_result(status)

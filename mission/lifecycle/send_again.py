@@ -14,6 +14,9 @@ raised as it came. Every step keeps its own state for one delivery:
   again as it is heard, for mission.link_grace_s, then the mission ends `link_lost`.
 - `TakeBack`: the drone's lost-link failsafe is flying it home and a goto was refused
   for it: the return is stopped, once, and the command sent again under a new id.
+- `Relaunch`: the failsafe brought it home and it landed (the command was refused
+  "disarmed"): it is armed and taken back up to where it flew, once, and the command
+  sent again under a new id.
 - `WaitClear`: the target is another drone's spot (409 conflict): sent again each time
   that drone reports, for up to mission.clear_wait_s.
 """
@@ -28,7 +31,7 @@ from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle.record import MissionOver
 from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected
 from dronefleet.schemas.fence import CONFLICT
-from dronefleet.schemas.status import RETURNING
+from dronefleet.schemas.status import DISARMED, RETURNING
 
 R = TypeVar("R")
 
@@ -54,6 +57,13 @@ class Sender(Protocol):
     async def next_heard_within(self, drone_id: str, seconds: float) -> bool: ...
     async def next_telemetry(self, drone_id: str) -> None: ...
     async def cancel(self, drone_id: str) -> None: ...
+    def brought_home(self, drone_id: str) -> bool:
+        """Whether the drone's lost-link failsafe flew it home (or down) since the mission
+        last sent it there itself."""
+        ...
+    async def relaunch(self, drone_id: str) -> None:
+        """Arm the drone and take it up to the height it flew at before its failsafe."""
+        ...
     @property
     def link_grace_s(self) -> float: ...
     @property
@@ -128,6 +138,17 @@ class TakeBack(_Step):
         raise TakenBack
 
 
+class Relaunch(_Step):
+    async def after(self, failure: Exception) -> bool:
+        if not (isinstance(failure, CommandRejected) and failure.reason == DISARMED
+                and self.sender.brought_home(self.drone_id)):
+            return False
+        self.sender.log("warn", f"{self.drone_id}: its lost-link failsafe brought it home and it landed; arming it "
+                                f"and taking it back up to send {self.name} again")
+        await self.sender.relaunch(self.drone_id)
+        raise TakenBack
+
+
 class WaitClear(_Step):
     def __init__(self, sender: Sender, drone_id: str, name: str) -> None:
         super().__init__(sender, drone_id, name)
@@ -173,7 +194,7 @@ def steps_for(sender: Sender, drone_id: str, name: str, *, wait_clear: bool = Fa
     """The steps of one delivery, in the order they are asked."""
     steps: list[Step] = [LinkDropped(sender, drone_id, name), Unanswered(sender, drone_id, name)]
     if take_back:
-        steps.append(TakeBack(sender, drone_id, name))
+        steps += [TakeBack(sender, drone_id, name), Relaunch(sender, drone_id, name)]
     if wait_clear:
         steps.append(WaitClear(sender, drone_id, name))
     return steps

@@ -584,3 +584,34 @@ async def test_a_bundle_ended_by_the_next_one_returns_though_its_end_was_lost() 
     Here drone01's statuses are lost while it is above 12 m: the first bundle's end."""
     _, (record, log), _ = await fly(SUPERSEDED_UNHEARD, fire_world(RadioModel()), max_s=300, prepare=lossy_up_high)
     assert "first: cancelled" in log, (record, log)
+
+
+async def test_a_drone_its_failsafe_brought_home_takes_off_again_for_the_next_command() -> None:
+    """A 25 s radio shadow, the drone hovering 20 m out at 12 m: its lost-link failsafe
+    (3 s, then return) flies it home, where it lands and disarms. Once it hears the
+    ground again the script sends it to its next waypoint (absolute, as a survey's are): the mission arms it and takes
+    it back up to the height it had before the failsafe, then sends the goto (before, the
+    goto was refused "disarmed" and the mission failed cmd_exec)."""
+    def once_it_is_out(sim: SimField) -> None:
+        home = first_home(sim)
+        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 19.5, 25.0, after_s=2.0)
+
+    _, (record, log), _ = await fly("""
+d = assign("drone01")
+arm(d)
+takeoff(d, 12*m)
+move(d, forward=20*m, speed=5*m/s)
+waypoint = d.position.target(10*m, 0)
+while d.state != "unknown":
+    sleep(0.2*s)
+while d.state == "unknown":
+    sleep(0.2*s)
+print(f"back, armed {d.armed}")
+move(d, to=waypoint)
+print(f"there at {d.rel_alt:.0f} m, {d.position.distance(waypoint):.0f} m off")
+""", fire_world(RadioModel()), max_s=300, prepare=once_it_is_out,
+        lost_link=LostLinkPolicy(timeout_s=3, action="return", return_after_s=0))
+    assert record.status == "finished", "\n".join(log)
+    relaunched = next(line for line in log if "brought it home" in line)
+    assert log.index("back, armed False") < log.index(relaunched), log
+    assert "there at 12 m, 0 m off" in log, "\n".join(log)

@@ -24,7 +24,7 @@ from dronefleet.mission.lifecycle.send_again import (
 )
 from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected
 from dronefleet.schemas.fence import CONFLICT
-from dronefleet.schemas.status import RETURNING
+from dronefleet.schemas.status import DISARMED, RETURNING
 
 
 class Clock:
@@ -55,6 +55,8 @@ class Sender:
         self.lines: list[str] = []
         self.waited: list[str] = []
         self.cancelled: list[str] = []
+        self.failsafe_landed: set[str] = set()  # drones whose failsafe flew them home
+        self.relaunched: list[str] = []
 
     def log(self, level: Literal["info", "warn", "error"], message: str) -> None:
         self.lines.append(message)
@@ -80,6 +82,12 @@ class Sender:
 
     async def cancel(self, drone_id: str) -> None:
         self.cancelled.append(drone_id)
+
+    def brought_home(self, drone_id: str) -> bool:
+        return drone_id in self.failsafe_landed
+
+    async def relaunch(self, drone_id: str) -> None:
+        self.relaunched.append(drone_id)
 
 
 def failing(*failures: Exception) -> tuple[Callable[[], Awaitable[str]], list[int]]:
@@ -149,8 +157,17 @@ def test_a_failsafe_return_is_stopped_once_and_the_command_taken_back() -> None:
     assert sender.cancelled == ["d1"]
 
 
+def test_a_drone_its_failsafe_landed_is_taken_up_again_once_and_the_command_taken_back() -> None:
+    sender = Sender()
+    sender.failsafe_landed.add("d1")
+    send, _ = failing(CommandRejected(409, DISARMED))
+    with pytest.raises(TakenBack):
+        asyncio.run(deliver(send, steps_for(sender, "d1", "goto", take_back=True)))
+    assert sender.relaunched == ["d1"] and sender.cancelled == []
+
+
 def test_a_failure_no_step_takes_is_raised_as_it_came() -> None:
-    refused = CommandRejected(409, "disarmed")
+    refused = CommandRejected(409, DISARMED)  # never armed by the mission: no failsafe brought it down
     send, sent = failing(refused)
     with pytest.raises(CommandRejected) as caught:
         asyncio.run(deliver(send, steps_for(Sender(), "d1", "takeoff", wait_clear=True, take_back=True)))
