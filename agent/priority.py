@@ -17,14 +17,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from dronefleet.schemas.status import DISARMED, RETURNING
+from dronefleet.schemas.status import DISARMED, LANDING, RETURNING
 
 GOTO_LIKE = frozenset({"goto", "move"})
 INSTANT = frozenset({"arm", "disarm", "start_offboard", "stop_offboard", "cancel"})
 CONTINUOUS_SETPOINTS = frozenset({"velocity_ned", "velocity_body", "attitude", "attitude_rate"})
 SETPOINTS = CONTINUOUS_SETPOINTS | {"position_ned"}
 ALWAYS_ALLOWED = frozenset({"arm", "return"})
-REFUSED_WHILE = {"land": "landing", "return": RETURNING}
+REFUSED_WHILE = {"land": LANDING, "return": RETURNING}
 
 
 @dataclass(frozen=True)

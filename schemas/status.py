@@ -16,6 +16,7 @@ FAILSAFE_ID_PREFIX = "failsafe-"  # command ids of what an agent sends itself wh
 FAILSAFE_REASON = "lost-link failsafe"  # starts the reason of a command its failsafe ended
 GEOFENCE_OUTSIDE = "outside the geofence"  # a failsafe's reason after "return: " (SPEC §11)
 RETURNING = "returning"  # why a goto is refused while a return (the failsafe's too) runs
+LANDING = "landing"  # why a goto is refused while a landing (the failsafe's too) runs
 DISARMED = "disarmed"  # why a command is refused by a disarmed drone, or ended when it disarms
 
 

@@ -57,6 +57,7 @@ RESUME_TRIES = 3
 HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
 ARRIVED_M, ARRIVED_S = 1.0, 10.0  # a goto whose drone stands this close to its target this long has ended
 LEASH_LIMIT_S = 120.0  # a goto held this long with no drone free for the relays it needs ends the mission
+FLOWN = frozenset({"goto", "turn"})  # commands a drone on the ground cannot do
 ALOFT_KEPT = 600  # heights in the air kept per drone (a minute at 10 Hz): where a failsafe found it
 HOLD_LIMIT_S = 600.0  # a goto held this long without its edge moving ends the mission, whatever holds it
 LEASH_STEP_M = 2.0  # a held goto is sent on when the edge moves this far
@@ -104,6 +105,8 @@ class CommandDelivery:
         # until the mission sends it home itself, stops that return or takes it up again.
         self.failsafe_homeward: dict[str, int] = {}
         self.aloft: dict[str, deque[tuple[int, float]]] = {}  # drone → (ms, m above home) while in the air
+        self.standing: dict[str, bool] = {}  # drone → on the ground, at its last sample
+        self.failsafe_down: set[str] = set()  # drones the failsafe's return or landing brought down
 
     # What the send-again steps (send_again.Sender) ask of the mission, through it.
     @property
@@ -129,6 +132,7 @@ class CommandDelivery:
         name = str(body["cmd"])
         if name in HOMEWARD or name == "disarm":  # sent home by the mission itself now
             self.failsafe_homeward.pop(drone_id, None)
+            self.failsafe_down.discard(drone_id)
         if name == "goto" and self.leash is not None and drone_id not in self.mission.plugin_drones and "lat" in body:
             await self._on_leash(drone_id, body)
         sent_at = self.clock.monotonic()
@@ -153,10 +157,10 @@ class CommandDelivery:
         return status
 
     def _sent_home(self, drone_id: str) -> bool:
-        """The mission's own last command to the drone was a return: a goto refused while
-        it returns is the script's doing, not the failsafe's, and is not taken back."""
+        """The mission's own last command to the drone was a return or a landing: a goto
+        refused then is the script's doing, not the failsafe's, and is not taken back."""
         last = next((c for c in reversed(self.mission.commands) if c.drone_id == drone_id), None)
-        return last is not None and last.cmd == "return"
+        return last is not None and last.cmd in HOMEWARD
 
     async def _on_leash(self, drone_id: str, body: dict[str, Any]) -> None:
         """A goto beyond what the relays cover goes as far as they do, and on as they
@@ -231,6 +235,11 @@ class CommandDelivery:
         self.mission.check_assigned(drone_id)
         if self.out_of_reach(drone_id):  # the ground would refuse it (unknown)
             await self.heard_again(drone_id, name)
+        if (take_back and name in FLOWN and self.brought_home(drone_id)
+                and (drone_id in self.failsafe_down or self.standing.get(drone_id))):
+            # Landed, armed or not yet disarmed: the autopilot would refuse to fly it there.
+            self.log("warn", f"{drone_id}: its lost-link failsafe brought it down; taking it back up to send {name}")
+            await self.relaunch(drone_id)
         command_id = self.mission.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
@@ -285,26 +294,32 @@ class CommandDelivery:
     async def cancel(self, drone_id: str) -> None:
         """Stop what the drone is doing (its failsafe's return), as this mission."""
         self.failsafe_homeward.pop(drone_id, None)
+        self.failsafe_down.discard(drone_id)
         body = {"cmd": "cancel", "command_id": self.mission.station.new_command_id()}
         await self.mission.station.command(drone_id, json.dumps(body).encode(), self.mission.id)
 
     def heard(self, telem: Telemetry) -> None:
-        """Each sample of an assigned drone: its height while in the air."""
+        """Each sample of an assigned drone: whether it stands, its height while in the air."""
+        self.standing[telem.drone_id] = telem.landed_state == "on_ground"
         if telem.landed_state == "in_air" and telem.position is not None:
             kept = self.aloft.setdefault(telem.drone_id, deque(maxlen=ALOFT_KEPT))
             kept.append((telem.timestamp, telem.position.rel_alt))
 
     def heard_status(self, status: CommandStatus) -> None:
-        """The drone's failsafe began flying it home or down (the statuses of what an agent
-        sends itself come, at the latest, once it hears the ground again)."""
-        if status.command_id.startswith(FAILSAFE_ID_PREFIX) and status.command in HOMEWARD and status.state == "start":
-            self.failsafe_homeward[status.drone_id] = status.timestamp
+        """The drone's failsafe flew it home or down (the statuses of what an agent sends
+        itself come, at the latest, once it hears the ground again)."""
+        if status.command_id.startswith(FAILSAFE_ID_PREFIX) and status.command in HOMEWARD:
+            # A start sent into the dark may be lost, its end sent again later: the first heard.
+            self.failsafe_homeward.setdefault(status.drone_id, status.timestamp)
+            if status.state in ("finish", "success"):  # a return or landing ends on the ground
+                self.failsafe_down.add(status.drone_id)
 
     def brought_home(self, drone_id: str) -> bool:
         return drone_id in self.failsafe_homeward
 
     async def relaunch(self, drone_id: str) -> None:
         began = self.failsafe_homeward.pop(drone_id)
+        self.failsafe_down.discard(drone_id)
         before = [alt for at, alt in self.aloft.get(drone_id, ()) if at <= began]
         await self.execute(drone_id, {"cmd": "arm"})
         await self.execute(drone_id, {"cmd": "takeoff", **({"alt": round(before[-1], 1)} if before else {})})

@@ -12,8 +12,9 @@ raised as it came. Every step keeps its own state for one delivery:
 - `Unanswered`: no answer. Sent again each time the drone is heard, up to
   DELIVERY_TRIES in all (the agent runs one id once); a drone not heard either is tried
   again as it is heard, for mission.link_grace_s, then the mission ends `link_lost`.
-- `TakeBack`: the drone's lost-link failsafe is flying it home and a goto was refused
-  for it: the return is stopped, once, and the command sent again under a new id.
+- `TakeBack`: the drone's lost-link failsafe is flying it home (or landing it) and a
+  goto was refused for it: that is stopped, once, and the command sent again under a
+  new id.
 - `Relaunch`: the failsafe brought it home and it landed (the command was refused
   "disarmed"): it is armed and taken back up to where it flew, once, and the command
   sent again under a new id.
@@ -31,7 +32,7 @@ from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle.record import MissionOver
 from dronefleet.schemas.errors import STATE_UNKNOWN, CommandRejected
 from dronefleet.schemas.fence import CONFLICT
-from dronefleet.schemas.status import DISARMED, RETURNING
+from dronefleet.schemas.status import DISARMED, LANDING, RETURNING
 
 R = TypeVar("R")
 
@@ -130,9 +131,15 @@ class Unanswered(_Step):
 
 class TakeBack(_Step):
     async def after(self, failure: Exception) -> bool:
-        if not (isinstance(failure, CommandRejected) and failure.reason == RETURNING):
+        if not isinstance(failure, CommandRejected):
             return False
-        self.sender.log("warn", f"{self.drone_id}: its lost-link failsafe is flying it home; stopping that to send "
+        if failure.reason == RETURNING:
+            doing = "flying it home"
+        elif failure.reason == LANDING and self.sender.brought_home(self.drone_id):
+            doing = "landing it"
+        else:
+            return False
+        self.sender.log("warn", f"{self.drone_id}: its lost-link failsafe is {doing}; stopping that to send "
                                 f"{self.name} again, as it hears the ground")
         await self.sender.cancel(self.drone_id)
         raise TakenBack
