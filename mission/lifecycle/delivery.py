@@ -131,8 +131,7 @@ class CommandDelivery:
         """
         name = str(body["cmd"])
         if name in HOMEWARD or name == "disarm":  # sent home by the mission itself now
-            self.failsafe_homeward.pop(drone_id, None)
-            self.failsafe_down.discard(drone_id)
+            self._failsafe_over(drone_id)
         if name == "goto" and self.leash is not None and drone_id not in self.mission.plugin_drones and "lat" in body:
             await self._on_leash(drone_id, body)
         sent_at = self.clock.monotonic()
@@ -293,8 +292,7 @@ class CommandDelivery:
 
     async def cancel(self, drone_id: str) -> None:
         """Stop what the drone is doing (its failsafe's return), as this mission."""
-        self.failsafe_homeward.pop(drone_id, None)
-        self.failsafe_down.discard(drone_id)
+        self._failsafe_over(drone_id)
         body = {"cmd": "cancel", "command_id": self.mission.station.new_command_id()}
         await self.mission.station.command(drone_id, json.dumps(body).encode(), self.mission.id)
 
@@ -308,7 +306,8 @@ class CommandDelivery:
     def heard_status(self, status: CommandStatus) -> None:
         """The drone's failsafe flew it home or down (the statuses of what an agent sends
         itself come, at the latest, once it hears the ground again)."""
-        if status.command_id.startswith(FAILSAFE_ID_PREFIX) and status.command in HOMEWARD:
+        if (status.command_id.startswith(FAILSAFE_ID_PREFIX) and status.command in HOMEWARD
+                and status.state in ("start", "finish", "success")):  # not its end when stopped
             # A start sent into the dark may be lost, its end sent again later: the first heard.
             self.failsafe_homeward.setdefault(status.drone_id, status.timestamp)
             if status.state in ("finish", "success"):  # a return or landing ends on the ground
@@ -317,9 +316,13 @@ class CommandDelivery:
     def brought_home(self, drone_id: str) -> bool:
         return drone_id in self.failsafe_homeward
 
-    async def relaunch(self, drone_id: str) -> None:
-        began = self.failsafe_homeward.pop(drone_id)
+    def _failsafe_over(self, drone_id: str) -> None:
+        self.failsafe_homeward.pop(drone_id, None)
         self.failsafe_down.discard(drone_id)
+
+    async def relaunch(self, drone_id: str) -> None:
+        began = self.failsafe_homeward[drone_id]
+        self._failsafe_over(drone_id)
         before = [alt for at, alt in self.aloft.get(drone_id, ()) if at <= began]
         await self.execute(drone_id, {"cmd": "arm"})
         await self.execute(drone_id, {"cmd": "takeoff", **({"alt": round(before[-1], 1)} if before else {})})
