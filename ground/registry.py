@@ -79,6 +79,8 @@ TURNED_AWAY_EVERY_MS = 10_000  # a full registry says how many ids it turned awa
 # before or with its first sample, made-up ids on an open mesh mostly never do.
 UNANNOUNCED_BURST = 64
 TURNED_AWAY_COUNTED = 100_000  # distinct ids counted per line, at most (the count itself is bounded)
+# Abouts of ids not registered (yet): kept for their registration, the newest this many.
+ABOUTS_UNREGISTERED_KEPT = 4096
 # A drone heard this long with no route to its commands is logged so: a route usually
 # follows its first telemetry within a few tenths of a second.
 UNREACHABLE_TOLD_AFTER_MS = 1000
@@ -129,6 +131,7 @@ class Registry:
         self.config = config
         self._drones: dict[str, _Drone] = {}
         self._abouts: dict[str, About] = {}  # heard per drone, also before its first telemetry
+        self._unregistered_abouts: dict[str, None] = {}  # of those, the ids not registered, oldest first
         self._routed: dict[str, bool] = {}  # whether its command queryable is routed here, also before registering
         self._turned_away: set[str] = set()  # ids heard past max_drones since the last line said so
         self._turned_away_told_ms = -TURNED_AWAY_EVERY_MS
@@ -225,6 +228,7 @@ class Registry:
             if telem.drone_id not in self._abouts:
                 self._bucket -= 1
             d = self._drones[telem.drone_id] = _Drone(telem.drone_id, telem, now_ms)
+            self._unregistered_abouts.pop(telem.drone_id, None)
             out.append(self._line(now_ms, "info", d, "Registered"))
             if not self._routed.get(d.drone_id, False):
                 d.unrouted_since_ms = now_ms
@@ -400,7 +404,12 @@ class Registry:
             return []
         self._abouts[about.drone_id] = about
         d = self._drones.get(about.drone_id)
-        if d is None:  # kept for its registration
+        if d is None:  # kept for its registration, among the newest few thousand such
+            self._unregistered_abouts.pop(about.drone_id, None)
+            self._unregistered_abouts[about.drone_id] = None
+            if len(self._unregistered_abouts) > ABOUTS_UNREGISTERED_KEPT:
+                oldest = next(iter(self._unregistered_abouts))
+                del self._unregistered_abouts[oldest], self._abouts[oldest]
             return []
         return self._about_lines(d, before, now_ms) + self._publish(d, self._derive(d))
 

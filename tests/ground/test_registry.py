@@ -10,7 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dronefleet.ground.config import GroundConfig
-from dronefleet.ground.registry import UNANNOUNCED_BURST, InfoChanged, LogLine, Registry
+from dronefleet.ground.registry import ABOUTS_UNREGISTERED_KEPT, UNANNOUNCED_BURST, InfoChanged, LogLine, Registry
 from dronefleet.schemas.about import About
 from dronefleet.schemas.status import CommandStatus, Coords, SystemStatus
 from dronefleet.schemas.telemetry import Battery, Position, SensorReading, Telemetry
@@ -413,3 +413,19 @@ def test_ids_that_never_said_what_they_are_register_only_from_the_bucket_and_are
         if said:
             assert f"Dropped the telemetry of {len(dropped)} new drone id(s)" in said[0].message, said
             dropped = set()
+
+
+def test_abouts_of_ids_that_never_register_are_kept_for_the_newest_few_thousand_only() -> None:
+    """An About flood under made-up ids (no telemetry follows) keeps the newest
+    ABOUTS_UNREGISTERED_KEPT; one of them that then sends telemetry registers without the
+    bucket, and a registered drone's About is never the one let go."""
+    registry = Registry(GroundConfig(unannounced_per_s=0, drone_timeout_ms=3_600_000))
+    registry.on_about(About(drone_id="real", timestamp=0), 0)
+    registry.on_telemetry(telem("real"), 0)
+    flood = ABOUTS_UNREGISTERED_KEPT + 500
+    for i in range(flood):
+        registry.on_about(About(drone_id=f"ghost{i}", timestamp=i), i)
+    assert registry.about("ghost0") is None and registry.about(f"ghost{flood - 500}") is not None
+    assert registry.about("real") is not None
+    registry.on_telemetry(telem(f"ghost{flood - 1}"), flood)
+    assert f"ghost{flood - 1}" in registry
