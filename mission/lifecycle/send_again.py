@@ -141,8 +141,15 @@ class TakeBack(_Step):
             return False
         self.sender.log("warn", f"{self.drone_id}: its lost-link failsafe is {doing}; stopping that to send "
                                 f"{self.name} again, as it hears the ground")
-        await self.sender.cancel(self.drone_id)
-        raise TakenBack
+        dropped = LinkDropped(self.sender, self.drone_id, "cancel")
+        while True:
+            try:
+                await self.sender.cancel(self.drone_id)
+            except (Unreachable, CommandRejected) as exc:  # the link went again as it was sent
+                if not await dropped.after(exc):
+                    raise
+                continue
+            raise TakenBack
 
 
 class Relaunch(_Step):

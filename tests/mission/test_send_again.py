@@ -57,6 +57,7 @@ class Sender:
         self.cancelled: list[str] = []
         self.failsafe_landed: set[str] = set()  # drones whose failsafe flew them home
         self.relaunched: list[str] = []
+        self.cancel_refusals: list[Exception] = []  # what the ground answers the next cancels
 
     def log(self, level: Literal["info", "warn", "error"], message: str) -> None:
         self.lines.append(message)
@@ -81,6 +82,8 @@ class Sender:
         self.waited.append(f"telemetry {drone_id}")
 
     async def cancel(self, drone_id: str) -> None:
+        if self.cancel_refusals:
+            raise self.cancel_refusals.pop(0)
         self.cancelled.append(drone_id)
 
     def brought_home(self, drone_id: str) -> bool:
@@ -155,6 +158,18 @@ def test_a_failsafe_return_is_stopped_once_and_the_command_taken_back() -> None:
     with pytest.raises(TakenBack):
         asyncio.run(deliver(send, [TakeBack(sender, "d1", "goto")]))
     assert sender.cancelled == ["d1"]
+
+
+def test_a_cancel_the_link_drops_under_is_sent_again_once_the_drone_is_back() -> None:
+    """The drone went unknown again just as its failsafe's return was being stopped: the
+    cancel waits for it like any command (it used to end the mission cmd_exec "goto
+    refused: drone state is unknown")."""
+    sender = Sender()
+    sender.cancel_refusals.append(CommandRejected(409, "drone state is unknown: no recent telemetry", STATE_UNKNOWN))
+    send, _ = failing(CommandRejected(409, RETURNING, "state"))
+    with pytest.raises(TakenBack):
+        asyncio.run(deliver(send, [TakeBack(sender, "d1", "goto")]))
+    assert sender.cancelled == ["d1"] and sender.waited == ["back d1"]
 
 
 def test_a_drone_its_failsafe_landed_is_taken_up_again_once_and_the_command_taken_back() -> None:
