@@ -65,11 +65,6 @@ DEMO_PREFLIGHT_S = 600.0  # simulated seconds its submission's preflight may run
 HTTP_READY_S = 30.0
 DRONES_READY_S = 120.0  # three Python agents starting on a busy 2-core machine
 END_AFTER_CANCEL_S = 30.0
-# The radio demo's PX4 vehicles get going and come to rest at once, as the built-in
-# simulator's do: at PX4's own start, acceleration and landing times (fleet sim's
-# default, sim/autopilot_params.py) its fire trace of short legs takes four times as long.
-BRISK_PX4 = {"MPC_TKO_RAMP_T": 0.0, "MPC_ACC_HOR": 0.0, "MPC_LAND_ALT1": 0.0, "LNDMC_TRIG_TIME": 0.0,
-             "MPC_YAWRAUTO_MAX": 90.0}
 STALE_S = 1.0  # telemetry older than this is not recorded as a sample
 AGENT_STOP_S = 10.0
 ENDED = ("finished", "failed", "cancelled")
@@ -271,6 +266,7 @@ class Demo:
         """`fleet sim --agents --radio` in the background: the vehicles here, each drone's
         agent and sensors in its own namespace, loss following the distances. Its
         lines go to logs/sim.log, the radio's own to the screen."""
+        from dronefleet.sim.autopilot_params import BRISK_PX4
         from dronefleet.sim.fleet_sim import autopilot_of, run_sim
 
         logs = self.options.out_dir / "logs"
@@ -287,6 +283,9 @@ class Demo:
         task = self._background(
             run_sim(world, None, agents=True, radio=True, ground_port=self.options.port, agent_config=agent_config,
                     out=out, log_dir=logs,
+                    # The radio demo flies its PX4 vehicles briskly: at PX4's own start,
+                    # acceleration and landing times (fleet sim's default) its fire trace of
+                    # short legs takes four times as long.
                     params=BRISK_PX4 if "px4" in autopilot_of(world.spawn(), None).values() else None),
             "the emulated radio",
         )

@@ -72,6 +72,12 @@ TIMING: dict[str, Timing] = {
 }
 
 
+# PX4's timing parameters turned off: its vehicles get going and come to rest at once, as
+# the built-in simulator's do (the radio demo, and tests that fly for what else they show).
+BRISK_PX4: dict[str, float] = {"MPC_TKO_RAMP_T": 0.0, "MPC_ACC_HOR": 0.0, "MPC_LAND_ALT1": 0.0, "LNDMC_TRIG_TIME": 0.0,
+                               "MPC_YAWRAUTO_MAX": 90.0}
+
+
 def timing_of(autopilot: str | None) -> dict[str, Any]:
     """VehicleParams fields for how `autopilot` gets going and comes to rest ({}: instant)."""
     timing = TIMING.get(autopilot or "")

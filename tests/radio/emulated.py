@@ -18,6 +18,7 @@ import pytest
 import yaml
 
 from dronefleet.schemas.geo import destination
+from dronefleet.sim.autopilot_params import BRISK_PX4
 from dronefleet.sim.fleet_sim import CHILDREN_STOP_S
 from dronefleet.sim.radio_net import list_netns
 from tests.harness import ChildProcess, GroundProcess, fleet_command
@@ -63,6 +64,8 @@ class RadioSim(ChildProcess):
         super().__init__(fleet_command(
             "-v", "sim", str(world), "--agents", "--radio", "--agent-config", str(cfg),
             "--ground-port", str(ground.zenoh_port), "--base-port", str(free_udp_base(2) + 1),
+            # the radio is under test, not PX4's start and landing times
+            *(f"--param={name}={value:g}" for name, value in BRISK_PX4.items()),
         ), tmp / "sim.log")
 
     @property
