@@ -275,10 +275,7 @@ class SimField:
         gs = self.world.ground_station or self.world.origin
         self.station.record_missions(self.data_dir / "missions", ground_station=(gs.lat, gs.lon))
         for spec in self.specs:
-            assert spec.lat is not None and spec.lon is not None and spec.alt is not None
-            vehicle = Vehicle(spec.lat, spec.lon, spec.alt, self.world.params(spec.autopilot))
-            if spec.battery is not None:
-                vehicle.battery = spec.battery
+            vehicle = self.world.vehicle(spec, spec.autopilot)
             self.vehicles[spec.id] = vehicle
             self.tracks[spec.id] = Track()
             fc = SimFlightController(vehicle, self.clock)

@@ -36,7 +36,6 @@ from dronefleet.sim.radio import Spot3, spot_of
 from dronefleet.sim.radio_field import RadioField
 from dronefleet.sim.radio_net import die_with_parent, socket_in_netns
 from dronefleet.sim.scratch import scratch_dir
-from dronefleet.sim.vehicle import Vehicle
 from dronefleet.sim.world import DroneSpec, World
 
 log = logging.getLogger(__name__)
@@ -81,16 +80,6 @@ def autopilot_of(specs: list[DroneSpec], given: list[str] | None) -> dict[str, s
             raise ConfigError(f"--autopilot {make!r}: expected one of {', '.join(AUTOPILOTS)}")
     return {s.id: (given[0] if len(given) == 1 else given[i]) if given else (s.autopilot or "px4")
             for i, s in enumerate(specs)}
-
-
-def vehicle_of(world: World, spec: DroneSpec, autopilot: str) -> Vehicle:
-    """The vehicle model of a spawned drone (World.spawn): where it stands, its battery,
-    and how its `autopilot` gets going and comes to rest."""
-    assert spec.lat is not None and spec.lon is not None and spec.alt is not None
-    vehicle = Vehicle(spec.lat, spec.lon, spec.alt, world.params(autopilot))
-    if spec.battery is not None:
-        vehicle.battery = spec.battery
-    return vehicle
 
 
 def check_params(params: dict[str, float], autopilots: set[str]) -> None:
@@ -159,7 +148,7 @@ async def run_sim(
             for line in field.describe():
                 out(line)
         for i, spec in enumerate(specs):
-            vehicle = vehicle_of(world, spec, makes[spec.id])
+            vehicle = world.vehicle(spec, makes[spec.id])
             # On the radio every drone has its own 127.0.0.1: PX4's first ports serve all.
             port = base_port + (0 if field else i)
             def on_change(_: object, sv_id: str = spec.id) -> None:

@@ -17,7 +17,7 @@ from dronefleet.sim.autopilot_params import timing_of
 from dronefleet.sim.fault_kinds import FaultKind
 from dronefleet.sim.heat_field import HeatConfig, HeatSource, Lat, Lon, temperature_at
 from dronefleet.sim.radio import RadioModel, Spot3
-from dronefleet.sim.vehicle import VehicleParams
+from dronefleet.sim.vehicle import Vehicle, VehicleParams
 from dronefleet.sim.world_fields import FieldModel, sample
 
 ROW_SPACING_M = 5.0
@@ -143,6 +143,15 @@ class World(_Strict, frozen=True):
         make gets going and comes to rest (autopilot_params.TIMING; none: at once)."""
         return VehicleParams(battery_drain_per_s=self.battery.drain_per_s, battery_floor=self.battery.floor,
                              **timing_of(autopilot))
+
+    def vehicle(self, spec: DroneSpec, autopilot: str | None) -> Vehicle:
+        """The vehicle model of a spawned drone (`spawn`): where it stands, its battery,
+        and how its `autopilot` gets going and comes to rest."""
+        assert spec.lat is not None and spec.lon is not None and spec.alt is not None
+        vehicle = Vehicle(spec.lat, spec.lon, spec.alt, self.params(autopilot))
+        if spec.battery is not None:
+            vehicle.battery = spec.battery
+        return vehicle
 
     def spawn(self, n: int | None = None) -> list[DroneSpec]:
         """Drones with positions: the listed ones (first n), or a row east of the origin."""

@@ -13,7 +13,7 @@ from dronefleet.agent.fc_sim import parse_sim_url
 from dronefleet.schemas.errors import ConfigError
 from dronefleet.sim import ardupilot
 from dronefleet.sim.autopilot_params import TIMING
-from dronefleet.sim.fleet_sim import check_params, vehicle_of
+from dronefleet.sim.fleet_sim import check_params
 from dronefleet.sim.mavlink_endpoint import MavlinkVehicle
 from dronefleet.sim.vehicle import Vehicle
 from dronefleet.sim.world import load_world
@@ -120,7 +120,7 @@ def test_fleet_sims_px4_starts_a_takeoff_as_px4_does_until_its_parameter_says_ot
     delay = TIMING["px4"].takeoff_delay_s
 
     def px4(sysid: int) -> MavlinkVehicle:
-        endpoint = MavlinkVehicle(vehicle_of(world, spec, "px4"), sysid, [], autopilot="px4")
+        endpoint = MavlinkVehicle(world.vehicle(spec, "px4"), sysid, [], autopilot="px4")
         endpoint.vehicle.arm()
         return endpoint
 
@@ -133,4 +133,4 @@ def test_fleet_sims_px4_starts_a_takeoff_as_px4_does_until_its_parameter_says_ot
     brisk.set_param("MPC_TKO_RAMP_T", 0.0)
     brisk.vehicle.takeoff(5.0)
     assert climb_starts_after_s(brisk.vehicle) < 1.0
-    assert vehicle_of(world, spec, "ardupilot").params.takeoff_delay_s == 0.0
+    assert world.vehicle(spec, "ardupilot").params.takeoff_delay_s == 0.0
