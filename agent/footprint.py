@@ -19,6 +19,7 @@ the user's own programs. Most of the agent's resident memory is its libraries' c
 from __future__ import annotations
 
 import ctypes
+import functools
 import platform
 import sys
 
@@ -35,6 +36,7 @@ def keep_openssl_out() -> None:
         sys.modules.setdefault(name, None)  # type: ignore[arg-type]  # None: "not importable" (import system)
 
 
+@functools.cache  # platform.libc_ver reads the interpreter's binary: once, not every minute
 def _libc() -> ctypes.CDLL | None:
     """glibc, or None elsewhere (musl, macOS): the calls below are glibc's."""
     if platform.libc_ver()[0] != "glibc":
