@@ -37,8 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from playwright.async_api import Browser, Page, ViewportSize, async_playwright, expect  # noqa: E402
 
+from bench.synthetic_about import announce  # noqa: E402
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
-from dronefleet.schemas.about import About  # noqa: E402
 from dronefleet.schemas.codec import encode  # noqa: E402
 from dronefleet.schemas.commands import CommandReply  # noqa: E402
 from dronefleet.schemas.geo import destination  # noqa: E402
@@ -84,11 +84,6 @@ async def _refuse(key: str, payload: bytes) -> bytes:
     return encode(CommandReply(command_id=command_id, accepted=False, reason="a synthetic drone takes no commands"))
 
 
-async def _about(key: str, payload: bytes) -> bytes:
-    drone_id = key.split("/")[-2]  # drone/<id>/about
-    return encode(About(drone_id=drone_id, timestamp=int(time.time() * 1000)))
-
-
 class SyntheticFleet:
     """`n` drones circling over a field, each publishing real Telemetry at `rate_hz`
     over Zenoh into the ground (publishes spread evenly over each period). As their
@@ -107,10 +102,7 @@ class SyntheticFleet:
         self._bus = await ZenohBus.open("client", connect=[self.endpoint], wait=True)
         keys = Keys()
         self._bus.serve(keys.cmd("*"), _refuse)
-        self._bus.serve(keys.about("*"), _about)
-        for i in range(self.n):
-            drone_id = f"synth{i:03d}"
-            self._bus.publish(keys.about(drone_id), encode(About(drone_id=drone_id, timestamp=int(time.time() * 1000))))
+        announce(self._bus, (f"synth{i:03d}" for i in range(self.n)), keys)
         self._task = asyncio.get_running_loop().create_task(self._publish(self._bus), name="synthetic telemetry")
         return self
 

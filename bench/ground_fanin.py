@@ -30,12 +30,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import msgspec  # noqa: E402
 
+from bench.synthetic_about import announce  # noqa: E402
 from bench.verdict import ScenarioFailed  # noqa: E402
 from dronefleet.bus.zenoh_bus import ZenohBus  # noqa: E402
 from dronefleet.ground.config import GroundConfig  # noqa: E402
 from dronefleet.ground.eventlog import EventLog  # noqa: E402
 from dronefleet.ground.station import GroundStation  # noqa: E402
-from dronefleet.schemas.about import About  # noqa: E402
 from dronefleet.schemas.codec import encode  # noqa: E402
 from dronefleet.schemas.keys import Keys  # noqa: E402
 from dronefleet.schemas.telemetry import Battery, GpsInfo, Home, Position, Telemetry  # noqa: E402
@@ -108,12 +108,7 @@ async def publishers(port: int, n: int, seconds: float) -> None:
         home=Home(lat=40.6334, lon=-8.6608, alt=8.2), position=Position(lat=40.6335, lon=-8.6607, alt=18.2, rel_alt=10.0),
     )
     drones = [(f"bench{i:04d}", keys.telem(f"bench{i:04d}")) for i in range(n)]
-    async def about(key: str, payload: bytes) -> bytes:  # as an agent answers the ground's ask
-        return encode(About(drone_id=key.split("/")[-2], timestamp=time.time_ns() // 1_000_000))
-
-    bus.serve(keys.about("*"), about)
-    for drone_id, _ in drones:  # what each is, first, as an agent says (the ground registers it at once)
-        bus.publish(keys.about(drone_id), encode(About(drone_id=drone_id, timestamp=time.time_ns() // 1_000_000)))
+    announce(bus, (drone_id for drone_id, _ in drones), keys)  # what each is, first, as an agent says
     start = time.monotonic()
     next_at = [start + i * PERIOD_S / n for i in range(n)]
     seq = [0] * n
