@@ -237,8 +237,7 @@ class CommandDelivery:
         if (take_back and name in FLOWN and self.brought_home(drone_id)
                 and (drone_id in self.failsafe_down or self.standing.get(drone_id))):
             # Landed, armed or not yet disarmed: the autopilot would refuse to fly it there.
-            self.log("warn", f"{drone_id}: its lost-link failsafe brought it down; taking it back up to send {name}")
-            await self.relaunch(drone_id)
+            await self.relaunch(drone_id, name)
         command_id = self.mission.station.new_command_id()
         fut: asyncio.Future[CommandStatus] = asyncio.get_running_loop().create_future()
         if wait:
@@ -320,7 +319,9 @@ class CommandDelivery:
         self.failsafe_homeward.pop(drone_id, None)
         self.failsafe_down.discard(drone_id)
 
-    async def relaunch(self, drone_id: str) -> None:
+    async def relaunch(self, drone_id: str, name: str) -> None:
+        self.log("warn", f"{drone_id}: its lost-link failsafe brought it home or down; arming it and taking it back "
+                         f"up to send {name} again")
         began = self.failsafe_homeward[drone_id]
         self._failsafe_over(drone_id)
         before = [alt for at, alt in self.aloft.get(drone_id, ()) if at <= began]

@@ -62,8 +62,9 @@ class Sender(Protocol):
         """Whether the drone's lost-link failsafe flew it home (or down) since the mission
         last sent it there itself."""
         ...
-    async def relaunch(self, drone_id: str) -> None:
-        """Arm the drone and take it up to the height it flew at before its failsafe."""
+    async def relaunch(self, drone_id: str, name: str) -> None:
+        """Arm the drone and take it up to the height it flew at before its failsafe, to
+        send command `name` again (said in the mission's log)."""
         ...
     @property
     def link_grace_s(self) -> float: ...
@@ -157,9 +158,7 @@ class Relaunch(_Step):
         if not (isinstance(failure, CommandRejected) and failure.reason == DISARMED
                 and self.sender.brought_home(self.drone_id)):
             return False
-        self.sender.log("warn", f"{self.drone_id}: its lost-link failsafe brought it home and it landed; arming it "
-                                f"and taking it back up to send {self.name} again")
-        await self.sender.relaunch(self.drone_id)
+        await self.sender.relaunch(self.drone_id, self.name)
         raise TakenBack
 
 

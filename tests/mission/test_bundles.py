@@ -589,9 +589,10 @@ async def test_a_bundle_ended_by_the_next_one_returns_though_its_end_was_lost() 
 async def test_a_drone_its_failsafe_brought_home_takes_off_again_for_the_next_command() -> None:
     """A 25 s radio shadow, the drone hovering 20 m out at 12 m: its lost-link failsafe
     (3 s, then return) flies it home, where it lands and disarms. Once it hears the
-    ground again the script sends it to its next waypoint (absolute, as a survey's are): the mission arms it and takes
-    it back up to the height it had before the failsafe, then sends the goto (before, the
-    goto was refused "disarmed" and the mission failed cmd_exec)."""
+    ground again the script sends it to its next waypoint (absolute, as a survey's
+    are): the mission arms it and takes it back up to the height it had before the
+    failsafe, then sends the goto (before, the goto was refused "disarmed" and the
+    mission failed cmd_exec)."""
     def once_it_is_out(sim: SimField) -> None:
         home = first_home(sim)
         radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 19.5, 25.0, after_s=2.0)

@@ -89,7 +89,7 @@ class Sender:
     def brought_home(self, drone_id: str) -> bool:
         return drone_id in self.failsafe_landed
 
-    async def relaunch(self, drone_id: str) -> None:
+    async def relaunch(self, drone_id: str, name: str) -> None:
         self.relaunched.append(drone_id)
 
 
