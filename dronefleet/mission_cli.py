@@ -301,6 +301,8 @@ def simulate(script: Path, inputs: tuple[str, ...], world: Path | None, n: int |
         faulthandler.register(signal.SIGUSR1, all_threads=True)
         limit_self(limit_memory_mb or 1_048_576, limit_cpu_s or 1e9)
     started = time.perf_counter()
+    if predicting:  # the ground's bound on the preflight counts from here (ground/planning.py)
+        click.echo("simulating")
     try:
         result = asyncio.run(run(
             source, field, n=n, seed=seed, out_dir=out_dir, name=script.name, max_s=max_s,

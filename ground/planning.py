@@ -37,6 +37,12 @@ from dronefleet.sim.world_fields import FieldModel
 
 log = logging.getLogger(__name__)
 SIMULATION_WALL_S = 180.0  # a prediction that takes longer on this machine is stopped
+# The wall bound counts from the simulation's start, which the child says (SIMULATING):
+# as one of eight suite workers starting at once, a 10 s bound left it 1.1 s simulated,
+# and a busy laptop's preflight passed unjudged so. A child that does not get that far in
+# START_WALL_S is stopped, as at the bound.
+SIMULATING = b"simulating\n"
+START_WALL_S = 60.0
 PATH_POINTS = 600  # per drone at most: the map draws them, the chart the battery
 ROLES = frozenset(get_args(Role))
 AUTOPILOT_MAKES = frozenset(get_args(Autopilot))  # flown with their own timing (sim/autopilot_params.py)
@@ -269,15 +275,20 @@ async def predict(source: str, world: World, max_s: float, plugins_dir: Path | N
         proc = await asyncio.create_subprocess_exec(*args, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
                                                     stderr=asyncio.subprocess.STDOUT)
         out = bytearray()
+        simulating = asyncio.Event()
 
         async def read() -> None:
             assert proc.stdout is not None
             while chunk := await proc.stdout.read(65536):
                 out.extend(chunk)
+                if not simulating.is_set() and (out.startswith(SIMULATING) or b"\n" + SIMULATING in out):
+                    simulating.set()
+            simulating.set()  # it ended (or closed its output) before saying so
 
         reading = asyncio.get_running_loop().create_task(read())
         try:
             try:
+                await asyncio.wait_for(simulating.wait(), START_WALL_S)
                 await asyncio.wait_for(proc.wait(), bounds.wall_s)
             except TimeoutError:
                 line = await _line_computing(proc, out, reading)
@@ -289,7 +300,7 @@ async def predict(source: str, world: World, max_s: float, plugins_dir: Path | N
                 proc.kill()
                 await proc.wait()
             reading.cancel()
-        lines = out.decode("utf-8", "replace").splitlines()
+        lines = [line for line in out.decode("utf-8", "replace").splitlines() if line != SIMULATING.decode().strip()]
         result_file = d / "out" / "result.json"
         if not result_file.exists():  # it did not get to run the mission: say why
             if proc.returncode == -signal.SIGXCPU:
