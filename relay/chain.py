@@ -79,6 +79,13 @@ class Worker:
     alt: float  # metres above the ground station it flies at
     goal: Point | None  # where the script wants it now (a held goto's goal too)
     home: Point | None = None  # where its return (its lost-link failsafe's too) takes it
+    # in the air now, whatever `alt` says: a goto down to its home is flown toward 0 m, and
+    # its way was left out of the columns a relay may climb through (it passed one 3.7 m off)
+    airborne: bool = False
+
+    @property
+    def aloft(self) -> bool:
+        return self.alt >= 1.0 or self.airborne
 
 
 @dataclass(frozen=True)
@@ -296,8 +303,8 @@ class Chains:
         self.grounded = [at for at, alt in others if alt < 1.0]
         self.spares = [at for at in spares if any(dist(at, q) < 0.5 for q in self.grounded)]
         self.parked = self.grounded + [o.at for o in seen.values() if o.alt < self.duty_alt - 1.0]
-        self.legs = [(w.at, w.home or w.at) for w in workers if w.alt >= 1.0]  # while the probe measures, they wait
-        self.flying = {w.id: w.at for w in workers if w.alt >= 1.0}
+        self.legs = [(w.at, w.home or w.at) for w in workers if w.aloft]  # while the probe measures, they wait
+        self.flying = {w.id: w.at for w in workers if w.aloft}
         for s in seen.values():
             if s.fresh and s.rtt_ms is not None and (self.base_rtt is None or s.rtt_ms < self.base_rtt):
                 self.base_rtt = s.rtt_ms
@@ -320,7 +327,7 @@ class Chains:
             self.probe = None
         for w in workers:
             self.covered[w.id] = self._nodes(now, self.chains.setdefault(w.id, []), seen, out)
-        self.legs = [(w.at, w.home or self.allowed(w.id, w.at, w.alt, w.goal or w.at)) for w in workers if w.alt >= 1.0]
+        self.legs = [(w.at, w.home or self.allowed(w.id, w.at, w.alt, w.goal or w.at)) for w in workers if w.aloft]
         free = spare
         for w in workers:
             free = self._extend(now, w, seen, free, out)

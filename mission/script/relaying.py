@@ -227,10 +227,11 @@ class Relays:
                 goal = Position(held[0], held[1], held[2])
             level = flight_altitude(d)  # where it flies, not the levels it climbs or lands through
             cmd, home = d.cmd, d.home
-            workers.append(chains.Worker(d.id, frame.local(d.position),
-                                         level if level is not None else (_above(d, d.position.alt) or 0.0),
+            height = _above(d, d.position.alt) or 0.0
+            workers.append(chains.Worker(d.id, frame.local(d.position), level if level is not None else height,
                                          frame.local(goal) if goal is not None else None,
-                                         frame.local(home) if cmd is not None and cmd.name == "return" and home else None))
+                                         frame.local(home) if cmd is not None and cmd.name == "return" and home else None,
+                                         airborne=height > AIRBORNE_M))
         seen = {}
         for rid, d in drones.items():
             link = d.link

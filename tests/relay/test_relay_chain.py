@@ -6,11 +6,14 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from dronefleet.relay.chain import (
     DWELL_S,
     LAUNCH_TIMEOUT_S,
     MARGIN,
+    PARKED_CLEAR_M,
     PROBE,
     PROVEN_LOSS,
     STRETCH_AFTER_S,
@@ -22,6 +25,7 @@ from dronefleet.relay.chain import (
     flat,
 )
 from dronefleet.relay.hop import CONVERGED, FLOOR_M, GROWTH, Reach, bottleneck
+from dronefleet.relay.ways import segment_distance
 from dronefleet.sim.radio import HOLDING_LOSS
 
 DUTY = 21.0  # relays' altitude above the laptop; the worker flies at 15 m
@@ -343,3 +347,26 @@ def test_a_relay_takes_off_from_a_spare_whose_column_no_flying_drone_is_near() -
     near = [(0.0, 0.0), (0.0, 5.0), (5.0, 0.0)]
     out = Chains(DUTY, first_trial=60.0).plan(0.0, [crowded], {}, spare=3, others=[(p, 0.0) for p in near], spares=near)
     assert out.dispatch == []
+
+
+@settings(max_examples=150, deadline=None, database=None)
+@given(out_m=st.floats(15.0, 120.0), bearing=st.floats(0.0, 360.0), home_m=st.floats(0.0, 12.0),
+       home_bearing=st.floats(0.0, 360.0),
+       spares=st.lists(st.tuples(st.floats(-40.0, 40.0), st.floats(-40.0, 40.0)), min_size=1, max_size=8))
+def test_no_relay_climbs_under_the_way_of_a_drone_in_the_air_whatever_level_it_flies_to(
+        out_m: float, bearing: float, home_m: float, home_bearing: float, spares: list[tuple[float, float]]) -> None:
+    """A worker flying down to its home (its goto's level is 0 m) is in the air all the
+    way there: while another worker's chain sends a relay, that relay takes off only from
+    a spare PARKED_CLEAR_M across from every way flown (judged by its level alone, the
+    way down was left out, and a relay climbed 3.7 m from a worker landing beside it)."""
+    home = at(home_m, home_bearing)
+    down = Worker("d1", at(out_m, bearing), 0.0, home, airborne=True)
+    far = Worker("d2", at(30.0, bearing + 180.0), 15.0, at(250.0, bearing + 180.0))
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0)
+    out = c.plan(0.0, [down, far], {}, spare=len(spares), others=[(p, 0.0) for p in spares], spares=spares)
+    assert any(a == down.at for a, _ in c.legs), c.legs
+    for _, _, _, site in out.dispatch:
+        assert site is not None
+        for a, b in c.legs:
+            assert segment_distance((*a, 0.0), (*b, 0.0), (*site, 0.0), (*site, 0.0)) >= PARKED_CLEAR_M, (site, a, b)
