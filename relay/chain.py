@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 from dronefleet.relay.hop import Reach, bottleneck
 from dronefleet.relay.placement import Point, dist, toward
+from dronefleet.relay.rules import DEFAULT, Separation
 from dronefleet.relay.ways import segment_distance
 from dronefleet.sim.radio import HOLDING_LOSS
 
@@ -43,9 +44,7 @@ DWELL_S = 11.0  # on its spot this long: a whole 10-probe window measured there
 ON_SPOT_M = 3.0
 LAUNCH_CLEAR_M = 15.0  # a relay is sent when the last one has flown this far from the drones on the ground
 LAUNCH_TIMEOUT_S = 40.0  # a relay assigned this long ago and still on the ground never took off: another is sent
-PARKED_CLEAR_M = 6.0  # a held drone is not held over a drone on the ground (across)
-CLEAR_AHEAD_M = 3 * PARKED_CLEAR_M  # a held drone beside one is let on this far toward its goal to clear it
-RELAYS_APART_M = 7.0  # relays hover on one level: spots of different chains keep this apart
+CLEAR_AHEAD_PARKED = 3  # a held drone beside a parked one is let on this many parked clearances toward its goal
 MIN_STEP_M = 8.0  # a relay's spot is at least this far (across) from the node before it
 PROVEN_LOSS = 0.05  # a hop whose loss averaged at most this over the dwell holds (half of what keeps a 3-s gap)
 SPIKE_MS = 30.0  # a window's mean RTT this far above the best seen held two retransmissions (+200 ms / 10 each)
@@ -126,8 +125,9 @@ class ChainPlan:
 class Chains:
     """The state of `mode="chain"` across plans (one per mission)."""
 
-    def __init__(self, duty_alt: float, first_trial: float | None = None) -> None:
+    def __init__(self, duty_alt: float, first_trial: float | None = None, rules: Separation = DEFAULT) -> None:
         self.duty_alt = duty_alt
+        self.rules = rules
         self.first_trial = first_trial
         self.reach = Reach()
         self.probe: Slot | None = None
@@ -213,7 +213,7 @@ class Chains:
             # another's way) — but never beside a drone on the ground: that drone may be
             # the next relay to climb, and no relay launches while a flying drone is that
             # close to the drones on the ground (`_launch_clear`). Drones standing closer
-            # than PARKED_CLEAR_M (a row at the spawn gap) held every launch for ever.
+            # than the parked clearance (a row at the spawn gap) held every launch for ever.
             return self._clear_ahead(worker, at, goal)
         nodes = self.covered.get(worker) or [(ORIGIN, 0.0)]
         reach = self._hop(worker)
@@ -273,20 +273,20 @@ class Chains:
         return dist(ORIGIN, goal) <= flat(self.reach.lo * MARGIN, alt)
 
     def _clear_ahead(self, worker: str, at: Point, goal: Point, inside: Callable[[Point], bool] = lambda p: True) -> Point:
-        """`at` if no drone on the ground stands within PARKED_CLEAR_M of it; else the
+        """`at` if no drone on the ground stands within the parked clearance of it; else the
         first point toward `goal` that is clear of them and of the other flying drones
         (a goto that close to another's spot is refused, SPEC §11), and `inside` what
         covers it; else `at`."""
         if self._clear(at):
             return at
         others = [q for w, q in self.flying.items() if w != worker]
-        for k in range(1, int(CLEAR_AHEAD_M) + 1):
+        for k in range(1, int(CLEAR_AHEAD_PARKED * self.rules.parked_m) + 1):
             p = toward(at, goal, float(k))
             if dist(p, at) < k - 0.5:  # the goal is nearer: nowhere clear ahead
                 break
             if not inside(p):
                 break
-            if self._clear(p) and all(dist(p, q) >= PARKED_CLEAR_M for q in others):
+            if self._clear(p) and all(dist(p, q) >= self.rules.parked_m for q in others):
                 return p
         return at
 
@@ -453,11 +453,12 @@ class Chains:
         return True
 
     def _on_spot(self, o: Seen, spot: Point) -> bool:
-        return dist(o.at, spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= 2.0
+        return dist(o.at, spot) <= ON_SPOT_M and abs(o.alt - self.duty_alt) <= self.rules.level_band_m
 
-    def _clear(self, p: Point, gap: float = PARKED_CLEAR_M) -> bool:
-        """Not over (within `gap` across of) a drone on the ground, which may take off there."""
-        return all(dist(p, q) >= gap for q in self.parked)
+    def _clear(self, p: Point) -> bool:
+        """Not over (within the parked clearance across of) a drone on the ground, which
+        may take off there."""
+        return all(dist(p, q) >= self.rules.parked_m for q in self.parked)
 
     def _nodes(self, now: float, chain: Sequence[Slot], seen: Mapping[str, Seen],
                out: ChainPlan) -> list[tuple[Point, float]]:
@@ -543,7 +544,7 @@ class Chains:
         spots = self._relaid(chain, goal, w.alt, hi)
         assert spots is not None
         others = [sl.spot for c, ch in self.chains.items() if c != w.id for sl in ch]
-        if not all(self._clear(p) and all(dist(p, q) >= RELAYS_APART_M for q in others) for p in spots):
+        if not all(self._clear(p) and all(dist(p, q) >= self.rules.relays_apart_m for q in others) for p in spots):
             return False
         self.stretched[w.id] = hi
         self.short_since.pop(w.id, None)
@@ -572,12 +573,12 @@ class Chains:
     def _off_parked(self, back: Point, spot: Point, seen: Mapping[str, Seen]) -> Point:
         """`spot`, or nearer `back`, or aside, until it is not over a drone on the ground
         (which would climb into the relay hovering there when it takes off) nor within
-        RELAYS_APART_M of another relay's spot or of a relay on duty (chains toward
+        the relays' clearance of another relay's spot or of a relay on duty (chains toward
         workers in near directions begin side by side; two relays came within 3.5 m)."""
         taken = [sl.spot for c in self.chains.values() for sl in c] + [o.at for rid, o in seen.items() if rid not in self.idle]
 
         def room(p: Point) -> float:  # 1 or more: clear of both
-            return min([dist(p, q) / PARKED_CLEAR_M for q in self.parked] + [dist(p, q) / RELAYS_APART_M for q in taken]
+            return min([dist(p, q) / self.rules.parked_m for q in self.parked] + [dist(p, q) / self.rules.relays_apart_m for q in taken]
                        + [math.inf])
 
         length = dist(back, spot)
@@ -592,7 +593,7 @@ class Chains:
     def _launch_clear(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
         """Whether a relay may take off now, and from where (`site`). It climbs through
         every lower level (ADR 0006), so it takes off from a free drone's spot whose
-        column no served drone is over, going over, or going home over (PARKED_CLEAR_M
+        column no served drone is over, going over, or going home over (the parked clearance
         across), of those the one farthest from them; and only while no other relay
         crosses the levels near that column: to a spot (near when its way passes within
         LAUNCH_CLEAR_M of it), coming home, or sent in this plan (it goes first). With
@@ -613,7 +614,7 @@ class Chains:
         def room(q: Point) -> float:
             return min([segment_distance((*a, 0.0), (*b, 0.0), (*q, 0.0), (*q, 0.0)) for a, b in self.legs] + [math.inf])
 
-        clear = [q for q in sites if room(q) >= PARKED_CLEAR_M and not self._crossed(q, seen, ways)]
+        clear = [q for q in sites if room(q) >= self.rules.parked_m and not self._crossed(q, seen, ways)]
         if not clear or (not self.spares and len(clear) < len(sites)):
             return False  # not knowing which drone goes, every one must be clear
         self.site = max(clear, key=lambda q: (room(q), -dist(q, ORIGIN))) if self.spares else None
@@ -622,7 +623,7 @@ class Chains:
     def _crossed(self, q: Point, seen: Mapping[str, Seen], ways: Mapping[str, list[Point]]) -> bool:
         """A relay off its duty level flies to a spot past `q` within LAUNCH_CLEAR_M across."""
         for rid, o in seen.items():
-            if not o.fresh or o.alt <= 1.0 or abs(o.alt - self.duty_alt) <= 2.0 or rid not in ways:
+            if not o.fresh or o.alt <= 1.0 or abs(o.alt - self.duty_alt) <= self.rules.level_band_m or rid not in ways:
                 continue  # on the ground, on its duty level, or not the plan's
             if any(segment_distance((*o.at, 0.0), (*to, 0.0), (*q, 0.0), (*q, 0.0)) < LAUNCH_CLEAR_M for to in ways[rid]):
                 return True
@@ -640,7 +641,7 @@ class Chains:
         # out passed the duty level as another was sent home over it)
         # (an idle one hovering on the duty level is not crossing it, wherever it waits)
         crossing = any(o.alt > 1.0 if rid not in held else
-                       o.fresh and (abs(o.alt - self.duty_alt) > 2.0 if rid in self.idle
+                       o.fresh and (abs(o.alt - self.duty_alt) > self.rules.level_band_m if rid in self.idle
                                     else not any(self._on_spot(o, p) for p in held[rid]))
                        for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
         for w in workers:

@@ -7,10 +7,10 @@ crossed near the laptop: in the corpus, 20 of 200 worlds had two flying drones c
 than 5 m, most of them two workers setting out. A way is declared when it is flown:
 
 - a worker's next leg (from where it is, toward where the leash lets it go) is cut
-  short where it would come within CLEAR_M (3-D) of another worker's remaining declared
+  short where it would come within the rules' way clearance (`Separation.way_m`, 3-D) of another worker's remaining declared
   leg or of the column above a worker that has not taken off yet (it will climb
-  there), or within AROUND_M of where any other drone is now (relays keep their own
-  levels: relay/chain.py), or within CLEAR_M of the column of a relay sent from the
+  there), or within `Separation.around_m` of where any other drone is now (relays keep their own
+  levels: relay/chain.py), or within the way clearance of the column of a relay sent from the
   ground or not yet above the worker's level, which climbs (or lands) through it (a
   worker flew over a spare as it took off, 3.1 m from it);
 - cut to nothing, the worker waits where it is; the other drone's way clears as it
@@ -18,8 +18,8 @@ than 5 m, most of them two workers setting out. A way is declared when it is flo
 - a worker already closer than that to another (they take off side by side) may fly
   any way that does not bring it closer still;
 - two workers each waiting on the other: the first by name goes; a worker kept waiting
-  YIELD_LIMIT_S goes too. Either still keeps AROUND_M from where every drone is, and
-  CLEAR_M from the way of one that set out meanwhile (two kept waiting as long went in
+  YIELD_LIMIT_S goes too. Either still keeps the around clearance from where every drone is, and
+  the way clearance from the way of one that set out meanwhile (two kept waiting as long went in
   the same second and crossed 2.6 m apart); the later by name, if it still
   cannot move, steps aside out of the other's way.
 """
@@ -30,10 +30,10 @@ import math
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 
+from dronefleet.relay.rules import Separation
+
 Point3 = tuple[float, float, float]  # metres north, east, up (above the laptop's level)
 
-CLEAR_M = 8.0  # from another worker's way: the 5 m the drones must keep, plus a second of flight before a hold takes effect
-AROUND_M = 5.5  # from where another drone (a relay) is: relays hover 6 m above the workers' level, over their ways
 AIRBORNE_M = 1.0
 YIELD_LIMIT_S = 20.0
 FRESH_LEG_S = 2.0  # a way declared this lately is kept off even by a worker kept waiting
@@ -132,6 +132,7 @@ class Ways:
     wants: dict[str, Point3] = field(default_factory=dict)  # worker → where its leg would go, all of it
     declared: dict[str, float] = field(default_factory=dict)  # worker → when its leg was last declared
     gives_way: dict[str, str] = field(default_factory=dict)  # worker → the drone it waits for now
+    rules: Separation = field(default_factory=Separation)
 
     def clear(self, drone: str, at: Point3, to: Point3, others: Mapping[str, Point3], workers: set[str],
               now: float, relays: Collection[str] = (), launching: bool = False) -> tuple[Point3, str | None]:
@@ -148,19 +149,19 @@ class Ways:
             if o == drone:
                 continue
             airborne = p[2] > AIRBORNE_M
-            if o not in workers and (p[2] < top + AROUND_M if airborne else o in relays or launching):
+            if o not in workers and (p[2] < top + self.rules.around_m if airborne else o in relays or launching):
                 # a relay below the top of this leg (taking off or landing), or on the ground
                 # and sent or about to be (it climbs next): its column
-                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + AROUND_M), CLEAR_M, False))
+                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top + self.rules.around_m), self.rules.way_m, False))
             elif airborne:
-                obstacles.append((o, p, p, CLEAR_M if o in workers else AROUND_M, False))
+                obstacles.append((o, p, p, self.rules.way_m if o in workers else self.rules.around_m, False))
                 if o in workers:
                     self.flown.add(o)
                     leg = self.legs.get(o)
                     if leg is not None:
-                        obstacles.append((o, p, leg[1], CLEAR_M, True))  # what is left of its leg
+                        obstacles.append((o, p, leg[1], self.rules.way_m, True))  # what is left of its leg
             elif o in workers and o not in self.flown:
-                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top), CLEAR_M, False))
+                obstacles.append((o, (p[0], p[1], 0.0), (p[0], p[1], top), self.rules.way_m, False))
             else:
                 self.legs.pop(o, None)  # landed: its way is flown
         # Already closer than that (workers take off side by side): not closer still.
@@ -171,7 +172,7 @@ class Ways:
             for (o, a, b, _, way), clear in zip(obstacles, near, strict=True):
                 if relaxed and way and (o in self.waiting or now - self.declared.get(o, -math.inf) > FRESH_LEG_S):
                     continue  # its way waits too, or is old; one that just set out is kept off
-                if segment_distance(at, end, a, b) < (min(clear, AROUND_M) if relaxed and not way else clear):
+                if segment_distance(at, end, a, b) < (min(clear, self.rules.around_m) if relaxed and not way else clear):
                     return o
             return None
 
@@ -182,7 +183,7 @@ class Ways:
             self._declare(drone, (at, to), now)
             return to, None
         # Two drones each waiting on the other: the first by name goes; anyone kept
-        # waiting YIELD_LIMIT_S goes too. Either keeps AROUND_M from where others are.
+        # waiting YIELD_LIMIT_S goes too. Either keeps the around clearance from where others are.
         since = self.waiting.setdefault(drone, now)
         relaxed = (first in self.waiting and drone < first) or now - since >= YIELD_LIMIT_S
         self.gives_way[drone] = first
@@ -215,21 +216,20 @@ class Ways:
             o = self.gives_way.get(o)
         return o == drone and drone == min(ring)
 
-    @staticmethod
-    def _out_of_jam(at: Point3, to: Point3, obstacles: list[tuple[str, Point3, Point3, float, bool]],
+    def _out_of_jam(self, at: Point3, to: Point3, obstacles: list[tuple[str, Point3, Point3, float, bool]],
                     near: list[float]) -> Point3:
-        """The way out of a ring of waiting workers: a leg of CLEAR_M, in whichever of 16
+        """The way out of a ring of waiting workers: a leg of the way clearance, in whichever of 16
         headings comes closer to no drone nor way (what any drone already that near may
-        fly), leaving the most room around it up to CLEAR_M, then getting nearest its
+        fly), leaving the most room around it up to the way clearance, then getting nearest its
         goal; `at` when none does. The ring's others wait where they are meanwhile."""
         best: tuple[float, float] | None = None
         end = at
         for k in range(16):
             a = 2 * math.pi * k / 16
-            p = (at[0] + CLEAR_M * math.cos(a), at[1] + CLEAR_M * math.sin(a), at[2])
+            p = (at[0] + self.rules.way_m * math.cos(a), at[1] + self.rules.way_m * math.sin(a), at[2])
             if any(segment_distance(at, p, b0, b1) < clear for (_, b0, b1, _, _), clear in zip(obstacles, near, strict=True)):
                 continue
-            room = min([segment_distance(p, p, b0, b1) for _, b0, b1, _, _ in obstacles] + [CLEAR_M])
+            room = min([segment_distance(p, p, b0, b1) for _, b0, b1, _, _ in obstacles] + [self.rules.way_m])
             key = (round(room, 1), -math.dist(p, to))
             if best is None or key > best:
                 best, end = key, p
@@ -243,7 +243,7 @@ class Ways:
                drone: str) -> Point3:
         """Two drones that took off side by side and each want to pass where the other
         is (else both wait for ever): the later by name steps aside, across the
-        way the other wants to go, until that way is CLEAR_M off; where the other wants
+        way the other wants to go, until that way is the way clearance off; where the other wants
         to go nowhere, away from it. `at` when that step would come near another drone."""
         ox, oy = other[0], other[1]
         dx, dy = ((wants[0] - ox, wants[1] - oy) if wants is not None else (0.0, 0.0))
@@ -251,16 +251,16 @@ class Ways:
         if length < 1.0:  # no way: straight away from it
             ax, ay = at[0] - ox, at[1] - oy
             norm = math.hypot(ax, ay) or 1.0
-            step = (ax / norm * CLEAR_M, ay / norm * CLEAR_M)
+            step = (ax / norm * self.rules.way_m, ay / norm * self.rules.way_m)
         else:
             ux, uy = dx / length, dy / length
             side = (at[0] - ox) * -uy + (at[1] - oy) * ux  # which side of its way this drone is on
             sign = 1.0 if side >= 0 else -1.0
             across = abs(side)
-            step = (-uy * sign * (CLEAR_M + 1.0 - across), ux * sign * (CLEAR_M + 1.0 - across)) \
-                if across < CLEAR_M + 1.0 else (0.0, 0.0)
+            step = (-uy * sign * (self.rules.way_m + 1.0 - across), ux * sign * (self.rules.way_m + 1.0 - across)) \
+                if across < self.rules.way_m + 1.0 else (0.0, 0.0)
         end = (at[0] + step[0], at[1] + step[1], at[2])
-        if any(segment_distance(at, end, p, p) < AROUND_M for o, p in others.items() if o != drone and p[2] > AIRBORNE_M
-               and math.dist(at, p) >= AROUND_M):
+        if any(segment_distance(at, end, p, p) < self.rules.around_m for o, p in others.items() if o != drone and p[2] > AIRBORNE_M
+               and math.dist(at, p) >= self.rules.around_m):
             return at
         return end

@@ -5,7 +5,7 @@ command that would leave it (409 `geofence`), the agent refuses it too (reason
     geofence:
       polygon: [[40.6345, -8.6612], [40.6345, -8.6590], [40.6325, -8.6590], [40.6325, -8.6612]]
       max_alt_m: 120          # above home
-      min_separation_m: 5     # between drones (deconfliction, the relay plugin)
+      min_separation_m: 5     # between drones' targets (the ground's deconfliction; the relay plugin keeps its own `min_separation` input)
 
 A flight is judged on its straight path, in a local plane around the fence (the
 fences of a field are a few km at most): it must end inside the polygon and never

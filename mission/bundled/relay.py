@@ -36,7 +36,6 @@ steps = step  # the bundle steps' builder: the input `step` (a length) takes its
 DUTY_S = 120  # a duty bundle holds the relay's spot this long ...
 RENEW_S = 60  # ... and is renewed when less than this is left
 CHAIN_DUTY_S = 600  # mode="chain": a relay's bundle holds its spot this long (renewed too)
-TRANSIT_M = 6  # mode="chain": relays fly out and home on levels this far apart above the duty level
 LAND_WAIT_S = 60  # mode="chain": a relay over its landing spot waits this long at most for the air below to clear
 FAILED_KEPT_S = 30  # mode="chain": a relay whose duty failed stays assigned this long, so another is sent
 
@@ -209,8 +208,9 @@ def chain(drone):
             return  # the levels are set above the served drones' flights, once they fly
         # Relays hover above the drones they serve and fly to and from their spots on
         # levels of their own above that (outbound): none crosses a served drone's level.
-        state["duty"] = relays.above_flights(list(served.values()), min_separation + 1)
-    plan = relays.chain(list(served.values()), crew, ground_spot(drone), state["duty"], good_m=good_m)
+        state["duty"] = relays.above_flights(list(served.values()), relays.level_gap(min_separation))
+    plan = relays.chain(list(served.values()), crew, ground_spot(drone), state["duty"], good_m=good_m,
+                        min_separation=min_separation)
     for note in plan.notes:
         print(note)
     for rid, spot, hold in plan.moves:
@@ -239,7 +239,7 @@ def outbound(relay):
     one coming down to its spot never crosses the level of one flying over it."""
     if relay.id not in state["lanes"]:
         state["lanes"][relay.id] = len(state["lanes"]) + 1
-    return state["duty"] + state["lanes"][relay.id] * TRANSIT_M
+    return state["duty"] + state["lanes"][relay.id] * relays.level_gap(min_separation)
 
 
 def chain_dispatch(key, spot, hold, launcher):

@@ -23,6 +23,7 @@ from dronefleet.mission.script.position import Position, as_position
 from dronefleet.relay import chain as chains
 from dronefleet.relay import distance as baseline
 from dronefleet.relay import placement, rounds, ways
+from dronefleet.relay.rules import DEFAULT_SEPARATION_M, Separation
 from dronefleet.schemas.commands import DEFAULT_RETURN_ALT_M
 from dronefleet.sim.projection import LocalFrame
 
@@ -30,8 +31,6 @@ if TYPE_CHECKING:
     from dronefleet.mission.lifecycle.mission import Mission
 
 AIRBORNE_M = 1.0  # above home: flying
-LAND_CLEAR_M = ways.CLEAR_M  # a relay comes down only this far (across) from every drone flying below it
-ON_GROUND_CLEAR_M = chains.PARKED_CLEAR_M  # … and lands this far from a drone on the ground (it may take off)
 
 
 class Frame:
@@ -102,7 +101,8 @@ class Relays:
         self._chains: chains.Chains | None = None
         self._frame: Frame | None = None
         self._served: dict[str, Any] = {}
-        self._ways = ways.Ways()
+        self._rules = Separation()  # mode="chain": from the plugin's min_separation (`chain`)
+        self._ways = ways.Ways(rules=self._rules)
         self._rounds = rounds.PlanRounds()
 
     def now(self) -> float:
@@ -204,14 +204,33 @@ class Relays:
 
     # ---- chains on proven hops (mode="chain", relay/chain.py) -----------------------
 
+    def level_gap(self, min_separation: Any) -> float:
+        """mode="chain": metres between the levels relays fly out and home on, and from
+        their duty level to the served drones' highest (relay/rules.py)."""
+        return self.separation(min_separation).level_gap_m
+
+    def separation(self, min_separation: Any) -> Separation:
+        """The relay's separation rules for a `min_separation` input (`5*m` or metres)."""
+        metres = units.length(min_separation, "min_separation")
+        if metres != self._rules.separation_m:
+            try:
+                self._rules = Separation(metres)
+            except ValueError as exc:
+                raise ValueError(f"relay: {exc}") from None
+            self._ways.rules = self._rules
+            if self._chains is not None:
+                self._chains.rules = self._rules
+        return self._rules
+
     def chain(self, served: Sequence[Any], drones: Mapping[str, Any], ground: Any, duty_alt: float,
-              good_m: float | None = None, heard_s: float = 2.5) -> ChainOrders:
+              good_m: float | None = None, heard_s: float = 2.5, min_separation: Any = DEFAULT_SEPARATION_M) -> ChainOrders:
         """One plan of `mode="chain"`: `served` the mission's drones, `drones` relay id →
         wrapper for every relay on duty, `duty_alt` the relays' altitude above the ground
-        station, `good_m` the radio model's good range (the first hop tried). Leashes the
+        station, `good_m` the radio model's good range (the first hop tried),
+        `min_separation` what every clearance derives from (relay/rules.py). Leashes the
         served drones' gotos to what the chains cover (see `leash`)."""
         if self._chains is None:
-            self._chains = chains.Chains(duty_alt, good_m)
+            self._chains = chains.Chains(duty_alt, good_m, rules=self.separation(min_separation))
             self._frame = Frame(ground)
             if self._mission is not None:
                 self._mission.delivery.leash = self.leash
@@ -314,8 +333,8 @@ class Relays:
 
     def landing_spot(self, relay: Any) -> Position:
         """Where a relay going home comes down: its home, or the nearest spot around it
-        (8, 16, 24 m out) clear of every drone in the air by LAND_CLEAR_M and of those
-        on the ground by ON_GROUND_CLEAR_M (a relay on duty may hover over the home of
+        (8, 16, 24 m out) clear of every drone in the air by the way clearance and of
+        those on the ground by the parked one (relay/rules.py; a relay on duty may hover over the home of
         one sent out before it)."""
         frame = self._frame
         assert frame is not None, "landing_spot: mode chain only"
@@ -323,7 +342,7 @@ class Relays:
         others = [v for k, v in self._everyone(frame).items() if k != relay.id]
 
         def clear(pt: chains.Point) -> bool:
-            return all(chains.dist(pt, (x, y)) >= (LAND_CLEAR_M if z > AIRBORNE_M else ON_GROUND_CLEAR_M)
+            return all(chains.dist(pt, (x, y)) >= (self._rules.way_m if z > AIRBORNE_M else self._rules.parked_m)
                        for x, y, z in others)
 
         ring = [(home[0] + r * math.cos(math.radians(b)), home[1] + r * math.sin(math.radians(b)))
@@ -331,8 +350,8 @@ class Relays:
         return frame.world(next((pt for pt in [home, *ring] if clear(pt)), home))
 
     def clear_below(self, relay: Any) -> bool:
-        """No drone flying below `relay` is within LAND_CLEAR_M across of its column, nor
-        comes within it on its way while the relay comes down (relay/ways.py
+        """No drone flying below `relay` is within the way clearance across of its column,
+        nor comes within it on its way while the relay comes down (relay/ways.py
         `descent_clear`): it may come down."""
         frame = self._frame
         assert frame is not None, "clear_below: mode chain only"
@@ -340,7 +359,7 @@ class Relays:
         if relay.id not in heard:
             return True
         below = [(self._local(frame, t), (t.velocity.north, t.velocity.east)) for k, t in heard.items() if k != relay.id]
-        return ways.descent_clear(self._local(frame, heard[relay.id]), below, LAND_CLEAR_M)
+        return ways.descent_clear(self._local(frame, heard[relay.id]), below, self._rules.way_m)
 
     def _heard(self) -> dict[str, Any]:
         """Every drone the ground knows with a position: its last telemetry."""

@@ -13,7 +13,6 @@ from dronefleet.relay.chain import (
     DWELL_S,
     LAUNCH_TIMEOUT_S,
     MARGIN,
-    PARKED_CLEAR_M,
     PROBE,
     PROVEN_LOSS,
     STRETCH_AFTER_S,
@@ -25,6 +24,7 @@ from dronefleet.relay.chain import (
     flat,
 )
 from dronefleet.relay.hop import CONVERGED, FLOOR_M, GROWTH, Reach, bottleneck
+from dronefleet.relay.rules import Separation
 from dronefleet.relay.ways import segment_distance
 from dronefleet.sim.radio import HOLDING_LOSS
 
@@ -357,7 +357,7 @@ def test_no_relay_climbs_under_the_way_of_a_drone_in_the_air_whatever_level_it_f
         out_m: float, bearing: float, home_m: float, home_bearing: float, spares: list[tuple[float, float]]) -> None:
     """A worker flying down to its home (its goto's level is 0 m) is in the air all the
     way there: while another worker's chain sends a relay, that relay takes off only from
-    a spare PARKED_CLEAR_M across from every way flown (judged by its level alone, the
+    a spare the parked clearance across from every way flown (judged by its level alone, the
     way down was left out, and a relay climbed 3.7 m from a worker landing beside it)."""
     home = at(home_m, home_bearing)
     down = Worker("d1", at(out_m, bearing), 0.0, home, airborne=True)
@@ -369,4 +369,4 @@ def test_no_relay_climbs_under_the_way_of_a_drone_in_the_air_whatever_level_it_f
     for _, _, _, site in out.dispatch:
         assert site is not None
         for a, b in c.legs:
-            assert segment_distance((*a, 0.0), (*b, 0.0), (*site, 0.0), (*site, 0.0)) >= PARKED_CLEAR_M, (site, a, b)
+            assert segment_distance((*a, 0.0), (*b, 0.0), (*site, 0.0), (*site, 0.0)) >= Separation().parked_m, (site, a, b)

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from dronefleet.relay.rules import Separation
 from dronefleet.relay.ways import (
     AIRBORNE_M,
-    CLEAR_M,
     LAND_RATE_MPS,
     YIELD_LIMIT_S,
     Point3,
@@ -19,6 +19,8 @@ from dronefleet.relay.ways import (
     descent_clear,
     segment_distance,
 )
+
+CLEAR_M = Separation().way_m  # the way clearance at the default 5 m
 
 
 @pytest.mark.parametrize(("a", "b", "c", "d", "expected"), [
