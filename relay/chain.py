@@ -139,10 +139,6 @@ class Chains:
         self.stuck: dict[str, str] = {}
         self.stretched: dict[str, float] = {}  # worker → the hop its chain stretched to (`_stretch`)
         self.short_since: dict[str, float] = {}  # worker → since when its chain lacks a relay and none is free
-        # worker → since when its chain has lacked a relay (free or not): the longest lacking
-        # is served first (the first by name took every relay that came free, and the other
-        # was held at its chain's edge until the time limit)
-        self.lacking_since: dict[str, float] = {}
         self.covered: dict[str, list[tuple[Point, float]]] = {}  # worker → proven nodes (spot, alt)
         self.parked: list[Point] = []  # where a relay may take off through the served drones' level
         self.flying: dict[str, Point] = {}  # the served drones in the air, where they are (last plan)
@@ -333,7 +329,7 @@ class Chains:
             self.covered[w.id] = self._nodes(now, self.chains.setdefault(w.id, []), seen, out)
         self.legs = [(w.at, w.home or self.allowed(w.id, w.at, w.alt, w.goal or w.at)) for w in workers if w.aloft]
         free = spare
-        for w in sorted(workers, key=lambda w: self.lacking_since.get(w.id, math.inf)):
+        for w in workers:
             free = self._extend(now, w, seen, free, out)
         self._release(workers, seen, out)
         return out
@@ -500,19 +496,16 @@ class Chains:
         planned = [(ORIGIN, 0.0)] + [(s.spot, self.duty_alt) for s in chain]
         if covers(planned, goal, w.alt, hop):
             self.short_since.pop(w.id, None)
-            self.lacking_since.pop(w.id, None)
             return free  # the chain (once its relays are there) reaches the goal
         if chain and chain[-1].relay is None:
             return free  # one asked for, not assigned yet
         last, last_z = planned[-1]
         spot = self._off_parked(last, toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z))), seen)
         key = f"{w.id}#{len(chain)}"
-        self.lacking_since.setdefault(w.id, now)
         if self.idle:
             relay = self.idle.pop(0)
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
-            self.lacking_since.pop(w.id, None)
             return free
         if free > 0:
             self.short_since.pop(w.id, None)
@@ -530,7 +523,6 @@ class Chains:
             return free
         chain.append(Slot(spot, None, now))
         out.dispatch.append((key, spot, 0.0, self.site))
-        self.lacking_since.pop(w.id, None)
         return free - 1
 
     def _stretch(self, now: float, w: Worker, goal: Point, out: ChainPlan) -> bool:

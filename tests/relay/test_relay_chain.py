@@ -370,17 +370,3 @@ def test_no_relay_climbs_under_the_way_of_a_drone_in_the_air_whatever_level_it_f
         assert site is not None
         for a, b in c.legs:
             assert segment_distance((*a, 0.0), (*b, 0.0), (*site, 0.0), (*site, 0.0)) >= Separation().parked_m, (site, a, b)
-
-
-def test_the_worker_whose_chain_lacked_a_relay_longest_gets_the_next_free_one() -> None:
-    """Two workers short of a relay and one comes free: it goes to the one that has
-    waited longer, whatever their order (the first by name took every relay that came
-    free, and the other was held at its chain's edge until its bound failed the mission)."""
-    c = Chains(DUTY)
-    c.reach = Reach(lo=50.0, hi=51.0)
-    near, far_one, far_two = at(20.0, 0.0), at(300.0, 0.0), at(300.0, 180.0)
-    c.plan(0.0, [Worker("d1", at(10.0, 0.0), 15.0, near), Worker("d2", at(10.0, 180.0), 15.0, far_two)], {}, spare=0)
-    c.plan(10.0, [Worker("d1", at(10.0, 0.0), 15.0, far_one), Worker("d2", at(10.0, 180.0), 15.0, far_two)], {}, spare=0)
-    out = c.plan(20.0, [Worker("d1", at(10.0, 0.0), 15.0, far_one), Worker("d2", at(10.0, 180.0), 15.0, far_two)], {},
-                 spare=1)
-    assert [key for key, _, _, _ in out.dispatch] == ["d2#0"], out.dispatch
