@@ -32,7 +32,7 @@ def main() -> int:
     parser.add_argument("--worlds", type=int, default=200)
     parser.add_argument("--first", type=int, default=0, help="seed of the first world")
     parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--modes", default="measured,distance")
+    parser.add_argument("--modes", default="chain,distance", help="relay modes, comma-separated (chain: the plugin's default)")
     parser.add_argument("--json", type=Path, help="write every outcome here")
     parser.add_argument("--spares", choices=("all", "suffice", "short"), default="all",
                         help="only the worlds whose spares suffice for a chain per worker (what issue 53's 95 %% "
