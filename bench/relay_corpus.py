@@ -1,9 +1,9 @@
 """The relay plugin on a corpus of random worlds (issue 32, `sim/corpus.py`): for the
-measured mode and the thesis's distance baseline side by side, finished %, the workers'
+chain mode (the plugin's default) and the thesis's distance baseline side by side, finished %, the workers'
 longest gap at the ground, relays used against the lower bound, the least 3-D
 separation between flying drones and the battery spent.
 
-    .venv/bin/python bench/relay_corpus.py --worlds 200 [--first 0] [--jobs 2] [--modes measured,distance] [--spares all|suffice|short]
+    .venv/bin/python bench/relay_corpus.py --worlds 200 [--first 0] [--jobs 2] [--modes chain,distance] [--spares all|suffice|short]
 
 Each world runs in fast time in a worker process; a line per world goes to stderr as
 it ends (progress), the table to stdout. If any run crashed, exits 1 with no table.
