@@ -323,6 +323,12 @@ def first_home(sim: SimField) -> tuple[float, float]:
     return spec.lat, spec.lon
 
 
+def beyond_home(sim: SimField, metres: float) -> Callable[[Spot3], bool]:
+    """Whether a spot is farther than `metres` across from the first drone's home."""
+    home = first_home(sim)
+    return lambda spot: distance_m(*home, spot.lat, spot.lon) > metres
+
+
 def radio_shadow(sim: SimField, begins: Callable[[Spot3], bool], lasts_s: float, after_s: float = 0.0) -> dict[str, float]:
     """drone01's messages are lost for `lasts_s`, from `after_s` after `begins(where it
     is)` first holds; the returned dict gets "from", the shadow's start."""
@@ -358,8 +364,7 @@ async def test_a_status_lost_in_a_short_gap_is_repeated_when_probes_are_answered
     shadows: list[dict[str, float]] = []
 
     def sixteen_metres_out(sim: SimField) -> None:
-        home = first_home(sim)
-        shadows.append(radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 16, 3.0))
+        shadows.append(radio_shadow(sim, beyond_home(sim, 16), 3.0))
 
     caplog.set_level(logging.INFO, logger="dronefleet.agent.runtime")
     _, (record, log), _ = await fly(SEVENTEEN_M_OUT, fire_world(RadioModel()), max_s=120, prepare=sixteen_metres_out)
@@ -440,8 +445,7 @@ async def test_a_goto_its_lost_link_failsafe_interrupted_is_sent_again_when_the_
     turning home refuses a goto ("returning"): the mission stops that return first
     (before, it ended cmd_exec "goto drone01 refused: returning": corpus worlds 63, 95, 123)."""
     def twenty_metres_out(sim: SimField) -> None:
-        home = first_home(sim)
-        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 20, 7.0)
+        radio_shadow(sim, beyond_home(sim, 20), 7.0)
 
     sim, (record, log), _ = await fly("""
 d = assign("drone01")
@@ -518,8 +522,7 @@ async def test_a_command_sent_into_a_radio_shadow_waits_for_the_link_instead_of_
     shadow begins about a second after drone01 finishes its first hop, as the script
     sends the second: the mission waits for the drone and the second hop flies."""
     def after_the_first_hop(sim: SimField) -> None:
-        home = first_home(sim)
-        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 14.5, 10.0, after_s=1.0)
+        radio_shadow(sim, beyond_home(sim, 14.5), 10.0, after_s=1.0)
 
     _, (record, log), _ = await fly("""
 d = assign("drone01")
@@ -594,8 +597,7 @@ async def test_a_drone_its_failsafe_brought_home_takes_off_again_for_the_next_co
     failsafe, then sends the goto (before, the goto was refused "disarmed" and the
     mission failed cmd_exec)."""
     def once_it_is_out(sim: SimField) -> None:
-        home = first_home(sim)
-        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > 19.5, 25.0, after_s=2.0)
+        radio_shadow(sim, beyond_home(sim, 19.5), 25.0, after_s=2.0)
 
     _, (record, log), _ = await fly("""
 d = assign("drone01")

@@ -23,9 +23,8 @@ from hypothesis import strategies as st
 
 from dronefleet.agent.link import LostLinkAction, LostLinkPolicy
 from dronefleet.compose import SimField
-from dronefleet.schemas.geo import distance_m
 from dronefleet.sim.radio import RadioModel
-from tests.mission.test_bundles import fire_world, first_home, fly, radio_shadow
+from tests.mission.test_bundles import beyond_home, fire_world, fly, radio_shadow
 
 EXAMPLES = int(os.environ.get("FLEET_FAILSAFE_EXAMPLES", "8"))
 GRACE_S = 30.0  # mission.link_grace_s, the default: a shadow ends within it
@@ -45,8 +44,7 @@ def test_a_drone_its_failsafe_took_over_reaches_its_next_waypoint_at_its_height(
         height_m: int, out_m: int, dark_from_m: float, dark_s: float, action: LostLinkAction,
         hold_first_s: float) -> None:
     def shadow(sim: SimField) -> None:
-        home = first_home(sim)
-        radio_shadow(sim, lambda spot: distance_m(*home, spot.lat, spot.lon) > dark_from_m, dark_s)
+        radio_shadow(sim, beyond_home(sim, dark_from_m), dark_s)
 
     script = f"""
 d = assign("drone01")
