@@ -49,7 +49,7 @@ from dronefleet.ground.eventlog import EventLog
 from dronefleet.ground.station import GroundStation
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
 from dronefleet.mission.hosting.simulate import add_field_reading, sensor_values, telemetry_sample, write_result
-from dronefleet.mission.lifecycle.fleet_port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import GroundPort
 from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.mission.script.plugins import PluginLibrary, plugin_summary
@@ -210,7 +210,7 @@ class SimField:
         plugins: PluginLibrary | None = None,
         radio: RadioModel | None = None,
         agent_config: AgentConfig | None = None,
-        fleet_port: Callable[[GroundStation], FleetPort] | None = None,
+        fleet_port: Callable[[GroundStation], GroundPort] | None = None,
         agent_bus: Callable[[str, Bus], Bus] | None = None,
         predicting: bool = False,
     ) -> None:

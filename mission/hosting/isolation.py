@@ -42,7 +42,7 @@ from dronefleet.bus.clock import Clock
 from dronefleet.mission.hosting import worker
 from dronefleet.mission.hosting.journal import Entry
 from dronefleet.mission.lifecycle.delivery import leave
-from dronefleet.mission.lifecycle.fleet_port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import GroundPort
 from dronefleet.mission.lifecycle.mission import STOP_GRACE_S
 from dronefleet.mission.lifecycle.record import CAUSES, Activity, MissionLogLine, MissionRecord, mark_ended
 from dronefleet.mission.script.plugins import PluginLibrary
@@ -82,7 +82,7 @@ class IsolatedMission:
         self,
         record: MissionRecord,
         source: str,
-        station: FleetPort,
+        station: GroundPort,
         clock: Clock,
         *,
         on_change: Callable[[IsolatedMission], None] = lambda m: None,

@@ -28,10 +28,13 @@ from __future__ import annotations
 import asyncio
 import time
 from collections.abc import Callable, Iterable
+from typing import Generic, TypeVar
 
 import msgspec
 
 from dronefleet.bus.clock import VirtualClock
+
+M = TypeVar("M")
 
 
 class Entry(msgspec.Struct, array_like=True, frozen=True):
@@ -60,13 +63,16 @@ async def quiet() -> None:
             return
 
 
-class Driver:
-    """Moves a journalled mission's clock and hands it its frames, one at a time."""
+class Driver(Generic[M]):
+    """Moves a journalled mission's clock and hands it its frames, one at a time, as
+    messages: live frames come decoded once by whoever read them, with their bytes
+    for the journal; a replay's are decoded with `decode`."""
 
-    def __init__(self, clock: VirtualClock, deliver: Callable[[bytes], None],
+    def __init__(self, clock: VirtualClock, deliver: Callable[[M], None], decode: Callable[[bytes], M],
                  record: Callable[[Entry], None] = lambda entry: None) -> None:
         self.clock = clock
         self._deliver = deliver
+        self._decode = decode
         self._record = record
 
     async def _wake_next(self) -> None:
@@ -74,24 +80,25 @@ class Driver:
         self.clock.wake_next()
         await quiet()
 
-    async def _take(self, entry: Entry) -> None:
+    async def _take(self, entry: Entry, message: M) -> None:
         """The clock to the entry's time, one deadline at a time, then its frame. Each
         step runs the loop until it is quiet, however many rounds that takes: a bounded
         settle would end early or late as other callbacks (the socket's) come and go."""
         while (deadline := self.clock.next_deadline()) is not None and deadline <= entry.t_s:
             await self._wake_next()
         self.clock.move_to(entry.t_s)
-        self._deliver(entry.frame)
+        self._deliver(message)
         await quiet()
 
     async def replay(self, entries: Iterable[Entry]) -> None:
         """Take the journal's frames again, at their times."""
         await quiet()
         for entry in entries:
-            await self._take(entry)
+            await self._take(entry, self._decode(entry.frame))
 
-    async def live(self, frames: asyncio.Queue[bytes | None]) -> None:
-        """Take the frames as they come (None: the ground is gone) and wake sleepers on
+    async def live(self, frames: asyncio.Queue[tuple[bytes, M] | None]) -> None:
+        """Take the frames as they come, each as its bytes and its message (None: the
+        ground is gone), and wake sleepers on
         the wall clock; each frame is journalled before the mission sees it. Mission
         time is the wall time since the mission started (`clock.time_ms()` at 0): after
         a takeover it goes on from the time the mission has really been running."""
@@ -105,11 +112,12 @@ class Driver:
                 await self._wake_next()
                 continue
             try:
-                body = await asyncio.wait_for(frames.get(), wait_s)
+                taken = await asyncio.wait_for(frames.get(), wait_s)
             except TimeoutError:
                 continue
-            if body is None:
+            if taken is None:
                 return
+            body, message = taken
             entry = Entry(max(clock.monotonic(), time.monotonic() - origin), body)
             self._record(entry)
-            await self._take(entry)
+            await self._take(entry, message)

@@ -27,9 +27,9 @@ from dronefleet.bus.stream_copy import Stream, unbroken_from
 from dronefleet.mission.hosting import worker
 from dronefleet.mission.hosting.isolation import IsolatedMission, Resume
 from dronefleet.mission.hosting.journal import Entry
-from dronefleet.mission.lifecycle.fleet_port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import GroundPort
 from dronefleet.mission.lifecycle.mission import Mission
-from dronefleet.mission.lifecycle.record import Activity, CommandResult, MissionLogLine, MissionRecord
+from dronefleet.mission.lifecycle.record import Activity, CommandResult, MissionLogLine, MissionRecord, mark_ended
 from dronefleet.mission.script.checks import first_problem
 from dronefleet.mission.script.plugins import PluginLibrary
 from dronefleet.mission.script.sandbox import compile_mission
@@ -238,7 +238,7 @@ class Lanes(msgspec.Struct, kw_only=True):
 class MissionManager:
     def __init__(
         self,
-        station: FleetPort,
+        station: GroundPort,
         store: MissionStore,
         clock: Clock,
         *,
@@ -272,16 +272,16 @@ class MissionManager:
     def _recover(self) -> None:
         for record in self.store.all():
             if record.status in ("pending", "running"):
-                self._fail_unrun(record, "ground_restart", "the ground station stopped while the mission ran",
-                                 "Mission failed: ground_restart")
+                self._fail_unrun(record, "ground_restart")
 
-    def _fail_unrun(self, record: MissionRecord, cause: str, message: str, line: str) -> None:
-        """End a mission this ground will not run (its record saved, `line` logged)."""
-        record.status, record.cause, record.message = "failed", cause, message
+    def _fail_unrun(self, record: MissionRecord, cause: str, message: str | None = None) -> None:
+        """End a mission this ground will not run, as any mission ends (`mark_ended`):
+        its record saved and the line that says so logged."""
+        level, line = mark_ended(record, cause, message)
         record.end = record.end or self.clock.time_ms()
         record.active_drones = []
         self.store.save(record)
-        self.store.append(record.mission_id, MissionLogLine(timestamp=self.clock.time_ms(), level="error", message=line))
+        self.store.append(record.mission_id, MissionLogLine(timestamp=self.clock.time_ms(), level=level, message=line))
 
     # ---- operations ----------------------------------------------------------------
 
@@ -348,7 +348,7 @@ class MissionManager:
                 self.store.append(mission_id, line)
             if start is None or not self.isolate:
                 why = f"ground {origin} was lost and its journal of mission {copied.mission_id} did not reach this ground"
-                self._fail_unrun(record, "ground_lost", why, f"Mission failed: ground_lost ({why})")
+                self._fail_unrun(record, "ground_lost", why)
                 self._broadcast(record)
                 taken.append(record)
                 continue

@@ -47,7 +47,6 @@ from dronefleet.schemas.commands import CommandReply
 from dronefleet.schemas.config_loading import MissionSettings
 from dronefleet.schemas.errors import CommandRejected, FleetError, InvalidMessage
 from dronefleet.schemas.fleet import DroneInfo, WatchEvent
-from dronefleet.schemas.status import CommandStatus
 from dronefleet.schemas.telemetry import SensorReading, Telemetry
 
 log = logging.getLogger(__name__)
@@ -268,9 +267,6 @@ class Mirror:
     def field_readings(self) -> list[SensorReading]:
         return [self._field[k] for k in sorted(self._field)]
 
-    def command_statuses(self, drone_id: str) -> list[CommandStatus]:
-        return []  # the statuses came as events; the ground keeps the history
-
     def sensor_readings(self, drone_id: str) -> list[SensorReading]:
         present = set(self._infos[drone_id].sensors)  # the ground drops a sensor that timed out
         readings = self._readings.get(drone_id, {})
@@ -389,9 +385,6 @@ class WorkerPort:
     def new_command_id(self) -> str:
         return str(uuid.uuid5(self._uid, f"command {next(self._command_ids)}"))
 
-    def broadcast(self, event: WatchEvent) -> None:
-        raise NotImplementedError("a mission's process has no watchers; its manager broadcasts on the ground")
-
 
 # ---- the process ---------------------------------------------------------------------
 
@@ -465,17 +458,16 @@ async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, star
     mission.uid = start.uid
     mission.on_activity = lambda m, activity: port.emit(Active(activity))
 
-    def deliver(body: bytes) -> None:
-        message = _decode_to_worker(body)
+    def deliver(message: ToWorker) -> None:
         if isinstance(message, Event):
             port.on_event(message)
         elif isinstance(message, Reply):
             port.on_reply(message)
-        else:
+        elif port.replaying:  # live, `_listen` applied it as it came
             mission.end(message.cause, message.message)
 
-    driver = Driver(clock, deliver, record=lambda entry: send(Journalled(entry)))
-    frames: asyncio.Queue[bytes | None] = asyncio.Queue()
+    driver = Driver(clock, deliver, _decode_to_worker, record=lambda entry: send(Journalled(entry)))
+    frames: asyncio.Queue[tuple[bytes, ToWorker] | None] = asyncio.Queue()
     listen = asyncio.ensure_future(_listen(reader, frames, mission, writer))
     run = asyncio.ensure_future(mission.run())
     if start.journal is not None:
@@ -512,14 +504,15 @@ async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, star
 _decode_to_worker = msgspec.msgpack.Decoder(ToWorker).decode
 
 
-async def _listen(reader: asyncio.StreamReader, frames: asyncio.Queue[bytes | None], mission: Mission,
-                  writer: asyncio.StreamWriter) -> None:
-    """The ground's frames, in order, for the driver (None at the end). An End is also
-    taken at once: a script computing without a verb stops at its next slice."""
+async def _listen(reader: asyncio.StreamReader, frames: asyncio.Queue[tuple[bytes, ToWorker] | None],
+                  mission: Mission, writer: asyncio.StreamWriter) -> None:
+    """The ground's frames, decoded, in order, for the driver (None at the end). An End
+    is applied here, at once: a script computing without a verb stops at its next slice
+    (the driver still journals it, for a replay to end there too)."""
     while (body := await read_frame(reader)) is not None:
         message = _decode_to_worker(body)
         if isinstance(message, End):
             mission.end(message.cause, message.message)
             writer.write(frame(Ack()))
-        frames.put_nowait(body)
+        frames.put_nowait((body, message))
     frames.put_nowait(None)

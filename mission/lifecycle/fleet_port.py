@@ -2,8 +2,8 @@
 
 Missions read what the ground knows (`registry`), hear what happens (`listen`), claim
 and free drones, send commands and write ground log lines — nothing else. The ground's
-`GroundStation` implements this protocol; the composition root (`dronefleet.compose`) hands
-it to the mission manager. Mission code therefore never imports `ground/`, and a test
+`GroundStation` implements this protocol, and `GroundPort`, the mission manager's wider
+one; the composition root (`dronefleet.compose`) hands it to the mission manager. Mission code therefore never imports `ground/`, and a test
 or another runtime can stand in for the ground with anything of this shape.
 """
 
@@ -28,9 +28,6 @@ class FleetView(Protocol):
     def info(self, drone_id: str) -> DroneInfo: ...
     def telemetry(self, drone_id: str) -> Telemetry: ...
     def sensor_readings(self, drone_id: str) -> list[SensorReading]: ...
-    def command_statuses(self, drone_id: str) -> list[CommandStatus]:
-        """Its latest command statuses, oldest first (a mission's process: none)."""
-        ...
     def field_readings(self) -> list[SensorReading]:
         """The latest reading of every field sensor (not on a drone) and type, with its
         `sensor_id` and `position` (SPEC §2)."""
@@ -80,4 +77,24 @@ class FleetPort(Protocol):
     def log_ground(self, level: str, message: str) -> None: ...
     def new_command_id(self) -> str:
         """A fresh command id (seeded in fast time, so a run replays to the byte)."""
+        ...
+
+
+class GroundView(FleetView, Protocol):
+    """The ground's own view: also the command statuses it kept. A mission reads a
+    command's outcome from its reply and the events it hears, never from this history."""
+
+    def command_statuses(self, drone_id: str) -> list[CommandStatus]:
+        """Its latest command statuses, oldest first."""
+        ...
+
+
+class GroundPort(FleetPort, Protocol):
+    """What the mission manager, on the ground, uses besides what its missions do: the
+    statuses history (to catch a resumed mission up) and the watchers' fan-out (every
+    mission record, log line and activity). A mission's own process has neither."""
+
+    @property
+    def registry(self) -> GroundView: ...
+
     def broadcast(self, event: WatchEvent) -> None: ...

@@ -24,7 +24,7 @@ from dronefleet.bus.faulty import FaultyBus
 from dronefleet.bus.port import Bus, Unreachable
 from dronefleet.compose import SimField
 from dronefleet.ground.station import GroundStation
-from dronefleet.mission.lifecycle.fleet_port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import GroundPort
 from dronefleet.mission.lifecycle.record import MissionRecord
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import distance_m
@@ -50,7 +50,7 @@ async def fly(
     *,
     during: Callable[[SimField, str], Awaitable[None]] | None = None,
     max_s: float = 600,
-    fleet_port: Callable[[GroundStation], FleetPort] | None = None,
+    fleet_port: Callable[[GroundStation], GroundPort] | None = None,
     agent_bus: Callable[[str, Bus], Bus] | None = None,
 ) -> tuple[MissionRecord, SimField, list[str]]:
     """Run `script` to its end; the record, the (closed) field and the mission's log."""
@@ -239,8 +239,8 @@ class FaultInjection:
         return getattr(self._station, name)
 
 
-def inject(**overrides: Callable[..., Awaitable[Any]]) -> Callable[[GroundStation], FleetPort]:
-    return lambda station: cast(FleetPort, FaultInjection(station, **overrides))
+def inject(**overrides: Callable[..., Awaitable[Any]]) -> Callable[[GroundStation], GroundPort]:
+    return lambda station: cast(GroundPort, FaultInjection(station, **overrides))
 
 
 async def test_unexpected() -> None:
@@ -425,7 +425,7 @@ async def test_an_unanswered_command_is_sent_again_once_the_drone_is_heard_not_a
             raise Unreachable(f"no queryable answers drone/{drone_id}/cmd (test)")
         return await original(drone_id, payload, *args)
 
-    def port(station: GroundStation) -> FleetPort:
+    def port(station: GroundStation) -> GroundPort:
         clock.append(station.clock)
         return inject(command=goto_unanswered)(station)
 

@@ -10,7 +10,7 @@ from typing import cast
 
 from dronefleet.bus.clock import VirtualClock
 from dronefleet.mission.hosting.manager import MissionManager, MissionStore
-from dronefleet.mission.lifecycle.fleet_port import FleetPort
+from dronefleet.mission.lifecycle.fleet_port import GroundPort
 from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
 from dronefleet.schemas.fleet import WatchEvent
 
@@ -49,7 +49,7 @@ def test_a_running_mission_whose_journal_never_came_ends_ground_lost_with_its_lo
         alpha.create(finished, "pass")
         upto = copy_all(alpha, bravo)
         ground = Ground()
-        manager = MissionManager(cast(FleetPort, ground), bravo, clock, isolate=True)
+        manager = MissionManager(cast(GroundPort, ground), bravo, clock, isolate=True)
 
         (taken,) = manager.take_over("alpha", upto)
 
