@@ -19,11 +19,11 @@ from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.record import CommandResult, MissionOver
 from dronefleet.mission.lifecycle.send_again import TakenBack, deliver, steps_for
-from dronefleet.schemas.bundles import BundleRecord, new_bundle_id
+from dronefleet.schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
 from dronefleet.schemas.geo import distance_m
-from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, CommandStatus, ended_by_failsafe
+from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, TERMINAL_STATES, CommandStatus, ended_by_failsafe
 from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
@@ -48,6 +48,10 @@ class PendingBundle:
     done: asyncio.Future[BundleRecord]
 
 
+# A bundle's record is asked again this often, a second apart, before the mission makes
+# do with the status it heard: right after a drone came back in range its statuses
+# arrived while queries still found no route for 6 s.
+RECORD_TRIES, RECORD_RETRY_S = 10, 1.0
 OVERDUE_S = 5.0  # a bundle not heard ending this long after its timeout is read from the agent …
 OVERDUE_RETRY_S = 30.0  # … and again this often
 # Commands with an absolute goal, sent again when the drone's lost-link failsafe ended
@@ -83,7 +87,6 @@ class MissionSide(Protocol):
     def fail(self, cause: str, message: str) -> MissionOver: ...
     def setback(self, cause: str, message: str) -> MissionOver: ...
     def check_assigned(self, drone_id: str) -> None: ...
-    def catch_up(self, pending: PendingBundle, *, superseded: str | None = None) -> None: ...
     async def next_telemetry(self, drone_id: str) -> None: ...
 
 
@@ -97,6 +100,7 @@ class CommandDelivery:
         self.bundles: dict[str, PendingBundle] = {}  # bundle id → the push waiting for it
         self._pushed = 0
         self.link_back_at: dict[str, asyncio.Future[None]] = {}  # resolved when a lost drone is back
+        self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (catch_up)
         # A plugin that keeps drones connected may leash their gotos (relay mode "chain"):
         # (drone, lat, lon, alt) → None (go) or (lat, lon, why it cannot go on or None, what holds it).
         self.leash: Callable[[str, float, float, float | None], Leash | None] | None = None
@@ -312,6 +316,88 @@ class CommandDelivery:
             if status.state in ("finish", "success"):  # a return or landing ends on the ground
                 self.failsafe_down.add(status.drone_id)
 
+    def heard_command_status(self, status: CommandStatus, *, assigned: bool) -> None:
+        """A command's status from any drone (`assigned`: one of this mission's): the
+        end of a command a verb waits on, and what its start ends."""
+        if assigned:
+            self.heard_status(status)
+        sent = self.sent.get(status.command_id)
+        if sent is not None and status.state in TERMINAL_STATES and not sent.outcome.done():
+            sent.outcome.set_result(status)
+        if status.state == "start":
+            self.superseded_unheard(status)
+
+    def heard_bundle_status(self, status: BundleStatus) -> None:
+        pending = self.bundles.get(status.bundle_id)
+        if pending is not None and status.ends_bundle:
+            self.catch_up(pending, status)
+
+    def bundles_of(self, drone_id: str) -> list[PendingBundle]:
+        """The bundles this mission waits on that run on the drone."""
+        return [b for b in self.bundles.values() if b.drone_id == drone_id]
+
+    def out_of_reach_from_now(self, drone_id: str) -> None:
+        """The ground lost the drone: what is sent to it waits until it is back."""
+        self.link_back_at.setdefault(drone_id, asyncio.get_running_loop().create_future())
+
+    def back_in_reach(self, drone_id: str, *, caught_up: bool) -> None:
+        """The ground has the drone again; with `caught_up`, the end of each bundle it ran
+        while out of reach is read from its agent (statuses sent then never arrived)."""
+        back = self.link_back_at.pop(drone_id, None)
+        if back is not None and not back.done():
+            back.set_result(None)
+        if caught_up:
+            for pending in self.bundles_of(drone_id):
+                self.catch_up(pending)
+
+    def catch_up(self, pending: PendingBundle, status: BundleStatus | None = None, *,
+                 superseded: str | None = None) -> None:
+        """Ask the agent for the bundle's record (its whole history); resolve the push
+        if the bundle has ended. Statuses sent while the link was down never arrived.
+        An end known without its record (`status` heard, or `superseded`: the drone
+        accepted what ends it, and why) resolves the push once the record stays unread."""
+        async def ask() -> None:
+            for attempt in range(1, RECORD_TRIES + 1):
+                try:
+                    record = await self.mission.station.bundle_record(pending.drone_id, pending.bundle_id)
+                    break
+                except (CommandRejected, Unreachable) as exc:
+                    if pending.done.done():
+                        return
+                    if attempt < RECORD_TRIES:  # a route just back may carry statuses before queries
+                        await self.clock.sleep(RECORD_RETRY_S)
+                        continue
+                    if superseded is not None:
+                        self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} ({exc}); "
+                                         f"it was cancelled: {superseded}")
+                        record = BundleRecord(bundle_id=pending.bundle_id, state="cancelled", reason=superseded)
+                        break
+                    if status is None:
+                        self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
+                        return
+                    record = BundleRecord(  # the end was heard; only its history is missing
+                        bundle_id=status.bundle_id, state=BUNDLE_ENDS[status.state], step=status.step,
+                        steps=status.steps or 0, ended_by=status.reason if status.state == "guard" else None,
+                        reason=status.reason if status.state in ("failure", "cancel") else None,
+                    )
+            if record.finished and not pending.done.done():
+                pending.done.set_result(record)
+
+        task = asyncio.get_running_loop().create_task(ask(), name=f"mission {self.mission.id} bundle {pending.bundle_id}")
+        self._asks.add(task)
+        task.add_done_callback(self._asks.discard)
+
+    def stop(self) -> None:
+        """The mission ends: nothing it sent is waited on any more."""
+        for sent in self.sent.values():
+            if not sent.outcome.done():
+                sent.outcome.cancel()
+        for pending in self.bundles.values():
+            if not pending.done.done():
+                pending.done.cancel()
+        for ask in list(self._asks):
+            ask.cancel()
+
     def brought_home(self, drone_id: str) -> bool:
         return drone_id in self.failsafe_homeward
 
@@ -373,7 +459,7 @@ class CommandDelivery:
                 reply = await self._deliver(drone_id, "push", lambda: self.mission.station.push(drone_id, payload, self.mission.id))
                 self._bundles_ended_by(drone_id, "push", bundle_id)
                 if reply.reason:  # a push sent again that the agent had taken: its end may have gone by
-                    self.mission.catch_up(pending)
+                    self.catch_up(pending)
                 overdue = asyncio.ensure_future(self._overdue(pending))
                 try:
                     return await self._outcome(pending.done, drone_id)
@@ -389,7 +475,7 @@ class CommandDelivery:
         time limit, nothing else sent to it."""
         await self.clock.sleep(max(0.0, pending.deadline - self.clock.monotonic()) + OVERDUE_S)
         while not pending.done.done():
-            self.mission.catch_up(pending)
+            self.catch_up(pending)
             await self.clock.sleep(OVERDUE_RETRY_S)
 
     def _bundles_ended_by(self, drone_id: str, name: str, newer: str | None = None) -> None:
@@ -403,7 +489,7 @@ class CommandDelivery:
         why = f"superseded by bundle {newer}" if newer is not None else f"{name} from the ground"
         for pending in list(self.bundles.values()):
             if pending.drone_id == drone_id and pending.bundle_id != newer and not pending.done.done():
-                self.mission.catch_up(pending, superseded=why)
+                self.catch_up(pending, superseded=why)
 
     @contextlib.contextmanager
     def _sending(self, name: str, drone_id: str) -> Iterator[None]:

@@ -18,9 +18,8 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 from dronefleet.bus.clock import Clock
-from dronefleet.bus.port import Unreachable
 from dronefleet.mission.lifecycle import assignment as a
-from dronefleet.mission.lifecycle.delivery import CommandDelivery, PendingBundle, leave
+from dronefleet.mission.lifecycle.delivery import CommandDelivery, leave
 from dronefleet.mission.lifecycle.fleet_port import FleetPort, MissionConfig
 from dronefleet.mission.lifecycle.greenlets import Scheduler, Subroutine, current_subroutine
 from dronefleet.mission.lifecycle.record import (
@@ -34,20 +33,16 @@ from dronefleet.mission.lifecycle.record import (
     script_frame,
 )
 from dronefleet.schemas.about import DEFAULT_ROLES, may_relay
-from dronefleet.schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus
+from dronefleet.schemas.bundles import BundleStatus
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.fleet import CRITICAL_BATTERY, DroneInfo, WatchEvent
-from dronefleet.schemas.status import GEOFENCE_OUTSIDE, TERMINAL_STATES, CommandStatus, SystemStatus
+from dronefleet.schemas.status import GEOFENCE_OUTSIDE, CommandStatus, SystemStatus
 from dronefleet.schemas.telemetry import Telemetry
 
 log = logging.getLogger(__name__)
 FIELD_PULSE = "sensor/"  # _pulses key prefix of a field sensor's readings (drone ids never contain '/')
 
 CLAIM_TRIES = 3  # picks of free drones when another mission claims one first
-# A bundle's record is asked again this often, a second apart, before the mission makes
-# do with the status it heard (run 46 of issue 31: right after a drone came back in
-# range its statuses arrived while queries still found no route for 6 s).
-RECORD_TRIES, RECORD_RETRY_S = 10, 1.0
 STOP_GRACE_S = 1.0
 FREE_STATES = frozenset({"ready", "hold"})
 
@@ -84,7 +79,6 @@ class Mission:
         self._critical: set[str] = set()
         self._link_waits: dict[str, asyncio.Task[None]] = {}  # drone id → its link-grace timer
         self.given_up: dict[str, float] = {}  # a plugin's drone → when it was last unreachable past the grace
-        self._asks: set[asyncio.Task[None]] = set()  # bundle records being read (catch_up)
         # What its subroutines do (/events `subroutine`): set by whoever hosts the mission.
         self.on_activity: Callable[[Mission, Activity], None] = lambda m, activity: None
         # A prediction's host (the preflight, ADR 0014): told of each read whose value a
@@ -215,14 +209,7 @@ class Mission:
         for wait in self._link_waits.values():
             wait.cancel()
         self._link_waits.clear()
-        for sent in self.delivery.sent.values():
-            if not sent.outcome.done():
-                sent.outcome.cancel()
-        for pending in self.delivery.bundles.values():
-            if not pending.done.done():
-                pending.done.cancel()
-        for ask in list(self._asks):
-            ask.cancel()
+        self.delivery.stop()
         for drone_id in sorted(self.requests):
             await self._leave(drone_id)
         self.requests.clear()
@@ -263,9 +250,9 @@ class Mission:
             self._on_telemetry(data)
         elif event.kind == "status":
             if isinstance(data, CommandStatus):
-                self._on_command_status(data)
+                self.delivery.heard_command_status(data, assigned=data.drone_id in self.requests)
             elif isinstance(data, BundleStatus):
-                self._on_bundle_status(data)
+                self.delivery.heard_bundle_status(data)
             elif isinstance(data, SystemStatus) and data.drone_id in self.requests:
                 self._on_system_status(data)
         elif event.kind == "drone" and data.drone_id in self.requests:
@@ -289,56 +276,6 @@ class Mission:
         for fut in waiters or ():
             if not fut.done():
                 fut.set_result(None)
-
-    def _on_command_status(self, status: CommandStatus) -> None:
-        if status.drone_id in self.requests:
-            self.delivery.heard_status(status)
-        sent = self.delivery.sent.get(status.command_id)
-        if sent is not None and status.state in TERMINAL_STATES and not sent.outcome.done():
-            sent.outcome.set_result(status)
-        if status.state == "start":
-            self.delivery.superseded_unheard(status)
-
-    def _on_bundle_status(self, status: BundleStatus) -> None:
-        pending = self.delivery.bundles.get(status.bundle_id)
-        if pending is not None and status.ends_bundle:
-            self.catch_up(pending, status)
-
-    def catch_up(self, pending: PendingBundle, status: BundleStatus | None = None, *, superseded: str | None = None) -> None:
-        """Ask the agent for the bundle's record (its whole history); resolve the push
-        if the bundle has ended. Statuses sent while the link was down never arrived.
-        An end known without its record (`status` heard, or `superseded`: the drone
-        accepted what ends it, and why) resolves the push once the record stays unread."""
-        async def ask() -> None:
-            for attempt in range(1, RECORD_TRIES + 1):
-                try:
-                    record = await self.station.bundle_record(pending.drone_id, pending.bundle_id)
-                    break
-                except (CommandRejected, Unreachable) as exc:
-                    if pending.done.done():
-                        return
-                    if attempt < RECORD_TRIES:  # a route just back may carry statuses before queries
-                        await self.clock.sleep(RECORD_RETRY_S)
-                        continue
-                    if superseded is not None:
-                        self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} ({exc}); "
-                                         f"it was cancelled: {superseded}")
-                        record = BundleRecord(bundle_id=pending.bundle_id, state="cancelled", reason=superseded)
-                        break
-                    if status is None:
-                        self.log("warn", f"{pending.drone_id}: could not read bundle {pending.bundle_id} yet: {exc}")
-                        return
-                    record = BundleRecord(  # the end was heard; only its history is missing
-                        bundle_id=status.bundle_id, state=BUNDLE_ENDS[status.state], step=status.step,
-                        steps=status.steps or 0, ended_by=status.reason if status.state == "guard" else None,
-                        reason=status.reason if status.state in ("failure", "cancel") else None,
-                    )
-            if record.finished and not pending.done.done():
-                pending.done.set_result(record)
-
-        task = asyncio.get_running_loop().create_task(ask(), name=f"mission {self.id} bundle {pending.bundle_id}")
-        self._asks.add(task)
-        task.add_done_callback(self._asks.discard)
 
     def _on_system_status(self, status: SystemStatus) -> None:
         reason = status.reason or ""
@@ -374,7 +311,7 @@ class Mission:
         if drone_id in self._link_waits or self.ending:
             return
         grace = self.config.mission.link_grace_s
-        alone = [b for b in self.delivery.bundles.values() if b.drone_id == drone_id]
+        alone = self.delivery.bundles_of(drone_id)
         if alone:  # working alone is not a failure: the grace counts from the bundle's end
             ends_in = max(0.0, max(b.deadline for b in alone) - self.clock.monotonic())
             self.log("info", f"{drone_id}: link lost while it runs bundle {alone[0].bundle_id}{why}; waiting up to "
@@ -382,7 +319,7 @@ class Mission:
             grace += ends_in
         else:
             self.log("warn", f"{drone_id}: link lost{why}; waiting up to {grace:g} s for it to come back")
-        self.delivery.link_back_at.setdefault(drone_id, asyncio.get_running_loop().create_future())
+        self.delivery.out_of_reach_from_now(drone_id)
         self._link_waits[drone_id] = asyncio.get_running_loop().create_task(
             self._link_grace(drone_id, grace), name=f"mission {self.id} link grace {drone_id}",
         )
@@ -399,16 +336,11 @@ class Mission:
         self.end("link_lost", message)
 
     def _link_back(self, drone_id: str) -> None:
-        back = self.delivery.link_back_at.pop(drone_id, None)
-        if back is not None and not back.done():
-            back.set_result(None)
         wait = self._link_waits.pop(drone_id, None)
         if wait is not None:
             wait.cancel()
             self.log("info", f"{drone_id}: link restored, the mission goes on")
-            for pending in list(self.delivery.bundles.values()):
-                if pending.drone_id == drone_id:
-                    self.catch_up(pending)
+        self.delivery.back_in_reach(drone_id, caught_up=wait is not None)
 
     # ---- what verbs call (on the loop) ----------------------------------------------
 
