@@ -3,7 +3,7 @@ chain mode (the plugin's default) and the thesis's distance baseline side by sid
 longest gap at the ground, relays used against the lower bound, the least 3-D
 separation between flying drones and the battery spent.
 
-    .venv/bin/python bench/relay_corpus.py --worlds 200 [--first 0] [--jobs 2] [--modes chain,distance] [--spares all|suffice|short]
+    .venv/bin/python bench/relay_corpus.py --worlds 200 [--first 0] [--jobs 2] [--modes chain,distance] [--spares all|suffice|short] [--ways all|shared]
 
 Each world runs in fast time in a worker process; a line per world goes to stderr as
 it ends (progress), the table to stdout. If any run crashed, exits 1 with no table.
@@ -37,13 +37,16 @@ def main() -> int:
     parser.add_argument("--spares", choices=("all", "suffice", "short"), default="all",
                         help="only the worlds whose spares suffice for a chain per worker (what issue 53's 95 %% "
                              "judges), or only those where they fall short")
+    parser.add_argument("--ways", choices=("all", "shared"), default="all",
+                        help="only the worlds where two workers share a way (sim/corpus.py CROSSING_SHARE)")
     args = parser.parse_args()
     modes = [m for m in args.modes.split(",") if m]
     unknown = [m for m in modes if m not in rc.MODES]
     if unknown:
         parser.error(f"unknown mode(s) {unknown}; known: {sorted(rc.MODES)}")
-    seeds = [seed for seed in range(args.first, args.first + args.worlds)
-             if args.spares == "all" or generate(seed).spares_suffice == (args.spares == "suffice")]
+    worlds = [generate(seed) for seed in range(args.first, args.first + args.worlds)]
+    seeds = [w.seed for w in worlds if (args.spares == "all" or w.spares_suffice == (args.spares == "suffice"))
+             and (args.ways == "all" or w.crossing)]
     jobs = [(seed, mode) for seed in seeds for mode in modes]
     outcomes: dict[str, list[rc.Outcome]] = {m: [] for m in modes}
     crashed = 0

@@ -3,7 +3,10 @@
 Each world is a field the plugin has never seen: a radio whose good range is 25-150 m
 and whose total-loss distance is 1.3-2x that; 1-3 working drones, each surveying a
 square area 1.2-3x the loss distance out, in directions at least 45 degrees apart; 2-8
-spare drones in one of several spawn layouts beside the laptop. The mission script
+spare drones in one of several spawn layouts beside the laptop. In a share of the
+worlds with two workers or more, the first two fly nearly the same way (directions
+within 15 degrees, their areas apart): the farther one's way passes the nearer one's
+area, its relays' columns and their chain. The mission script
 flies each worker out, surveys its area (`map_area`, thesis script 5.1) and brings it
 home; its first line is the relay plugin's `enable`, which a run replaces per mode.
 
@@ -41,6 +44,9 @@ LAYOUTS = ("row", "grid", "ring", "scatter", "offset")
 USER_LAYOUTS = ("file-row", "cluster")  # drones one ROW_SPACING_M apart, as world files place them
 USER_LAYOUT_SHARE = 0.35  # of the worlds
 USER_CLUSTER_M = (3.0, 12.0)  # a cluster's first corner this far from the laptop
+CROSSING_SHARE = 0.3  # of the worlds with two workers or more: the first two share a way
+CROSSING_SPREAD = 15.0  # degrees between the directions of two workers sharing a way, at most
+CROSSING_CLEAR_M = 10.0  # two shared-way areas' nearest corners at least this far apart
 TRANSIT_SPEED = 8.0  # m/s out to the area and home
 # Far worlds fly for minutes: a battery that lasts about 25 minutes keeps the corpus
 # about connectivity, not endurance (the replacement plugin is another story).
@@ -74,6 +80,7 @@ class CorpusWorld:
     surveys: tuple[Survey, ...]
     spares: tuple[str, ...]
     needs: Needs
+    crossing: bool = False  # the first two workers share a way (CROSSING_SHARE)
 
     @property
     def workers(self) -> tuple[str, ...]:
@@ -91,7 +98,8 @@ class CorpusWorld:
     def describe(self) -> str:
         r = self.radio
         areas = ", ".join(f"{s.drone} {s.distance_m:.0f} m at {s.bearing:.0f}°" for s in self.surveys)
-        return (f"world {self.seed}: radio {r.good_m:.0f}/{r.lost_m:.0f} m, {areas}; {len(self.spares)} spares ({self.layout}), "
+        return (f"world {self.seed}: radio {r.good_m:.0f}/{r.lost_m:.0f} m, {areas}{' (a shared way)' if self.crossing else ''}; "
+                f"{len(self.spares)} spares ({self.layout}), "
                 f"relays needed ≥ {self.needs.lower_bound} (a chain each: {self.needs.enough})")
 
     def script(self, relay_line: str | None) -> str:
@@ -137,7 +145,9 @@ def needs(radio: RadioModel, surveys: tuple[Survey, ...]) -> Needs:
                  enough_min_quality=sum(_chains(surveys, hop_m(radio, 1.0 - MIN_QUALITY))))
 
 
-def generate(seed: int) -> CorpusWorld:
+def generate(seed: int, *, shared_ways: bool = True) -> CorpusWorld:
+    """World `seed`; with `shared_ways` off, the corpus as it was before it drew shared
+    ways (every world as the narrower generator made it)."""
     rng = random.Random(f"relay-corpus:{seed}")
     good = rng.uniform(25.0, 150.0)
     lost = good * rng.uniform(1.3, 2.0)
@@ -158,18 +168,56 @@ def generate(seed: int) -> CorpusWorld:
     for drone, bearing in zip(ids[:n_workers], bearings, strict=True):
         centre = rng.uniform(1.2, 3.0) * radio.lost_m
         side = round(min(40.0, max(15.0, 0.3 * radio.good_m)) * rng.uniform(0.8, 1.2), 1)
-        c_lat, c_lon = destination(ORIGIN.lat, ORIGIN.lon, centre, bearing)
-        s_lat, _ = destination(c_lat, c_lon, side / 2, 180.0)
-        corner = destination(s_lat, c_lon, side / 2, 270.0)
-        corners = [corner, destination(*corner, side, 0.0), destination(*corner, side, 90.0),
-                   destination(*destination(*corner, side, 0.0), side, 90.0)]
-        farthest = max(distance_m(ORIGIN.lat, ORIGIN.lon, la, lo) for la, lo in corners)
-        surveys.append(Survey(drone, round(bearing, 1), round(centre, 1), side, corner, round(farthest, 1)))
+        surveys.append(_survey(drone, bearing, centre, side))
+    # Shared ways, drawn on a stream of their own: the other worlds stay as they were.
+    sharing = random.Random(f"relay-corpus-crossing:{seed}")
+    crossing = shared_ways and n_workers >= 2 and sharing.random() < CROSSING_SHARE
+    if crossing:
+        surveys[:2] = _shared_way(sharing, surveys[0], surveys[1], radio, others=surveys[2:])
     drones = [DroneSpec(id=i, lat=lat, lon=lon) for i, (lat, lon) in zip(ids, spots, strict=True)]
     world = World(origin=ORIGIN, ground_station=Spot(lat=ORIGIN.lat, lon=ORIGIN.lon), drones=drones, radio=radio,
                   battery=CORPUS_BATTERY)
     t = tuple(surveys)
-    return CorpusWorld(seed=seed, world=world, layout=layout, surveys=t, spares=tuple(ids[n_workers:]), needs=needs(radio, t))
+    return CorpusWorld(seed=seed, world=world, layout=layout, surveys=t, spares=tuple(ids[n_workers:]), needs=needs(radio, t),
+                       crossing=crossing)
+
+
+def _survey(drone: str, bearing: float, centre_m: float, side_m: float) -> Survey:
+    """A square area of `side_m` centred `centre_m` from the laptop at `bearing`."""
+    c_lat, c_lon = destination(ORIGIN.lat, ORIGIN.lon, centre_m, bearing)
+    s_lat, _ = destination(c_lat, c_lon, side_m / 2, 180.0)
+    corner = destination(s_lat, c_lon, side_m / 2, 270.0)
+    farthest = max(distance_m(ORIGIN.lat, ORIGIN.lon, la, lo) for la, lo in _corners(corner, side_m))
+    return Survey(drone, round(bearing, 1), round(centre_m, 1), side_m, corner, round(farthest, 1))
+
+
+def _corners(corner: tuple[float, float], side_m: float) -> list[tuple[float, float]]:
+    north = destination(*corner, side_m, 0.0)
+    return [corner, north, destination(*corner, side_m, 90.0), destination(*north, side_m, 90.0)]
+
+
+def _shared_way(rng: random.Random, a: Survey, b: Survey, radio: RadioModel,
+                others: list[Survey]) -> tuple[Survey, Survey]:
+    """`a` and `b` again, their directions within CROSSING_SPREAD of each other, one area
+    beyond the other and CROSSING_CLEAR_M apart at least: the farther worker flies past
+    the nearer's area, out and home. Both stay MIN_BEARING_GAP from the `others`'
+    directions."""
+    while True:
+        bearing = rng.uniform(0.0, 360.0)
+        other = (bearing + rng.uniform(-CROSSING_SPREAD, CROSSING_SPREAD)) % 360.0
+        near = _survey(a.drone, bearing, rng.uniform(1.2, 3.0) * radio.lost_m, a.side_m)
+        far = _survey(b.drone, other, rng.uniform(1.2, 3.0) * radio.lost_m, b.side_m)
+        one_past_the_other = abs(near.distance_m - far.distance_m) >= (a.side_m + b.side_m) / 2 + CROSSING_CLEAR_M
+        if one_past_the_other and areas_apart_m(near, far) >= CROSSING_CLEAR_M and all(
+                _angle(s.bearing, o.bearing) >= MIN_BEARING_GAP for s in (near, far) for o in others):
+            return near, far
+
+
+def areas_apart_m(a: Survey, b: Survey) -> float:
+    """How far apart two survey areas are, at least (their centres' distance less the
+    half-diagonals: a bound below the gap between their nearest points)."""
+    ca, cb = (destination(ORIGIN.lat, ORIGIN.lon, s.distance_m, s.bearing) for s in (a, b))
+    return distance_m(*ca, *cb) - (a.side_m + b.side_m) / math.sqrt(2)
 
 
 def _bearings(rng: random.Random, n: int) -> list[float]:

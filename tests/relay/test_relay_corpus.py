@@ -15,7 +15,16 @@ from dronefleet import relay_experiments as rx
 from dronefleet.compose import SimField, simulate
 from dronefleet.schemas.config_loading import load_config
 from dronefleet.schemas.geo import destination, distance_m
-from dronefleet.sim.corpus import MIN_BEARING_GAP, SPAWN_GAP_M, USER_LAYOUTS, generate, hop_m
+from dronefleet.sim.corpus import (
+    CROSSING_CLEAR_M,
+    CROSSING_SPREAD,
+    MIN_BEARING_GAP,
+    SPAWN_GAP_M,
+    USER_LAYOUTS,
+    areas_apart_m,
+    generate,
+    hop_m,
+)
 from dronefleet.sim.faults import apply_fault
 from dronefleet.sim.world import ROW_SPACING_M, World
 
@@ -35,7 +44,10 @@ def test_worlds_cover_what_the_issue_asks_and_replay_from_their_seed() -> None:
         for i, a in enumerate(w.surveys):
             for b in w.surveys[i + 1:]:
                 gap = abs(a.bearing - b.bearing) % 360
-                assert min(gap, 360 - gap) >= MIN_BEARING_GAP - 0.1
+                if w.crossing and {a.drone, b.drone} == set(w.workers[:2]):  # a shared way, the areas apart
+                    assert min(gap, 360 - gap) <= CROSSING_SPREAD + 0.1 and areas_apart_m(a, b) >= CROSSING_CLEAR_M
+                else:
+                    assert min(gap, 360 - gap) >= MIN_BEARING_GAP - 0.1
         spots = [(d.lat, d.lon) for d in w.world.spawn() if d.lat is not None and d.lon is not None]
         assert len(spots) == len(w.world.drones)
         gap = ROW_SPACING_M if w.layout in USER_LAYOUTS else SPAWN_GAP_M  # a world file's row: 5 m
@@ -51,6 +63,22 @@ def test_worlds_cover_what_the_issue_asks_and_replay_from_their_seed() -> None:
     assert any(w.layout == "file-row" and distance_m(w.world.drones[0].lat or 0, w.world.drones[0].lon or 0,
                                                      w.world.origin.lat, w.world.origin.lon) < 0.01 for w in worlds)
     assert 0.2 < sum(w.spares_suffice for w in worlds) / len(worlds) < 0.9
+    shared = [w for w in worlds if w.crossing]
+    assert 0.1 < len(shared) / len(worlds) < 0.3 and all(len(w.surveys) >= 2 for w in shared)
+    assert any(len(w.surveys) == 3 for w in shared) and any(w.spares_suffice for w in shared)
+    # the other worlds are drawn as before there were shared ways
+    assert all(w == generate(w.seed, shared_ways=False) for w in worlds if not w.crossing)
+
+
+def test_on_a_shared_way_the_farther_worker_flies_past_the_nearer_ones_area() -> None:
+    """The farther worker's way out passes the nearer worker's area on its way, within
+    radio range of its centre: the two workers' relays stand among each other."""
+    shared = [w for w in map(generate, SEEDS) if w.crossing]
+    for w in shared:
+        near, far = sorted(w.surveys[:2], key=lambda s: s.distance_m)
+        turn = math.radians(abs(near.bearing - far.bearing) % 360)
+        along, beside = near.distance_m * math.cos(turn), abs(near.distance_m * math.sin(turn))
+        assert along + near.side_m < far.distance_m and beside < w.radio.lost_m, w.describe()
 
 
 def test_the_lower_bound_uses_the_longest_hop_that_holds_and_keeps_the_min_quality_count() -> None:
@@ -115,7 +143,7 @@ def test_chain_mode_proves_its_own_hop_past_a_ring_of_spares() -> None:
     home and at once again, armed still after landing, was disarmed before its takeoff
     step, and the plugin sends another instead of waiting for it to the time limit;
     no worker flies over a relay climbing through its level (it came within 1.3 m)."""
-    world = generate(63)
+    world = generate(63, shared_ways=False)
     assert world.spares_suffice and world.layout == "ring"
     result = asyncio.run(rc.fly(world, "chain"))
     o = rc.judge(world, "chain", result)
