@@ -93,6 +93,11 @@ GUIDED_MODE = 4  # ArduCopter's GUIDED custom mode
 # streams ATTITUDE at 100 Hz and GLOBAL_POSITION_INT at 50 Hz on its onboard link, each
 # one a Python callback through MAVSDK (px4-facts.md; 5.9 % of a core at rest, not 2 %).
 FLIGHT_RATES_HZ = {"position": 10.0, "position_velocity_ned": 10.0, "velocity_ned": 10.0, "attitude_euler": 10.0}
+# … while it is armed. Disarmed, nothing it does needs them more than twice a second (a
+# drone on the ground moves only when carried), and each message is a callback from
+# libmavsdk's thread into the loop: at rest, the four streams at 10 Hz were most of the
+# agent's 2.3-2.9 % of a core. Arming is read from the heartbeat, not from these.
+REST_RATE_HZ = 2.0
 AUTOPILOTS = {
     "px4": Autopilot("px4", rates_hz=FLIGHT_RATES_HZ, hold_repositions=True),
     "ardupilot": Autopilot(
@@ -169,6 +174,8 @@ class MavsdkFlightController:
         self._offboard = False  # our offboard stream flies it (GUIDED autopilots: not told by the mode)
         self._takeoff_to: float | None = None  # a takeoff's altitude above home while it climbs
         self._changes = Changes()
+        self._flight_rates: bool | None = None  # the flight streams asked for at flight rates (armed) or at rest
+        self._rates_task: asyncio.Task[None] | None = None  # asking for them again, after arming changed
 
     @property
     def make(self) -> str | None:
@@ -230,11 +237,9 @@ class MavsdkFlightController:
         self._watch("health", t.subscribe_health)
         self._watch("local", t.subscribe_position_velocity_ned)
         self._tasks.append(asyncio.get_running_loop().create_task(self._poll_connection(), name="mavsdk connection"))
-        for name, hz in self.autopilot.rates_hz.items():
-            try:
-                await getattr(t, f"set_rate_{name}")(hz)
-            except Exception as exc:  # noqa: BLE001 - the stream may come anyway; say so and go on
-                log.warning("flight controller: telemetry rate %s %g Hz not set: %s", name, hz, exc)
+        await self._set_rates({name: hz for name, hz in self.autopilot.rates_hz.items() if name not in FLIGHT_RATES_HZ})
+        self._rates_task = asyncio.get_running_loop().create_task(self._follow_arming(), name="mavsdk rates")
+        await asyncio.shield(self._rates_task)
         for message, hz in self.autopilot.message_rates_hz.items():
             try:
                 await self._command_long(f"message {message} rate", SET_MESSAGE_INTERVAL, message, 1e6 / hz)
@@ -247,6 +252,23 @@ class MavsdkFlightController:
         except Exception:
             pass
 
+    async def _set_rates(self, rates_hz: dict[str, float]) -> None:
+        for name, hz in rates_hz.items():
+            try:
+                await getattr(self.telemetry, f"set_rate_{name}")(hz)
+            except Exception as exc:  # noqa: BLE001 - the stream may come anyway; say so and go on
+                log.warning("flight controller: telemetry rate %s %g Hz not set: %s", name, hz, exc)
+
+    async def _follow_arming(self) -> None:
+        """The flight streams at the autopilot's flight rates while it is armed,
+        REST_RATE_HZ otherwise, asked for again until they match its last arming (one
+        asker at a time, so the last edge's rates are the ones that stay)."""
+        flight = {name: hz for name, hz in self.autopilot.rates_hz.items() if name in FLIGHT_RATES_HZ}
+        while (armed := bool(self._cache.get("armed", False))) != self._flight_rates:
+            self._flight_rates = armed
+            await self._set_rates(flight if armed else {name: min(hz, REST_RATE_HZ) for name, hz in flight.items()})
+        self._rates_task = None
+
     def _watch(self, name: str, subscribe: Callable[[], AsyncIterator[Any]]) -> None:
         edges = name in ("armed", "flight_mode", "landed_state")
 
@@ -254,6 +276,8 @@ class MavsdkFlightController:
             async for value in subscribe():
                 self._cache[name] = value
                 self._snapshot = None
+                if name == "armed" and self._flight_rates not in (None, bool(value)) and self._rates_task is None:
+                    self._rates_task = asyncio.get_running_loop().create_task(self._follow_arming(), name="mavsdk rates")
                 if name == "flight_mode":
                     self._mode_seen.set()
                 # A GUIDED takeoff's reported mode turns on its altitude (`_mode`).
@@ -498,11 +522,13 @@ class MavsdkFlightController:
         return self._param
 
     async def close(self) -> None:
-        for task in self._tasks:
+        tasks = [*self._tasks, *([self._rates_task] if self._rates_task is not None else [])]
+        for task in tasks:
             task.cancel()
-        if self._tasks:
-            await asyncio.wait(self._tasks)
+        if tasks:
+            await asyncio.wait(tasks)
         self._tasks.clear()
+        self._rates_task = None
         self._geofence = self._direct = self._param = None
         if self._sdk is not None:
             self._sdk.destroy()

@@ -15,7 +15,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mav2
 
-from dronefleet.agent.fc_mavsdk import MavsdkFlightController
+from dronefleet.agent.fc_mavsdk import REST_RATE_HZ, MavsdkFlightController
 from dronefleet.agent.fc_port import FcRejected
 from dronefleet.agent.fc_sim import SimFlightController
 from dronefleet.bus.clock import VirtualClock
@@ -261,6 +261,26 @@ async def test_a_fence_the_autopilot_cannot_store_is_refused_and_the_old_one_kep
     with pytest.raises(FcRejected, match="invalid argument"):  # MAVSDK's own check
         await mavsdk_fc.upload_fence(FENCE[:2])
     assert_same_polygon(px4.vehicle.fence, FENCE)
+
+
+@pytest.mark.parametrize("px4", ["px4", "ardupilot"], indirect=True)
+async def test_the_flight_streams_run_at_flight_rates_only_while_armed(
+    px4: MavlinkVehicle, mavsdk_fc: MavsdkFlightController,
+) -> None:
+    """At rest the adapter asks for the position, velocity and attitude streams at
+    REST_RATE_HZ (each message is a callback into the agent's loop); armed, at the
+    autopilot's flight rates; disarmed again, at rest again."""
+    flight = [mav2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, mav2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mav2.MAVLINK_MSG_ID_ATTITUDE]
+
+    def periods() -> list[float]:
+        return [round(px4.periods.get(msg_id, 0.0), 3) for msg_id in flight]
+
+    assert periods() == [round(1 / REST_RATE_HZ, 3)] * 3
+    await until(lambda: mavsdk_fc.state().health_failures == (), 30, "the autopilot healthy")
+    await mavsdk_fc.arm()
+    await until(lambda: periods() == [0.1] * 3, 10, f"flight rates once armed (periods {periods()})")
+    await mavsdk_fc.disarm()
+    await until(lambda: periods() == [round(1 / REST_RATE_HZ, 3)] * 3, 10, f"rest rates once disarmed (periods {periods()})")
 
 
 async def test_the_builtin_sim_controller_holds_the_fence_like_the_mavlink_one() -> None:
