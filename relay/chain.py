@@ -503,13 +503,16 @@ class Chains:
         spot = self._off_parked(last, toward(last, goal, max(MIN_STEP_M, flat(hop, self.duty_alt - last_z))), seen)
         key = f"{w.id}#{len(chain)}"
         if self.idle:
+            if self._crossing(seen, out):
+                return free  # it climbs to its lane to move: after the one crossing now
             relay = self.idle.pop(0)
             chain.append(Slot(spot, relay, now))
             out.moves.append((relay, spot, 0.0))
             return free
         if free > 0:
             self.short_since.pop(w.id, None)
-        elif now - self.short_since.setdefault(w.id, now) >= STRETCH_AFTER_S and self._stretch(now, w, goal, out):
+        elif now - self.short_since.setdefault(w.id, now) >= STRETCH_AFTER_S and not self._crossing(seen, out) \
+                and self._stretch(now, w, goal, out):
             return free
         if not self._launch_clear(seen, out):
             return free  # the last relay sent is still climbing out over the others' takeoff spots
@@ -629,21 +632,28 @@ class Chains:
                 return True
         return False
 
+    def _crossing(self, seen: Mapping[str, Seen], out: ChainPlan) -> bool:
+        """Whether a relay is crossing the levels now, or is about to: one off its duty
+        level (coming home, climbing out, moving between spots) or being sent. Relays
+        cross the levels one at a time (ADR 0006): a relay climbing to its lane to be
+        moved passed 1.1 m under one flying home on a lower lane."""
+        held = self._spots()
+        # one going home counts out of reach too (a relay flying home lost its link, and the
+        # next one went); one of the plan's counts until it is on its spot (a relay climbing
+        # out passed the duty level as another was sent home over it)
+        # (an idle one hovering on the duty level is not crossing it, wherever it waits)
+        return any(o.alt > 1.0 if rid not in held else
+                   o.fresh and (abs(o.alt - self.duty_alt) > self.rules.level_band_m if rid in self.idle
+                                else not any(self._on_spot(o, p) for p in held[rid]))
+                   for rid, o in seen.items()) or self.launching() or bool(out.dispatch) or bool(out.moves)
+
     def _release(self, workers: Sequence[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:
         """The last relay of a chain its worker no longer needs goes home — when no
         other relay is climbing out or coming home: one crossing the levels at a time (a
         relay flying home on its level passed over one climbing from the ground, 1.4 m
         apart)."""
         hop = self.reach.lo * MARGIN
-        held = self._spots()
-        # one going home counts out of reach too (a relay flying home lost its link, and the
-        # next one went); one of the plan's counts until it is on its spot (a relay climbing
-        # out passed the duty level as another was sent home over it)
-        # (an idle one hovering on the duty level is not crossing it, wherever it waits)
-        crossing = any(o.alt > 1.0 if rid not in held else
-                       o.fresh and (abs(o.alt - self.duty_alt) > self.rules.level_band_m if rid in self.idle
-                                    else not any(self._on_spot(o, p) for p in held[rid]))
-                       for rid, o in seen.items()) or self.launching() or bool(out.dispatch)  # or one is being sent
+        crossing = self._crossing(seen, out)
         for w in workers:
             chain = self.chains.get(w.id, [])
             if not chain or chain[-1].relay is None:

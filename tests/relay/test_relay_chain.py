@@ -224,6 +224,34 @@ def test_one_relay_crosses_the_levels_at_a_time() -> None:
     assert c.plan(30.0, [home], homing, spare=0).home == ["r1"]
 
 
+@settings(max_examples=150, deadline=None)
+@given(goal_m=st.floats(40.0, 160.0), bearing=st.floats(0.0, 360.0), spare=st.integers(0, 3),
+       home_at_m=st.floats(0.0, 80.0), home_bearing=st.floats(0.0, 360.0), home_alt=st.floats(1.5, 50.0),
+       idle=st.booleans(), later_s=st.floats(0.0, 3 * STRETCH_AFTER_S))
+def test_while_a_relay_comes_home_no_other_crosses_the_levels(
+        goal_m: float, bearing: float, spare: int, home_at_m: float, home_bearing: float, home_alt: float,
+        idle: bool, later_s: float) -> None:
+    """Relays cross the levels one at a time (ADR 0006): while one flies home, heard or
+    not, a plan sends none up or down, whatever else it wants — no relay dispatched,
+    none sent home, none moved (out to a stretched spot, or an idle one to a slot: a
+    relay climbing to its lane to move passed 1.1 m under one flying home on a lower
+    lane, in a world where two workers share a way)."""
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0, holds=56.0)
+    out = c.plan(0.0, [Worker("d1", at(5, bearing), 15.0, at(60, bearing))], {}, spare=1)
+    (key, spot, _, _), = out.dispatch
+    c.joined(key, "r1")
+    views = {"r1": seen(spot)}
+    if idle:
+        c.idle.append("r2")
+        views["r2"] = seen(at(10, bearing + 90), alt=DUTY)
+    views["r9"] = seen(at(home_at_m, home_bearing), alt=home_alt, fresh=home_alt < 30)  # sent home, in the air
+    w = Worker("d1", at(5, bearing), 15.0, at(goal_m, bearing))
+    for t in (1.0, 1.0 + later_s, 1.0 + STRETCH_AFTER_S + later_s):
+        plan = c.plan(t, [w], views, spare=spare)
+        assert (plan.dispatch, plan.home, plan.moves) == ([], [], []), (t, plan)
+
+
 def test_a_worker_landed_beyond_the_laptops_hop_keeps_no_relay() -> None:
     """A worker landed at its home 35 m from the laptop, beyond the
     hop (30 m), and its relay stayed on duty until the time limit."""
