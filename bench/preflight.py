@@ -102,6 +102,8 @@ async def main() -> None:
                         help="the drones' flight controllers: the agents' built-in simulator, `fleet sim` as PX4 "
                              "(MAVLink through MAVSDK), or real PX4 SITL ($FLEET_PX4_BUILD)")
     parser.add_argument("--only", metavar="NAME", action="append", help="only this example (file stem; repeatable)")
+    parser.add_argument("--first-instance", type=int, default=0,
+                        help="with --autopilot px4: the first SITL instance (PX4 -i), to fly beside another SITL")
     args = parser.parse_args()
     errors: list[float] = []
     examples = [p for p in EXAMPLES if not args.only or p.stem in args.only]
@@ -114,7 +116,7 @@ async def main() -> None:
             fcs = {f"drone{i + 1:02d}": sim.fc_url(i) for i in range(len(spots))}
         elif args.autopilot == "px4":
             build = px4_build("bench/preflight.py --autopilot px4")
-            quads = [Px4Sitl(build, i, home=spot) for i, spot in enumerate(spots)]
+            quads = [Px4Sitl(build, args.first_instance + i, home=spot) for i, spot in enumerate(spots)]
             for i, quad in enumerate(quads):
                 sitls.append(quad)
                 (Path(tmp) / f"px4-{i}").mkdir()
