@@ -22,7 +22,7 @@ from dronefleet.mission.lifecycle.send_again import TakenBack, deliver, steps_fo
 from dronefleet.schemas.bundles import BUNDLE_ENDS, BundleRecord, BundleStatus, new_bundle_id
 from dronefleet.schemas.errors import CommandRejected, InvalidMessage
 from dronefleet.schemas.fence import REASON as FENCE
-from dronefleet.schemas.geo import distance_m
+from dronefleet.schemas.geo import angle_diff_deg, distance_m, normalize_deg
 from dronefleet.schemas.status import FAILSAFE_ID_PREFIX, TERMINAL_STATES, CommandStatus, ended_by_failsafe
 from dronefleet.schemas.telemetry import Telemetry
 
@@ -60,6 +60,7 @@ RESUMABLE = frozenset({"takeoff", "goto", "return", "land"})
 RESUME_TRIES = 3
 HOMEWARD = frozenset({"return", "land"})  # left running when a mission ends
 ARRIVED_M, ARRIVED_S = 1.0, 10.0  # a goto whose drone stands this close to its target this long has ended
+FACING_DEG = 5.0  # a turn whose drone faces this close to its new heading that long has ended (the agent ends it at 2)
 LEASH_LIMIT_S = 120.0  # a goto held this long with no drone free for the relays it needs ends the mission
 FLOWN = frozenset({"goto", "turn"})  # commands a drone on the ground cannot do
 ALOFT_KEPT = 600  # heights in the air kept per drone (a minute at 10 Hz): where a failsafe found it
@@ -256,8 +257,9 @@ class CommandDelivery:
                 if not wait:
                     return None
                 self.sent[command_id].accepted = self.clock.monotonic()
-                if name == "goto" and "lat" in body:
-                    status = await self._outcome_or_there(fut, drone_id, command_id, body)
+                arrived = self._arrival(drone_id, name, body)
+                if arrived is not None:
+                    status = await self._outcome_or_there(fut, drone_id, command_id, name, arrived)
                 else:
                     status = await self._outcome(fut, drone_id)
         except (asyncio.CancelledError, MissionOver, TakenBack):
@@ -523,12 +525,26 @@ class CommandDelivery:
             earlier.outcome.set_result(CommandStatus(drone_id=start.drone_id, timestamp=start.timestamp, command_id=command_id,
                                          command=earlier.name, state="cancel", reason=reason))
 
-    async def _outcome_or_there(self, fut: asyncio.Future[CommandStatus], drone_id: str, command_id: str,
-                                body: dict[str, Any]) -> CommandStatus:
-        """A goto's end, or — its `finish` lost on the way (a reliable publication goes
-        down with a link that closes under it) — the drone heard standing at its target
-        for ARRIVED_S: the end the agent would have reported."""
-        watch: asyncio.Future[Any] = asyncio.ensure_future(self._there(drone_id, body))
+    def _arrival(self, drone_id: str, name: str, body: dict[str, Any]) -> Callable[[Telemetry], bool] | None:
+        """For a command whose end shows in the telemetry, what its end looks like: a
+        goto's drone still at its target, a turn's still facing its new heading (the one
+        the drone faced when the turn was sent, turned by `deg`)."""
+        if name == "goto" and "lat" in body:
+            lat, lon, alt = float(body["lat"]), float(body["lon"]), float(body["alt"]) if "alt" in body else None
+            return lambda t: (t.position is not None and distance_m(t.position.lat, t.position.lon, lat, lon) <= ARRIVED_M
+                              and (alt is None or abs(t.position.alt - alt) <= ARRIVED_M) and t.speed <= 0.3)
+        if name == "turn" and drone_id in self.mission.station.registry:
+            heading = normalize_deg(self.mission.station.registry.telemetry(drone_id).heading + float(body["deg"]))
+            return lambda t: abs(angle_diff_deg(t.heading, heading)) <= FACING_DEG and t.speed <= 0.3
+        return None
+
+    async def _outcome_or_there(self, fut: asyncio.Future[CommandStatus], drone_id: str, command_id: str, name: str,
+                                arrived: Callable[[Telemetry], bool]) -> CommandStatus:
+        """A goto's or turn's end, or — its `finish` lost on the way (a reliable
+        publication goes down with a link that closes under it) — the drone heard as
+        its end leaves it (`arrived`) for ARRIVED_S: the end the agent would have
+        reported. (A turn whose finish was lost kept a survey waiting to the time limit.)"""
+        watch: asyncio.Future[Any] = asyncio.ensure_future(self._there(drone_id, arrived))
         either: list[asyncio.Future[Any]] = [fut, watch]
         try:
             await asyncio.wait(either, return_when=asyncio.FIRST_COMPLETED)
@@ -540,18 +556,16 @@ class CommandDelivery:
         watch.cancel()
         if fut.done():
             return fut.result()
-        self.log("warn", f"{drone_id}: the end of its goto was not heard; it stands at its target, going on")
+        where = "stands at its target" if name == "goto" else "faces its new heading"
+        self.log("warn", f"{drone_id}: the end of its {name} was not heard; it {where}, going on")
         return CommandStatus(drone_id=drone_id, timestamp=self.clock.time_ms(), command_id=command_id,
-                             command="goto", state="finish")
+                             command=name, state="finish")
 
-    async def _there(self, drone_id: str, body: dict[str, Any]) -> None:
+    async def _there(self, drone_id: str, arrived: Callable[[Telemetry], bool]) -> None:
         since: float | None = None
         while True:
             await self.next_telemetry(drone_id)
-            t = self.mission.station.registry.telemetry(drone_id)
-            p = t.position
-            close = p is not None and distance_m(p.lat, p.lon, float(body["lat"]), float(body["lon"])) <= ARRIVED_M \
-                and ("alt" not in body or abs(p.alt - float(body["alt"])) <= ARRIVED_M) and t.speed <= 0.3
+            close = arrived(self.mission.station.registry.telemetry(drone_id))
             now = self.clock.monotonic()
             since = (since or now) if close else None
             if since is not None and now - since >= ARRIVED_S:

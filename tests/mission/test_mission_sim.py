@@ -459,27 +459,29 @@ async def test_a_push_whose_answer_is_lost_is_sent_again_and_runs_once() -> None
     assert sum("no answer to push, sending it again (2/3)" in line for line in lines) == 1, lines
 
 
-async def test_a_goto_whose_end_is_lost_ends_once_the_drone_stands_at_its_target() -> None:
-    """A reliable publication goes down with a link that closes under it; a goto's
-    `finish` lost with no probe missed (so the agent repeats nothing) hung its verb until
-    the time limit (a relay corpus world, mode chain). The verb now ends once the drone
-    is heard standing at its target for 10 s, and says so."""
+@pytest.mark.parametrize(("command", "said"), [("goto", "it stands at its target"), ("turn", "it faces its new heading")])
+async def test_a_goto_or_turn_whose_end_is_lost_ends_once_the_drone_shows_it(command: str, said: str) -> None:
+    """A reliable publication goes down with a link that closes under it; a goto's or a
+    turn's `finish` lost with no probe missed (so the agent repeats nothing) hung its verb
+    until the time limit (relay corpus worlds, mode chain: a turn of a survey where two
+    workers share a way). The verb now ends once the drone is heard standing at its target,
+    or facing its new heading, for 10 s, and says so."""
     buses: list[FaultyBus] = []
 
-    def first_goto_finish(key: str, payload: bytes) -> bool:
+    def first_finish(key: str, payload: bytes) -> bool:
         status = json.loads(payload)
-        return key.endswith("/status") and status.get("command") == "goto" and status.get("state") == "finish" \
+        return key.endswith("/status") and status.get("command") == command and status.get("state") == "finish" \
             and not any(bus.lost for bus in buses)
 
     def lossy(drone_id: str, bus: Bus) -> Bus:
-        buses.append(FaultyBus(bus, lose=first_goto_finish))
+        buses.append(FaultyBus(bus, lose=first_finish))
         return buses[-1]
 
     record, _, log = await fly('d = assign("drone01")\narm(d)\ntakeoff(d)\nmove(d, forward=20*m)\n'
-                               'move(d, forward=10*m)\nland(d)\n', max_s=300, agent_bus=lossy)
-    assert sum(len(bus.lost) for bus in buses) == 1, "the scenario never lost a goto's finish"
+                               'turn(d, to=east)\nmove(d, forward=10*m)\nland(d)\n', max_s=300, agent_bus=lossy)
+    assert sum(len(bus.lost) for bus in buses) == 1, f"the scenario never lost a {command}'s finish"
     assert cause(record) == ("finished", "success"), (record, log)
-    assert any("the end of its goto was not heard; it stands at its target" in line for line in log), log
+    assert any(f"the end of its {command} was not heard; {said}" in line for line in log), log
 
 
 async def test_a_drone_whose_command_queryable_never_crossed_is_unreachable_until_asked_to_declare_it_afresh() -> None:
