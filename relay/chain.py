@@ -640,11 +640,13 @@ class Chains:
         held = self._spots()
         # one going home counts out of reach too (a relay flying home lost its link, and the
         # next one went); one of the plan's counts until it is on its spot (a relay climbing
-        # out passed the duty level as another was sent home over it)
+        # out passed the duty level as another was sent home over it), heard or not: one
+        # unheard since it was last seen off its spot may be anywhere on its way (a relay
+        # lost its link climbing out, and another was sent home across its level)
         # (an idle one hovering on the duty level is not crossing it, wherever it waits)
         return any(o.alt > 1.0 if rid not in held else
-                   o.fresh and (abs(o.alt - self.duty_alt) > self.rules.level_band_m if rid in self.idle
-                                else not any(self._on_spot(o, p) for p in held[rid]))
+                   abs(o.alt - self.duty_alt) > self.rules.level_band_m if rid in self.idle
+                   else not any(self._on_spot(o, p) for p in held[rid])
                    for rid, o in seen.items()) or self.launching() or bool(out.dispatch) or bool(out.moves)
 
     def _release(self, workers: Sequence[Worker], seen: Mapping[str, Seen], out: ChainPlan) -> None:

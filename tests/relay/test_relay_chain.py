@@ -252,6 +252,26 @@ def test_while_a_relay_comes_home_no_other_crosses_the_levels(
         assert (plan.dispatch, plan.home, plan.moves) == ([], [], []), (t, plan)
 
 
+def test_a_relay_unheard_on_its_way_to_its_spot_still_crosses_the_levels() -> None:
+    """A relay lost its link as it climbed out to its spot, and another was sent home
+    across its level, 4.6 m from it (a shared-way world). Unheard, it may be anywhere on
+    its way: while it was last seen off its spot, no other relay goes home."""
+    c = Chains(DUTY)
+    c.reach = Reach(lo=50.0, hi=51.0)
+    w1, w2 = Worker("d1", at(60), 15.0, at(80)), Worker("d2", at(60, 180), 15.0, at(80, 180))
+    views: dict[str, Seen] = {}
+    for k, rid in enumerate(("r1", "r2")):
+        (key, spot, _, _), = c.plan(float(k), [w1, w2], views, spare=5).dispatch
+        c.joined(key, rid)
+        views[rid] = seen(spot)
+    r2_spot = views["r2"].at
+    done = Worker("d1", at(5), 15.0, at(5))
+    views["r2"] = seen(r2_spot, alt=40.0, fresh=False)  # last heard on its way down to its spot
+    assert not any(c.plan(10.0 + k, [done, w2], views, spare=0).home for k in range(5))
+    views["r2"] = seen(r2_spot)  # heard again, on its spot
+    assert c.plan(20.0, [done, w2], views, spare=0).home == ["r1"]
+
+
 def test_a_worker_landed_beyond_the_laptops_hop_keeps_no_relay() -> None:
     """A worker landed at its home 35 m from the laptop, beyond the
     hop (30 m), and its relay stayed on duty until the time limit."""
