@@ -14,7 +14,7 @@ from __future__ import annotations
 import asyncio
 import inspect
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from greenlet import getcurrent
 
@@ -34,6 +34,7 @@ from dronefleet.mission.script.drone import (
     unknowable,
 )
 from dronefleet.mission.script.field_sensors import FieldSensor, field_sensors_of
+from dronefleet.mission.script.host import ScriptHost
 from dronefleet.mission.script.names import VERBS, common_names, near_place
 from dronefleet.mission.script.position import Position
 from dronefleet.mission.script.relaying import Relays
@@ -43,9 +44,6 @@ from dronefleet.mission.script.units import Angle, Distance, Duration, Speed
 from dronefleet.schemas.errors import CommandRejected
 from dronefleet.schemas.geo import angle_diff_deg, normalize_deg
 
-if TYPE_CHECKING:
-    from dronefleet.mission.script.script import ScriptMission
-
 DEFAULT_BUNDLE_TIMEOUT_S = 600.0  # push(timeout=…): how long a bundle may run before the drone gives up
 
 
@@ -54,7 +52,7 @@ class Verbs:
     name (`names.VERBS`), as scripts call it; their signatures are what `fleet mission
     check` holds calls to (mission/script/checks.py)."""
 
-    def __init__(self, mission: ScriptMission) -> None:
+    def __init__(self, mission: ScriptHost) -> None:
         self.m = mission
         self.base: dict[str, Any] = {}  # what a plugin enabled by this mission sees
         self.namespace: dict[str, Any] = {}  # the script's globals
@@ -321,7 +319,7 @@ class Verbs:
         self.m.plugins.disable(plugin_id, self.namespace)
 
 
-def build_namespace(mission: ScriptMission, guards: Guards) -> dict[str, Any]:
+def build_namespace(mission: ScriptHost, guards: Guards) -> dict[str, Any]:
     """The globals one mission script runs with."""
     verbs = Verbs(mission)
     base = common_names(guards)

@@ -39,6 +39,7 @@ from dronefleet.mission.lifecycle.greenlets import Stopped
 from dronefleet.mission.lifecycle.record import SecurityViolation, script_line
 from dronefleet.mission.script import units
 from dronefleet.mission.script.drone import call, guarded, handle
+from dronefleet.mission.script.host import ScriptHost
 from dronefleet.mission.script.names import VERB_NAMES, common_names
 from dronefleet.mission.script.sandbox import Guards, ScriptError, compile_mission
 from dronefleet.schemas.errors import FleetError
@@ -46,7 +47,6 @@ from dronefleet.schemas.errors import FleetError
 if TYPE_CHECKING:
     from dronefleet.mission.lifecycle.greenlets import Subroutine
     from dronefleet.mission.script.drone import Drone
-    from dronefleet.mission.script.script import ScriptMission
 
 log = logging.getLogger(__name__)
 
@@ -364,7 +364,7 @@ class Active:
 class MissionPlugins:
     """The plugins of one mission: enable, disable, monitors that follow its drones."""
 
-    def __init__(self, mission: ScriptMission, library: PluginLibrary | None) -> None:
+    def __init__(self, mission: ScriptHost, library: PluginLibrary | None) -> None:
         self.mission = mission
         self.library = library
         self.active: dict[str, Active] = {}

@@ -14,11 +14,12 @@ from dronefleet.mission.lifecycle.mission import Mission
 from dronefleet.mission.lifecycle.record import MissionLogLine, MissionRecord
 from dronefleet.mission.script.drone import Drone
 from dronefleet.mission.script.dsl import build_namespace
+from dronefleet.mission.script.host import ScriptHost
 from dronefleet.mission.script.plugins import MissionPlugins, PluginLibrary
 from dronefleet.mission.script.sandbox import Guards
 
 
-class ScriptMission(Mission):
+class ScriptMission(ScriptHost):
     def __init__(
         self,
         record: MissionRecord,
@@ -37,7 +38,7 @@ class ScriptMission(Mission):
         self.code = code
         self.seed = seed
         self._wrappers: list[Drone] = []
-        self.plugins = MissionPlugins(self, plugins)
+        self.plugins: MissionPlugins = MissionPlugins(self, plugins)
         self._enable_first = enable or {}
 
     def script_main(self) -> Callable[[], None]:
