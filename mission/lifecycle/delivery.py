@@ -248,6 +248,7 @@ class CommandDelivery:
         if wait:
             self.sent[command_id] = SentCommand(drone_id, name, self.clock.monotonic(), fut)
         sent = self.clock.time_ms()
+        arrived = self._arrival(drone_id, name, body)  # read before it goes: a turn's heading is the one it turns from
         try:
             with self._sending(name, drone_id):
                 payload = json.dumps({**body, "command_id": command_id}).encode()
@@ -257,7 +258,6 @@ class CommandDelivery:
                 if not wait:
                     return None
                 self.sent[command_id].accepted = self.clock.monotonic()
-                arrived = self._arrival(drone_id, name, body)
                 if arrived is not None:
                     status = await self._outcome_or_there(fut, drone_id, command_id, name, arrived)
                 else:
